@@ -78,3 +78,19 @@ def test_configuration_index_is_row_major():
     assert len(seen) == 224
     assert config_from_index(7 * 5 + 3, positions) == (5, 3)
     assert np.ravel_multi_index((31, 6), positions) == 223
+
+
+def test_default_table_is_thesis_sized_and_round_trips():
+    from jaxrecog.hardware.positions import CameraTable, default_table
+
+    table = default_table()
+    assert table.positions == (32, 7)
+    again = CameraTable.from_dict(table.to_dict())
+    assert again.positions == (32, 7)
+    for a, b in zip(table.views[0] + table.views[1], again.views[0] + again.views[1]):
+        assert a.eye == pytest.approx(b.eye, abs=1e-12)
+    # every camera-1 eye sees the object along the planned angles
+    for v in table.views[0]:
+        assert camera1_angles(table.workspace, v.eye[0], v.eye[1]) == pytest.approx(
+            (math.remainder(v.pan, 2 * math.pi), v.tilt), abs=1e-12
+        )
