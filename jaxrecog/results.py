@@ -1,0 +1,157 @@
+"""Per-trial campaign records, a resumable JSON-lines store, and the
+thesis-shaped results table (per object: recognition rate, mean exit
+probability, mean number of views; plus the average)."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+from pathlib import Path
+from typing import Iterable, Sequence
+
+__all__ = ["TrialResult", "TrialStore", "ObjectRow", "summarize", "table_markdown", "table_json"]
+
+
+@dataclasses.dataclass(frozen=True)
+class TrialResult:
+    """One recognition trial.  ``steps`` = number of image sets taken."""
+
+    trial: int
+    object: int
+    pose: int
+    predicted_object: int
+    predicted_pose: int
+    exit_prob: float
+    steps: int
+    stopped: bool  # reached the threshold (True) or the step limit (False)
+    occluded_fraction: tuple[tuple[float, ...], ...] = ()  # per step, per camera
+    configurations: tuple[tuple[int, ...], ...] = ()  # per step
+    object_probs: tuple[tuple[float, ...], ...] = ()  # per step (optional trace)
+
+    @property
+    def correct(self) -> bool:
+        return self.object == self.predicted_object and self.pose == self.predicted_pose
+
+    def to_json(self) -> str:
+        d = dataclasses.asdict(self)
+        d["correct"] = self.correct
+        return json.dumps(d, separators=(",", ":"))
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "TrialResult":
+        fields = {f.name for f in dataclasses.fields(cls)}
+        kw = {k: v for k, v in d.items() if k in fields}
+        for k in ("occluded_fraction", "configurations", "object_probs"):
+            if k in kw:
+                kw[k] = tuple(tuple(x) for x in kw[k])
+        return cls(**kw)
+
+
+class TrialStore:
+    """Append-only JSON-lines file of finished trials, so an interrupted
+    campaign resumes without losing or repeating a trial.
+
+    Each record is written with one ``write`` + ``fsync``; a torn last line (the
+    process died mid-write) is ignored on reading and truncated away before the
+    next append.
+    """
+
+    def __init__(self, path: str | os.PathLike):
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+
+    def load(self) -> dict[int, TrialResult]:
+        out: dict[int, TrialResult] = {}
+        if not self.path.exists():
+            return out
+        good_bytes = 0
+        with open(self.path, "rb") as f:
+            for raw in f:
+                if not raw.endswith(b"\n"):
+                    break  # torn write
+                try:
+                    rec = TrialResult.from_dict(json.loads(raw))
+                except (ValueError, TypeError):
+                    break
+                out[rec.trial] = rec
+                good_bytes += len(raw)
+        if good_bytes != self.path.stat().st_size:
+            with open(self.path, "r+b") as f:
+                f.truncate(good_bytes)
+        return out
+
+    def append(self, result: TrialResult) -> None:
+        line = (result.to_json() + "\n").encode()
+        fd = os.open(self.path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+        try:
+            os.write(fd, line)
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+
+
+@dataclasses.dataclass(frozen=True)
+class ObjectRow:
+    label: str  # "1".."M" (1-based, as the thesis) or "Average"
+    trials: int
+    rate: float  # percent
+    exit_prob: float
+    views: float
+
+
+def summarize(results: Iterable[TrialResult], n_objects: int) -> list[ObjectRow]:
+    """Per-object rows and the average row (mean over objects, as the thesis)."""
+    by_obj: dict[int, list[TrialResult]] = {m: [] for m in range(n_objects)}
+    for r in results:
+        by_obj[r.object].append(r)
+    rows = []
+    for m in range(n_objects):
+        rs = by_obj[m]
+        if rs:
+            rows.append(
+                ObjectRow(
+                    str(m + 1),
+                    len(rs),
+                    100.0 * sum(r.correct for r in rs) / len(rs),
+                    sum(r.exit_prob for r in rs) / len(rs),
+                    sum(r.steps for r in rs) / len(rs),
+                )
+            )
+        else:
+            rows.append(ObjectRow(str(m + 1), 0, math.nan, math.nan, math.nan))
+    filled = [r for r in rows if r.trials]
+    if filled:
+        rows.append(
+            ObjectRow(
+                "Average",
+                sum(r.trials for r in filled),
+                sum(r.rate for r in filled) / len(filled),
+                sum(r.exit_prob for r in filled) / len(filled),
+                sum(r.views for r in filled) / len(filled),
+            )
+        )
+    return rows
+
+
+def table_markdown(rows: Sequence[ObjectRow], title: str = "", reference: Sequence[tuple[float, float, float]] | None = None) -> str:
+    """The thesis-shaped table as Markdown; ``reference`` adds the thesis's
+    (rate, exit prob, views) per row for comparison."""
+    head = "| Object | Trials | Recog. rate (%) | Mean exit prob. | Mean no. of views |"
+    sep = "|---|---:|---:|---:|---:|"
+    if reference is not None:
+        head += " Thesis rate / exit / views |"
+        sep += "---|"
+    lines = ([f"**{title}**", ""] if title else []) + [head, sep]
+    for i, r in enumerate(rows):
+        line = f"| {r.label} | {r.trials} | {r.rate:.1f} | {r.exit_prob:.2f} | {r.views:.2f} |"
+        if reference is not None:
+            ref = reference[i] if i < len(reference) else None
+            line += f" {ref[0]:.1f} / {ref[1]:.2f} / {ref[2]:.1f} |" if ref else " |"
+        lines.append(line)
+    return "\n".join(lines) + "\n"
+
+
+def table_json(rows: Sequence[ObjectRow]) -> list[dict]:
+    return [dataclasses.asdict(r) for r in rows]

@@ -1,0 +1,36 @@
+import json
+
+import pytest
+
+from jaxrecog.results import TrialResult, TrialStore, summarize, table_markdown
+
+
+def _trial(i, obj, ok=True, steps=2, p=0.97):
+    return TrialResult(i, obj, 1, obj if ok else (obj + 1) % 3, 1, p, steps, True, ((0.1, 0.0),) * steps, ((0, 1),) * steps)
+
+
+def test_summary_rows_match_hand_computation():
+    rs = [_trial(0, 0), _trial(1, 0, ok=False, steps=4, p=0.5), _trial(2, 1, steps=1), _trial(3, 2, steps=3)]
+    rows = summarize(rs, 3)
+    assert [r.label for r in rows] == ["1", "2", "3", "Average"]
+    assert rows[0].rate == 50.0 and rows[0].views == 3.0 and rows[0].exit_prob == pytest.approx(0.735)
+    assert rows[1].rate == 100.0 and rows[1].views == 1.0
+    assert rows[3].rate == pytest.approx((50 + 100 + 100) / 3)
+    md = table_markdown(rows, "demo", reference=[(100, 0.9, 2.0)] * 4)
+    assert "| Average | 4 | 83.3 |" in md
+
+
+def test_store_resumes_and_drops_torn_line(tmp_path):
+    store = TrialStore(tmp_path / "t.jsonl")
+    for i in range(3):
+        store.append(_trial(i, i % 3))
+    with open(store.path, "ab") as f:
+        f.write(b'{"trial": 3, "obj')  # a writer died here
+    loaded = store.load()
+    assert sorted(loaded) == [0, 1, 2]
+    assert loaded[1] == _trial(1, 1)
+    store.append(_trial(3, 0))
+    again = store.load()
+    assert sorted(again) == [0, 1, 2, 3]
+    lines = store.path.read_text().splitlines()
+    assert all(json.loads(line)["trial"] == k for k, line in enumerate(lines))
