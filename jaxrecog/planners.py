@@ -1,0 +1,147 @@
+"""View planners: a planner is a value that scores every camera configuration.
+
+Every planner maps the *predicted prior* of the next step (a
+:class:`~jaxrecog.kernels.Belief` whose level rows are per candidate position,
+``[V_i, C, L_i]``, from :func:`~jaxrecog.kernels.transition_per_position`) and
+a key to ``[A]`` scores, higher = better, A = prod_i V_i (row-major).  The
+recognizer takes the argmax; it never branches on the planner's kind.
+
+- :class:`MIPlanner` — Mutual Information I(s; g | a) (thesis eq. 5.3-5.13),
+  or I(c; g | a) with ``target="class"`` (see DESIGN.md §3, "Target").
+- :class:`CRLBPlanner` — minus a criterion of the Cramér-Rao bound J_g(a)^-1
+  (eq. 5.14-5.28): trace (A-optimal, default), log-det (D) or the largest
+  eigenvalue (E).
+- :class:`RandomPlanner` — a uniformly random configuration.
+- :class:`FixedPlanner` — one fixed configuration (the passive baseline).
+
+The single-camera baseline is not a planner: it is a recognizer over a model
+with camera 1 alone (:func:`jaxrecog.recognizer.restrict_cameras`), with any of
+these planners.
+"""
+
+from __future__ import annotations
+
+import math
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import jax.random as jr
+from jaxtyping import Array, Float, PRNGKeyArray
+
+from . import kernels as K
+
+__all__ = [
+    "Planner",
+    "MIPlanner",
+    "CRLBPlanner",
+    "RandomPlanner",
+    "FixedPlanner",
+    "model_arrays",
+    "make_planner",
+]
+
+
+def model_arrays(model):
+    """``(mus, vars, chols)`` per-camera tuples of a :class:`SensorModel`
+    (``vars`` is ``None`` for full covariance, ``chols`` for diagonal)."""
+    mus = tuple(c.mu for c in model.cameras)
+    if model.covariance == "full":
+        return mus, None, tuple(c.chol for c in model.cameras)
+    return mus, tuple(c.var for c in model.cameras), None
+
+
+def _strata(model) -> int:
+    return model.n_objects * model.n_poses * math.prod(len(model.levels) for _ in model.cameras)
+
+
+class Planner(eqx.Module):
+    """Scores all configurations; higher is better."""
+
+    n_configs: int = eqx.field(static=True)
+
+    def scores(self, prior: K.Belief, key: PRNGKeyArray) -> Float[Array, " A"]:
+        raise NotImplementedError
+
+
+class MIPlanner(Planner):
+    """Mutual Information over all configurations in one call (eq. 5.5, 5.10).
+
+    ``levels="belief"`` uses the predicted level distribution of each camera
+    (exact for both transitions); ``levels="uniform"`` uses the thesis's
+    belief-free offline tables (P_i(k|c) = 1/L, eq. 3.9, 5.12-5.13).
+    """
+
+    tables: K.MITables
+    target: str = eqx.field(static=True, default="state")
+    levels: str = eqx.field(static=True, default="belief")
+
+    @classmethod
+    def from_model(cls, model, *, key: PRNGKeyArray, samples: int = 1024, target: str = "state", levels: str = "belief") -> "MIPlanner":
+        """Build the offline sample tables: ``samples`` ≈ samples per configuration
+        (rounded up to a whole number of samples per state stratum)."""
+        mus, vars, chols = model_arrays(model)
+        j = max(1, math.ceil(samples / _strata(model)))
+        store = "uniform" if levels == "uniform" else "full"
+        tables = K.mi_tables(mus, vars, key=key, samples_per_stratum=j, chols=chols, store=store)
+        return cls(math.prod(m.shape[0] for m in mus), tables, target, levels)
+
+    def scores(self, prior, key):
+        del key  # common random numbers live in the tables
+        return K.mutual_information(self.tables, prior, target=self.target, levels=self.levels)
+
+
+class CRLBPlanner(Planner):
+    """Minus the chosen criterion of J_g(a)^-1 (eq. 5.25): smaller bound = better."""
+
+    tables: K.MITables
+    criterion: str = eqx.field(static=True, default="trace")
+    sigma_s: float = eqx.field(static=True, default=K.DEFAULT_SIGMA_S)
+
+    @classmethod
+    def from_model(cls, model, *, key: PRNGKeyArray, samples: int = 1024, criterion: str = "trace", sigma_s: float = K.DEFAULT_SIGMA_S) -> "CRLBPlanner":
+        mus, vars, chols = model_arrays(model)
+        j = max(1, math.ceil(samples / _strata(model)))
+        tables = K.mi_tables(mus, vars, key=key, samples_per_stratum=j, chols=chols, store="full")
+        return cls(math.prod(m.shape[0] for m in mus), tables, criterion, sigma_s)
+
+    def scores(self, prior, key):
+        fisher = K.fisher_information(self.tables, prior, key=key, sigma_s=self.sigma_s)
+        return -K.crlb_criterion(fisher, kind=self.criterion)
+
+
+class RandomPlanner(Planner):
+    """Uniformly random configuration (thesis Table 7.3's baseline)."""
+
+    def scores(self, prior, key):
+        return jr.uniform(key, (self.n_configs,))
+
+
+class FixedPlanner(Planner):
+    """Always the same configuration (passive recognition)."""
+
+    index: int = eqx.field(static=True, default=0)
+
+    def scores(self, prior, key):
+        return jax.nn.one_hot(self.index, self.n_configs)
+
+
+def make_planner(name: str, model, *, key: PRNGKeyArray, samples: int = 1024, **options) -> Planner:
+    """Planner by name: ``mi``, ``mi-class``, ``crlb``, ``crlb-det``,
+    ``crlb-eig``, ``random``, ``fixed``."""
+    n_configs = math.prod(c.mu.shape[0] for c in model.cameras)
+    if name in ("mi", "mi-state"):
+        return MIPlanner.from_model(model, key=key, samples=samples, target="state", **options)
+    if name == "mi-class":
+        return MIPlanner.from_model(model, key=key, samples=samples, target="class", **options)
+    if name in ("crlb", "crlb-trace"):
+        return CRLBPlanner.from_model(model, key=key, samples=samples, criterion="trace", **options)
+    if name == "crlb-det":
+        return CRLBPlanner.from_model(model, key=key, samples=samples, criterion="logdet", **options)
+    if name == "crlb-eig":
+        return CRLBPlanner.from_model(model, key=key, samples=samples, criterion="maxeig", **options)
+    if name == "random":
+        return RandomPlanner(n_configs)
+    if name == "fixed":
+        return FixedPlanner(n_configs, int(options.get("index", 0)))
+    raise ValueError(f"unknown planner {name!r}; choose mi, mi-class, crlb, crlb-det, crlb-eig, random or fixed")

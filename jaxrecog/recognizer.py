@@ -1,0 +1,204 @@
+"""The recognizer: one jitted step a control loop can call.
+
+``Recognizer.step(state, images, key) -> (state, Decision)`` does, with fixed
+shapes and no Python branching on data:
+
+1. features per camera at its current position, g_i = V_iᵀ(y_i/‖y_i‖ − x̄_i)
+   (eq. 4.1-4.11);
+2. Bayes update of the factorised belief with log p(g_i | c, k_i, v_i)
+   (eq. 3.1, 4.17-4.19) — an unusable image (zero energy, NaN) leaves the
+   belief unchanged and sets ``Decision.valid = False``;
+3. the stop test: the best (object, pose) reaches ``p_threshold`` (thesis
+   P_th = 0.95) or ``max_steps`` image sets were taken;
+4. the next configuration: the planner scores all configurations under the
+   predicted prior (transition per candidate position, eq. 3.7-3.9) and the
+   best not yet visited is chosen;
+5. the prior for the next step: the level transition for the cameras that move.
+
+The state carries the *prior* for the images the rig will capture next.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple, Sequence
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import jax.random as jr
+import numpy as np
+from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
+
+from . import kernels as K
+from .planners import Planner, model_arrays
+
+__all__ = ["Recognizer", "RecognizerState", "Decision", "restrict_cameras", "image_features"]
+
+
+class RecognizerState(NamedTuple):
+    """Carried between steps.
+
+    Attributes:
+        prior: belief for the images taken at ``config``.
+        config: ``[n_cameras]`` current position of each camera.
+        steps: image sets taken so far.
+        visited: ``[A]`` configurations already used.
+    """
+
+    prior: K.Belief
+    config: Int[Array, " n"]
+    steps: Int[Array, ""]
+    visited: Bool[Array, " A"]
+
+
+class Decision(NamedTuple):
+    """Per-step diagnostics (not carried).
+
+    Attributes:
+        object, pose: the best (object, pose) after this step's images.
+        probability: its posterior probability.
+        stop: whether to stop (threshold reached or step limit).
+        next_config: ``[n_cameras]`` positions to move to (if not stopping).
+        next_index: the flat configuration index of ``next_config``.
+        scores: ``[A]`` planner scores of all configurations (higher = better).
+        object_probs: ``[M]`` object marginal (summed over poses).
+        class_probs: ``[C]`` (object, pose) marginal.
+        valid: ``False`` if the images could not be used (belief unchanged).
+        posterior: the belief after this step's images.
+    """
+
+    object: Int[Array, ""]
+    pose: Int[Array, ""]
+    probability: Float[Array, ""]
+    stop: Bool[Array, ""]
+    next_config: Int[Array, " n"]
+    next_index: Int[Array, ""]
+    scores: Float[Array, " A"]
+    object_probs: Float[Array, " M"]
+    class_probs: Float[Array, " C"]
+    valid: Bool[Array, ""]
+    posterior: K.Belief
+
+
+def restrict_cameras(model, cameras: Sequence[int]):
+    """The same sensor model over a subset of cameras (e.g. ``(0,)`` for the
+    single-camera baseline)."""
+    cams = tuple(model.cameras[i] for i in cameras)
+    return eqx.tree_at(lambda m: m.cameras, model, cams)
+
+
+def image_features(model, config: Int[Array, " n"], images: Float[Array, "n H W"]):
+    """Eigenspace features per camera (eq. 4.1-4.11) and a validity flag.
+
+    Returns ``(gs, ok)``: a tuple of ``[K]`` vectors and a scalar bool that is
+    ``False`` when some image has no energy or is not finite.
+    """
+    gs = []
+    ok = jnp.asarray(True)
+    for i, cam in enumerate(model.cameras):
+        y = images[i].reshape(-1).astype(cam.mean_image.dtype)
+        energy = jnp.sqrt(jnp.sum(y * y))
+        good = (energy > 0) & jnp.isfinite(energy)
+        y_hat = y / jnp.where(good, energy, 1.0)
+        g = cam.basis[config[i]].T @ (y_hat - cam.mean_image[config[i]])
+        good = good & jnp.all(jnp.isfinite(g))
+        gs.append(jnp.where(good, g, 0.0))
+        ok = ok & good
+    return tuple(gs), ok
+
+
+class Recognizer(eqx.Module):
+    """Sensor model + planner + settings.  ``init`` / ``step`` (see module doc).
+
+    Attributes:
+        model: the :class:`~jaxrecog.sensor_model.SensorModel` (its number of
+            cameras is the recognizer's).
+        planner: any :class:`~jaxrecog.planners.Planner`.
+        p_threshold: stop when the best (object, pose) reaches it (P_th).
+        max_steps: stop after this many image sets (thesis: 7).
+        transition: ``"uniform"`` (thesis, eq. 3.9) or ``"sticky"``.
+        rho: stay probability of the sticky transition.
+        revisit: allow choosing a configuration already used.
+    """
+
+    model: object
+    planner: Planner
+    p_threshold: float = eqx.field(static=True, default=0.95)
+    max_steps: int = eqx.field(static=True, default=7)
+    transition: str = eqx.field(static=True, default="uniform")
+    rho: float = eqx.field(static=True, default=0.9)
+    revisit: bool = eqx.field(static=True, default=False)
+
+    @property
+    def positions(self) -> tuple[int, ...]:
+        return tuple(int(c.mu.shape[0]) for c in self.model.cameras)
+
+    @property
+    def n_configs(self) -> int:
+        return int(np.prod(self.positions))
+
+    def init(self, key: PRNGKeyArray | None = None, config: Sequence[int] | None = None) -> RecognizerState:
+        """Uniform belief (section 3.3) at ``config`` (default: a random
+        configuration drawn from ``key``, or all zeros without a key)."""
+        positions = self.positions
+        if config is None:
+            if key is None:
+                config = (0,) * len(positions)
+            else:
+                a = jr.randint(key, (), 0, self.n_configs)
+                config = jnp.stack(jnp.unravel_index(a, positions)).astype(jnp.int32)
+        config = jnp.asarray(config, jnp.int32)
+        if config.shape != (len(positions),):
+            raise ValueError(f"config must give one position per camera ({len(positions)}), got shape {config.shape}")
+        dtype = self.model.cameras[0].mu.dtype
+        prior = K.uniform_belief(self.model.n_objects * self.model.n_poses, tuple(len(self.model.levels) for _ in positions), dtype=dtype)
+        return RecognizerState(prior, config, jnp.zeros((), jnp.int32), jnp.zeros((self.n_configs,), bool))
+
+    @eqx.filter_jit
+    def step(self, state: RecognizerState, images: Float[Array, "n H W"], key: PRNGKeyArray) -> tuple[RecognizerState, Decision]:
+        """One image set in, the belief updated, the next configuration out."""
+        model = self.model
+        positions = self.positions
+        mus, vars, chols = model_arrays(model)
+        images = jnp.asarray(images)
+        gs, ok = image_features(model, state.config, images)
+        logliks = K.camera_log_likelihoods(gs, state.config, mus, vars, chols)
+        logliks = tuple(jnp.where(ok, ll, jnp.nan) for ll in logliks)
+        posterior, info = K.update_with_info(state.prior, logliks)
+
+        pc = K.class_marginal(posterior)
+        best = jnp.argmax(pc)
+        prob = pc[best]
+        steps = state.steps + 1
+        stop = (prob >= self.p_threshold) | (steps >= self.max_steps)
+
+        here = jnp.ravel_multi_index(tuple(state.config), positions, mode="clip")
+        visited = state.visited.at[here].set(True)
+        predicted = K.transition_per_position(posterior, state.config, positions, kind=self.transition, rho=self.rho)
+        scores = self.planner.scores(predicted, key)
+        scores = jnp.where(jnp.isnan(scores), -jnp.inf, scores)
+        if not self.revisit:
+            masked = jnp.where(visited, -jnp.inf, scores)
+            scores_for_choice = jnp.where(jnp.all(visited), scores, masked)
+        else:
+            scores_for_choice = scores
+        nxt = jnp.argmax(scores_for_choice)
+        next_config = jnp.stack(jnp.unravel_index(nxt, positions)).astype(jnp.int32)
+
+        moved = next_config != state.config
+        next_prior = K.transition(posterior, moved, kind=self.transition, rho=self.rho)
+        new_state = RecognizerState(next_prior, next_config, steps, visited)
+        decision = Decision(
+            object=(best // model.n_poses).astype(jnp.int32),
+            pose=(best % model.n_poses).astype(jnp.int32),
+            probability=prob,
+            stop=stop,
+            next_config=next_config,
+            next_index=nxt.astype(jnp.int32),
+            scores=scores,
+            object_probs=K.object_marginal(posterior, model.n_objects, model.n_poses),
+            class_probs=pc,
+            valid=info.ok & ok,
+            posterior=posterior,
+        )
+        return new_state, decision
