@@ -139,6 +139,9 @@ class HardwareRig:
         except (PTUError, LinkError, CameraError) as e:
             self.close()
             raise RigError(f"cannot open the rig: {e}") from e
+        except BaseException:
+            self.close()
+            raise
         if len(self.ptus) != n:
             raise RigError(f"{len(self.ptus)} pan-tilt units for {n} cameras")
         self.on_reset = on_reset or (lambda o, p, occ: log.info("place object %d in pose %d on the turn-table", o, p))
@@ -268,19 +271,21 @@ class SimulatedHardwareRig(HardwareRig):
             config.table.workspace, faults=s.faults, seed=s.seed, time_scale=s.time_scale
         )
         self.ptu_sims = [PTUSimulator(time_scale=s.time_scale, seed=s.seed + i) for i in range(config.table.n_cameras)]
-        sims: list[Any] = [self.controller_sim, *self.ptu_sims]
+        opened: list[Any] = [self.controller_sim, *self.ptu_sims]
         try:
             c = config.controller
             link = ControllerLink(self.controller_sim.address, timeout=c.timeout_s, retries=c.retries)
+            opened.append(link)
             ptus: list[PTU] = []
             for i, sim in enumerate(self.ptu_sims):
                 ptus.append(PTU(sim.port, timeout=config.ptu(i).timeout_s))
+                opened.append(ptus[-1])
             super().__init__(config, ptus=ptus, link=link, cameras=[])
-        except Exception:
-            for dev in sims:
+        except BaseException:
+            for dev in reversed(opened):
                 dev.close()
             raise
-        self._opened = [*sims, link, *ptus]
+        self._opened = opened
         self.last_occlusion: list[float] = []
 
     def reset(self, object: int, pose: int, occluders: object | None = None) -> None:
