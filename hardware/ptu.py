@@ -208,7 +208,11 @@ class PTU:
             )
         except (serial.SerialException, ValueError, OSError) as e:
             raise PTUConnectionError("open", f"cannot open {self.url!r}: {e}") from e
-        self._handshake()
+        try:
+            self._handshake()
+        except BaseException:
+            self.close()  # a unit that does not answer is not connected; reconnect() retries
+            raise
 
     def reconnect(self) -> None:
         """Close and reopen the port, then initialise the unit again."""

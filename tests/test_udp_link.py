@@ -157,8 +157,9 @@ def test_same_seed_same_faults():
     def run(seed):
         faults = LinkFaults(loss=0.3, duplicate=0.3)
         with ControllerSimulator(faults=faults, seed=seed, time_scale=0.0001) as sim:
-            with ControllerLink(sim.address, timeout=0.04, retries=30, session=1) as link:
-                for i in range(20):
+            # the timeout is far above a move's duration, so only the seeded faults cause resends
+            with ControllerLink(sim.address, timeout=0.08, retries=30, session=1) as link:
+                for i in range(12):
                     link.move(*move_of(i).astuple())
                 time.sleep(0.01)
                 return dict(link.stats)
