@@ -11,8 +11,38 @@ from .kinematics import (
     camera2_position,
 )
 from .rig import Rig, RigError, config_from_index, index_from_config
+from .camera import Camera, CameraError, ImageSequenceCamera, VideoCamera
+from .config import ConfigError, RigConfig, load_config
+from .controller_sim import ControllerSimulator, LinkFaults
+from .hardware_rig import HardwareRig, SimulatedHardwareRig, rig_from_config
+from .ptu import PTU, PTUError, PTUErrorReply, PTUGarbageError, PTULimitError, PTUTimeoutError
+from .ptu_sim import PTUSimulator
+from .udp_link import ControllerLink, ControllerRejected, LinkError, LinkTimeoutError
 
 __all__ = [
+    "Camera",
+    "CameraError",
+    "ConfigError",
+    "ControllerLink",
+    "ControllerRejected",
+    "ControllerSimulator",
+    "HardwareRig",
+    "ImageSequenceCamera",
+    "LinkError",
+    "LinkFaults",
+    "LinkTimeoutError",
+    "PTU",
+    "PTUError",
+    "PTUErrorReply",
+    "PTUGarbageError",
+    "PTULimitError",
+    "PTUSimulator",
+    "PTUTimeoutError",
+    "RigConfig",
+    "SimulatedHardwareRig",
+    "VideoCamera",
+    "load_config",
+    "rig_from_config",
     "Rig",
     "RigError",
     "Workspace",

@@ -1,0 +1,340 @@
+"""The thesis's physical rig behind the ``Rig`` interface, and its simulated twin.
+
+:class:`HardwareRig` (thesis ch. 6):
+
+* ``move(configuration)`` looks up the planner angles of each camera's
+  position in the :class:`.positions.CameraTable`, sends camera-1 pan/tilt,
+  camera-2 pan and the turn-table angle to the motion controller over UDP
+  (:class:`.udp_link.ControllerLink`), waits for ``IN_POSITION`` (the capture
+  signal, §6.6), then points each pan-tilt unit (:class:`.ptu.PTU`) from the
+  *achieved* camera position at the object:
+  ``az = atan2(dx, dy)``, ``el = atan2(dz, hypot(dx, dy))`` with
+  ``d = object - eye``, turned into PTU angles by the mount
+  (:class:`.config.PTUConfig`).
+* ``capture()`` reads one frame per camera (:mod:`.camera`), only after the rig
+  reported in position.
+* ``reset(object, pose)`` turns the turn-table to ``360 deg * pose / n_poses``;
+  placing the object is a person's job on a real rig (``on_reset`` callback).
+
+:class:`SimulatedHardwareRig` runs the same code path against the device
+simulators (:class:`.ptu_sim.PTUSimulator` on ptys,
+:class:`.controller_sim.ControllerSimulator` on 127.0.0.1) and renders each
+camera's image with a renderer (duck-typed like ``SyntheticRig``:
+``reset(object, pose, occluders)`` and ``render_at(camera, eye) -> (uint8 image,
+occluded fraction)``) at the eye position the controller reported, after
+checking that the simulated PTU really points at the object.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from typing import Any, Callable, Protocol, Sequence
+
+import numpy as np
+
+from .camera import CameraError, ImageSequenceCamera, VideoCamera
+from .config import ConfigError, RigConfig, load_config
+from .positions import CameraTable
+from .ptu import PTU, PTUError
+from .rig import RigError
+from .udp_link import ControllerLink, LinkError, MoveResult
+
+__all__ = ["HardwareRig", "SimulatedHardwareRig", "Renderer", "ptu_angles", "line_of_sight", "rig_from_config"]
+
+log = logging.getLogger(__name__)
+
+
+class Renderer(Protocol):
+    def reset(self, object: int, pose: int, occluders: Any = None) -> None: ...
+
+    def render_at(self, camera: int, eye: tuple[float, float, float]) -> tuple[np.ndarray, float]: ...
+
+
+def _wrap_deg(a: float) -> float:
+    return (a + 180.0) % 360.0 - 180.0
+
+
+def ptu_angles(eye: Sequence[float], target: Sequence[float], mount) -> tuple[float, float]:
+    """PTU (pan, tilt) in degrees that point a camera at ``eye`` towards ``target``.
+
+    ``pan = pan_sign * wrap(az - pan_zero)``, ``tilt = el - tilt_zero`` with
+    ``az = atan2(dx, dy)``, ``el = atan2(dz, hypot(dx, dy))``, ``d = target - eye``."""
+    dx, dy, dz = (float(t) - float(e) for t, e in zip(target, eye))
+    az = math.degrees(math.atan2(dx, dy))
+    el = math.degrees(math.atan2(dz, math.hypot(dx, dy)))
+    return mount.pan_sign * _wrap_deg(az - mount.pan_zero_deg), el - mount.tilt_zero_deg
+
+
+def line_of_sight(pan: float, tilt: float, mount) -> np.ndarray:
+    """Unit vector [3] the camera looks along at PTU (pan, tilt) degrees (inverse of :func:`ptu_angles`)."""
+    az = math.radians(mount.pan_sign * pan + mount.pan_zero_deg)
+    el = math.radians(tilt + mount.tilt_zero_deg)
+    return np.array([math.cos(el) * math.sin(az), math.cos(el) * math.cos(az), math.sin(el)])
+
+
+def _check_config(configuration: Sequence[int], positions: tuple[int, ...]) -> tuple[int, ...]:
+    try:
+        cfg = tuple(int(v) for v in configuration)
+    except (TypeError, ValueError) as e:
+        raise RigError(f"configuration {configuration!r} is not a sequence of position indices") from e
+    if len(cfg) != len(positions):
+        raise RigError(f"configuration {cfg} has {len(cfg)} entries; the rig has {len(positions)} cameras")
+    for i, (v, n) in enumerate(zip(cfg, positions)):
+        if not 0 <= v < n:
+            raise RigError(f"camera {i + 1} position {v} is outside 0..{n - 1}")
+    return cfg
+
+
+class HardwareRig:
+    """A real rig (1 or 2 cameras on PTUs, gantry / track / turn-table on a UDP controller).
+
+    Args:
+        config: a :class:`.config.RigConfig` (``load_config("rig.toml")``) or a path.
+        ptus, link, cameras: ready-made devices (built from ``config`` when omitted).
+        on_reset: called as ``on_reset(object, pose, occluders)`` before the
+            turn-table turns (default: log a request to place the object).
+    """
+
+    def __init__(
+        self,
+        config: RigConfig | str,
+        *,
+        ptus: Sequence[PTU] | None = None,
+        link: ControllerLink | None = None,
+        cameras: Sequence[Any] | None = None,
+        on_reset: Callable[[int, int, Any], None] | None = None,
+    ):
+        if not isinstance(config, RigConfig):
+            config = load_config(config)
+        self.config = config
+        self.table: CameraTable = config.table
+        n = self.table.n_cameras
+        self._opened: list[Any] = []
+        try:
+            if link is None:
+                c = config.controller
+                link = ControllerLink((c.host, c.port), timeout=c.timeout_s, retries=c.retries)
+                self._opened.append(link)
+            self.link = link
+            if ptus is None:
+                ptus = []
+                for i in range(n):
+                    p = config.ptu(i)
+                    unit = PTU(p.port, baudrate=p.baudrate, timeout=p.timeout_s)
+                    self._opened.append(unit)
+                    ptus.append(unit)
+            self.ptus = list(ptus)
+            for i, (unit, p) in enumerate(zip(self.ptus, (config.ptu(i) for i in range(n)))):
+                if p.speed_deg_s is not None:
+                    unit.set_speed(p.speed_deg_s, p.speed_deg_s)
+            if cameras is None:
+                cameras = []
+                for c in config.cameras:
+                    cls = VideoCamera if c.kind == "video" else ImageSequenceCamera
+                    cam = cls(c.source, image_shape=config.image_shape, retries=c.retries, black_level=c.black_level)
+                    self._opened.append(cam)
+                    cameras.append(cam)
+            self.cameras = list(cameras)
+        except (PTUError, LinkError, CameraError) as e:
+            self.close()
+            raise RigError(f"cannot open the rig: {e}") from e
+        except BaseException:
+            self.close()
+            raise
+        if len(self.ptus) != n:
+            raise RigError(f"{len(self.ptus)} pan-tilt units for {n} cameras")
+        self.on_reset = on_reset or (lambda o, p, occ: log.info("place object %d in pose %d on the turn-table", o, p))
+        self._turntable = 0.0
+        self._configuration: tuple[int, ...] | None = None
+        self.in_position = False
+        self.last_move: MoveResult | None = None
+        self.eyes: list[tuple[float, float, float]] = []
+
+    # ------------------------------------------------------------ Rig
+    @property
+    def positions(self) -> tuple[int, ...]:
+        return self.table.positions
+
+    @property
+    def image_shape(self) -> tuple[int, int]:
+        return self.config.image_shape
+
+    def reset(self, object: int, pose: int, occluders: object | None = None) -> None:
+        """Ask for ``object`` to be placed, turn the turn-table to pose ``pose``, re-point the cameras."""
+        n = self.config.n_poses
+        if not (isinstance(pose, (int, np.integer)) and 0 <= pose < n):
+            raise RigError(f"pose {pose!r} is outside 0..{n - 1}")
+        if not isinstance(object, (int, np.integer)) or object < 0:
+            raise RigError(f"object {object!r} must be a non-negative integer")
+        self.on_reset(int(object), int(pose), occluders)
+        self._turntable = 2.0 * math.pi * int(pose) / n
+        self.move(self._configuration or (0,) * self.table.n_cameras)
+
+    def move(self, configuration: Sequence[int]) -> None:
+        """UDP move of the planner angles, wait for in-position, then point the PTUs."""
+        cfg = _check_config(configuration, self.positions)
+        self.in_position = False
+        views = [self.table.views[i][v] for i, v in enumerate(cfg)]
+        cam2_pan = views[1].pan if len(views) > 1 else 0.0
+        try:
+            res = self.link.move(views[0].pan, views[0].tilt, cam2_pan, self._turntable)
+        except LinkError as e:
+            raise RigError(f"motion controller: move to configuration {cfg} failed: {e}") from e
+        ws = self.table.workspace
+        eyes = [(res.gantry_xy[0], res.gantry_xy[1], ws.cam1_z), (ws.cam2_x, res.track_y, ws.cam2_z)]
+        self.eyes = eyes[: len(cfg)]
+        i = 0
+        try:
+            starts = []
+            for i, unit in enumerate(self.ptus):
+                pan, tilt = ptu_angles(self.eyes[i], ws.object_xyz, self.config.ptu(i))
+                starts.append(unit.target)
+                unit.move_to(pan, tilt, wait=False)  # all units move at once ...
+            for i, (unit, start) in enumerate(zip(self.ptus, starts)):
+                unit.await_motion(start)  # ... then wait for each
+        except PTUError as e:
+            raise RigError(f"pan-tilt unit of camera {i + 1}: {e}") from e
+        self.last_move = res
+        self._configuration = cfg
+        self.in_position = True
+
+    def capture(self) -> list[np.ndarray]:
+        """One ``uint8 [H, W]`` image per camera, camera 1 first."""
+        if not self.in_position:
+            raise RigError("capture() before the rig reported in position: call move() first")
+        images = []
+        for i, cam in enumerate(self.cameras):
+            try:
+                images.append(self._checked_image(i, cam.read()))
+            except CameraError as e:
+                raise RigError(f"camera {i + 1}: {e}") from e
+        return images
+
+    def _checked_image(self, i: int, img: np.ndarray) -> np.ndarray:
+        if not isinstance(img, np.ndarray) or img.dtype != np.uint8 or img.shape != self.image_shape:
+            raise RigError(
+                f"camera {i + 1} delivered {getattr(img, 'dtype', type(img))} {getattr(img, 'shape', '')};"
+                f" expected uint8 {self.image_shape}"
+            )
+        return img
+
+    def close(self) -> None:
+        for dev in reversed(self._opened):
+            try:
+                dev.close()
+            except Exception:  # noqa: BLE001 - closing must not mask the original error
+                pass
+        self._opened = []
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+class SimulatedHardwareRig(HardwareRig):
+    """The hardware code path closed around the device simulators and a renderer.
+
+    Args:
+        renderer: ``reset(object, pose, occluders)`` and ``render_at(camera, eye)``
+            (``SyntheticRig`` or a test double).
+        config: a :class:`RigConfig` (``kind = "simulated"``), a path, or ``None``
+            for the default table and mounts without faults.
+        ptu_time_scale: wall seconds per simulated PTU second.
+        pointing_tolerance_deg: largest angle allowed between a PTU's line of
+            sight (queried from the simulator) and the direction to the object.
+    """
+
+    def __init__(
+        self,
+        renderer: Renderer,
+        config: RigConfig | str | None = None,
+        *,
+        pointing_tolerance_deg: float = 0.5,
+    ):
+        from .controller_sim import ControllerSimulator
+        from .positions import default_table
+        from .ptu_sim import PTUSimulator
+
+        if config is None:
+            config = RigConfig("simulated", default_table())
+        elif not isinstance(config, RigConfig):
+            config = load_config(config)
+        if config.kind != "simulated":
+            raise ConfigError(f"SimulatedHardwareRig needs kind = 'simulated', got {config.kind!r}")
+        s = config.simulation
+        self.renderer = renderer
+        self.pointing_tolerance_deg = float(pointing_tolerance_deg)
+        self.controller_sim = ControllerSimulator(
+            config.table.workspace, faults=s.faults, seed=s.seed, time_scale=s.time_scale
+        )
+        self.ptu_sims = [PTUSimulator(time_scale=s.time_scale, seed=s.seed + i) for i in range(config.table.n_cameras)]
+        opened: list[Any] = [self.controller_sim, *self.ptu_sims]
+        try:
+            c = config.controller
+            link = ControllerLink(self.controller_sim.address, timeout=c.timeout_s, retries=c.retries)
+            opened.append(link)
+            ptus: list[PTU] = []
+            for i, sim in enumerate(self.ptu_sims):
+                ptus.append(PTU(sim.port, timeout=config.ptu(i).timeout_s))
+                opened.append(ptus[-1])
+            super().__init__(config, ptus=ptus, link=link, cameras=[])
+        except BaseException:
+            for dev in reversed(opened):
+                dev.close()
+            raise
+        self._opened = opened
+        self.last_occlusion: list[float] = []
+
+    def reset(self, object: int, pose: int, occluders: object | None = None) -> None:
+        """Turn the simulated turn-table, then reset the scene to the pose it *reports*."""
+        super().reset(object, pose, occluders)
+        assert self.last_move is not None
+        step = 2.0 * math.pi / self.config.n_poses
+        reported = self.last_move.turntable
+        got = int(round(reported / step)) % self.config.n_poses
+        if abs(math.remainder(reported - pose * step, 2.0 * math.pi)) > math.radians(0.5):
+            raise RigError(f"turn-table reports {math.degrees(reported):.3f} deg for pose {pose}")
+        self.renderer.reset(object, got, occluders)
+
+    def capture(self) -> list[np.ndarray]:
+        """Render each camera at the eye the controller reported, once its PTU points at the object."""
+        if not self.in_position:
+            raise RigError("capture() before the rig reported in position: call move() first")
+        ws = self.table.workspace
+        images, occl = [], []
+        for i, unit in enumerate(self.ptus):
+            eye = self.eyes[i]
+            try:
+                pan, tilt = unit.position()
+            except PTUError as e:
+                raise RigError(f"pan-tilt unit of camera {i + 1}: {e}") from e
+            want = np.asarray(ws.object_xyz, float) - np.asarray(eye, float)
+            want /= np.linalg.norm(want)
+            have = line_of_sight(pan, tilt, self.config.ptu(i))
+            err = math.degrees(math.acos(float(np.clip(want @ have, -1.0, 1.0))))
+            if err > self.pointing_tolerance_deg:
+                raise RigError(f"camera {i + 1} points {err:.2f} deg away from the object (PTU at {pan:.3f}, {tilt:.3f} deg)")
+            img, frac = self.renderer.render_at(i, eye)
+            images.append(self._checked_image(i, img))
+            occl.append(float(frac))
+        self.last_occlusion = occl
+        return images
+
+
+def rig_from_config(config: RigConfig | str, renderer: Renderer | None = None) -> HardwareRig:
+    """Build the rig a TOML file describes: ``HardwareRig`` or ``SimulatedHardwareRig``.
+
+    For a simulated rig without ``renderer`` this imports ``.synthetic.SyntheticRig``
+    (pybullet) and renders with ``SyntheticRig(config.table)``."""
+    if not isinstance(config, RigConfig):
+        config = load_config(config)
+    if config.kind == "hardware":
+        return HardwareRig(config)
+    if renderer is None:
+        from .synthetic import SyntheticRig  # deferred: pybullet is heavy and optional
+
+        renderer = SyntheticRig(config.table)
+    return SimulatedHardwareRig(renderer, config)

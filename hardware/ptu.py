@@ -1,0 +1,456 @@
+"""Driver for Directed Perception PTU-D46 pan-tilt units (thesis §6.4) over a serial line.
+
+The unit speaks an ASCII command protocol: a command is a few letters, an
+optional signed integer argument, and a delimiter (space, CR or LF).  With
+echo off (``ED``) and terse feedback (``FT``) every command is answered by one
+line ending in CR LF:
+
+* ``*``               -- an action succeeded (``PP1000``, ``A``, ``I``, ...)
+* ``* <number>``      -- the answer to a query (``PP`` -> ``* 1000``,
+  ``PR`` -> ``* 185.1428``)
+* ``! <message>``     -- an error (``! Maximum allowable Pan position is 3090``)
+
+Commands used here (pan ``P`` / tilt ``T``):
+
+=========  ==============================================================
+``PP n``   absolute position (positions); ``PP`` alone queries it
+``PO n``   offset from the current target
+``PS n``   speed in positions/s; ``PS`` alone queries it
+``PR``     resolution query, arc-seconds per position (185.1428 on -17.5)
+``PN PX``  minimum / maximum position query (``TN TX`` for tilt)
+``PU``     upper speed limit query (positions/s)
+``A``      await: answers once every commanded motion has finished
+``I S``    immediate / slaved execution of position commands
+``FT ED``  terse feedback / echo off (sent on connect)
+``R``      reset (re-calibrates; answers ``!T!T!P!P*`` or similar, then ``*``)
+=========  ==============================================================
+
+Angles in this module's public API are **degrees**; the unit works in
+**positions**, ``positions = round(degrees * 3600 / resolution_arcsec)``.
+Limits are queried from the unit on connect and checked before sending.
+
+Every failure is a :class:`PTUError` naming the command: a missing reply is a
+:class:`PTUTimeoutError`, a ``!`` reply is a :class:`PTUErrorReply`, anything
+else (noise, malformed numbers, non-ASCII bytes) is a :class:`PTUGarbageError`.
+After any of them the input buffer is drained and flushed, so the next command
+starts on a clean line.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import re
+import time
+
+import serial
+
+__all__ = [
+    "PTU",
+    "PTUError",
+    "PTUTimeoutError",
+    "PTUErrorReply",
+    "PTUGarbageError",
+    "PTULimitError",
+    "PTUConnectionError",
+    "PTULimits",
+    "parse_reply",
+    "ARCSEC_PER_POSITION_D46_17_5",
+]
+
+#: Nominal resolution of the PTU-D46-17.5 (thesis §6.4: 3.086 arc-minutes); the
+#: driver always queries the unit instead of trusting this number.
+ARCSEC_PER_POSITION_D46_17_5 = 185.1428
+
+
+class PTUError(RuntimeError):
+    """Base class of every PTU failure; ``command`` is the command that failed."""
+
+    def __init__(self, command: str, message: str):
+        self.command = command
+        super().__init__(f"PTU command {command!r}: {message}")
+
+
+class PTUTimeoutError(PTUError):
+    """No complete reply line arrived within the timeout."""
+
+
+class PTUErrorReply(PTUError):
+    """The unit answered ``!`` (it refused or failed the command)."""
+
+    def __init__(self, command: str, reply: str):
+        self.reply = reply
+        super().__init__(command, f"unit reported an error: {reply!r}")
+
+
+class PTUGarbageError(PTUError):
+    """The reply was neither a valid ``*`` answer nor a ``!`` error."""
+
+    def __init__(self, command: str, reply: bytes, why: str):
+        self.reply = reply
+        super().__init__(command, f"{why}; got {reply[:80]!r}")
+
+
+class PTULimitError(PTUError, ValueError):
+    """A requested position or speed lies outside the unit's limits (checked before sending)."""
+
+
+class PTUConnectionError(PTUError):
+    """The serial port could not be opened, read or written."""
+
+
+_NUMBER = {
+    "int": re.compile(rb"\*[ \t]*([+-]?[0-9]{1,12})"),
+    "float": re.compile(rb"\*[ \t]*([+-]?[0-9]{1,12}(?:\.[0-9]{1,12})?)"),
+}
+_ERROR_LINE = re.compile(rb"![ \t]*[\x20-\x7e]*")
+_RESET_LINE = re.compile(rb"(?:![PT])*\*")
+
+
+def parse_reply(command: str, line: bytes, expect: str) -> int | float | None:
+    """Parse one reply line (terse feedback, echo off) strictly.
+
+    Args:
+        command: the command sent (for error messages).
+        line: the reply, with or without its trailing CR LF.
+        expect: ``"ack"`` (exactly ``*``), ``"int"`` / ``"float"`` (``* <number>``)
+            or ``"reset"`` (``!T``/``!P`` limit markers, then ``*``).
+
+    Returns:
+        ``None`` for ``ack`` and ``reset``, the number otherwise.
+
+    Raises:
+        PTUErrorReply: the line is a well-formed ``!`` error.
+        PTUGarbageError: anything else that is not the expected answer.
+    """
+    if expect not in ("ack", "int", "float", "reset"):
+        raise ValueError(f"expect must be 'ack', 'int', 'float' or 'reset', not {expect!r}")
+    body = line[:-2] if line.endswith(b"\r\n") else line.rstrip(b"\r\n")
+    body = body.rstrip(b" ")
+    if expect == "reset":
+        if _RESET_LINE.fullmatch(body):
+            return None
+    if body.startswith(b"!"):
+        if _ERROR_LINE.fullmatch(body):
+            raise PTUErrorReply(command, body.decode("ascii"))
+        raise PTUGarbageError(command, line, "malformed error reply (non-printable bytes)")
+    if expect == "ack":
+        if body == b"*":
+            return None
+        raise PTUGarbageError(command, line, "expected '*'")
+    if expect == "reset":
+        raise PTUGarbageError(command, line, "expected '!T'/'!P' markers and '*'")
+    m = _NUMBER[expect].fullmatch(body)
+    if m is None:
+        raise PTUGarbageError(command, line, f"expected '* <{expect}>'")
+    value = int(m.group(1)) if expect == "int" else float(m.group(1))
+    return value
+
+
+@dataclasses.dataclass(frozen=True)
+class PTULimits:
+    """Limits queried from the unit, in positions (speeds in positions/s)."""
+
+    pan: tuple[int, int]
+    tilt: tuple[int, int]
+    pan_speed_max: int
+    tilt_speed_max: int
+
+
+class PTU:
+    """One pan-tilt unit on a serial port (any URL ``serial.serial_for_url`` takes).
+
+    Args:
+        url: ``/dev/ttyUSB0``, ``/dev/pts/5``, ``spy:///dev/ttyUSB0``, ``rfc2217://...``, ...
+        baudrate: 9600 (8N1) is the unit's factory default.
+        timeout: seconds to wait for one reply line.
+        await_margin: extra seconds allowed for ``A`` on top of the motion time
+            estimated from distance / speed.
+        connect: open and initialise now (``ED``, ``FT``, ``I``, resolution and
+            limit queries).
+    """
+
+    def __init__(
+        self,
+        url: str,
+        *,
+        baudrate: int = 9600,
+        timeout: float = 0.5,
+        await_margin: float = 2.0,
+        connect: bool = True,
+    ):
+        if timeout <= 0:
+            raise ValueError(f"timeout must be > 0 seconds, got {timeout}")
+        self.url = url
+        self.baudrate = int(baudrate)
+        self.timeout = float(timeout)
+        self.await_margin = float(await_margin)
+        self._ser: serial.SerialBase | None = None
+        self.resolution_arcsec: tuple[float, float] | None = None
+        self.limits: PTULimits | None = None
+        self._speed: tuple[int, int] = (0, 0)
+        self._target: tuple[int, int] = (0, 0)
+        if connect:
+            self.connect()
+
+    # ------------------------------------------------------------ connection
+    def connect(self) -> None:
+        """Open the port and initialise the unit (echo off, terse, immediate mode, queries)."""
+        try:
+            self._ser = serial.serial_for_url(
+                self.url,
+                baudrate=self.baudrate,
+                bytesize=serial.EIGHTBITS,
+                parity=serial.PARITY_NONE,
+                stopbits=serial.STOPBITS_ONE,
+                timeout=self.timeout,
+                write_timeout=self.timeout,
+            )
+        except (serial.SerialException, ValueError, OSError) as e:
+            raise PTUConnectionError("open", f"cannot open {self.url!r}: {e}") from e
+        try:
+            self._handshake()
+        except BaseException:
+            self.close()  # a unit that does not answer is not connected; reconnect() retries
+            raise
+
+    def reconnect(self) -> None:
+        """Close and reopen the port, then initialise the unit again."""
+        self.close()
+        self.connect()
+
+    def close(self) -> None:
+        if self._ser is not None:
+            try:
+                self._ser.close()
+            except (serial.SerialException, OSError):
+                pass
+            self._ser = None
+
+    def __enter__(self) -> "PTU":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def _handshake(self) -> None:
+        # At power-up the unit echoes input and answers verbosely; the replies to
+        # these two mode switches are therefore accepted leniently (a '*' somewhere).
+        self._drain()
+        for cmd in ("ED", "FT"):
+            line = self._exchange(cmd)
+            if b"*" not in line:
+                self._recover()
+                if line.lstrip().startswith(b"!"):
+                    raise PTUErrorReply(cmd, line.decode("ascii", "replace").strip())
+                raise PTUGarbageError(cmd, line, "expected a '*' acknowledgement")
+        self.command("I")
+        self.resolution_arcsec = (self.query_float("PR"), self.query_float("TR"))
+        for axis, r in zip("PT", self.resolution_arcsec):
+            if not (0.0 < r < 3600.0 * 10):
+                raise PTUGarbageError(f"{axis}R", str(r).encode(), "implausible resolution")
+        pan = (self.query_int("PN"), self.query_int("PX"))
+        tilt = (self.query_int("TN"), self.query_int("TX"))
+        for name, (lo, hi) in (("pan", pan), ("tilt", tilt)):
+            if lo >= hi:
+                raise PTUGarbageError(name, f"{lo} {hi}".encode(), "minimum limit not below maximum")
+        self.limits = PTULimits(pan, tilt, self.query_int("PU"), self.query_int("TU"))
+        self._speed = (self.query_int("PS"), self.query_int("TS"))
+        self._target = (self.query_int("PP"), self.query_int("TP"))
+
+    # ------------------------------------------------------------ raw I/O
+    def _port(self, command: str) -> serial.SerialBase:
+        if self._ser is None:
+            raise PTUConnectionError(command, f"port {self.url!r} is not open (call reconnect())")
+        return self._ser
+
+    def _drain(self, quiet: float = 0.02, longest: float = 0.2) -> None:
+        """Read and discard input until the line has been quiet for ``quiet`` seconds."""
+        ser = self._ser
+        if ser is None:
+            return
+        old = ser.timeout
+        try:
+            ser.timeout = quiet
+            end = time.monotonic() + longest
+            while time.monotonic() < end:
+                if not ser.read(max(1, ser.in_waiting)):
+                    break
+            ser.reset_input_buffer()
+        except (serial.SerialException, OSError):
+            pass
+        finally:
+            try:
+                ser.timeout = old
+            except (serial.SerialException, OSError):
+                pass
+
+    def _recover(self) -> None:
+        self._drain()
+
+    def _exchange(self, command: str, timeout: float | None = None) -> bytes:
+        """Send ``command`` and return one raw reply line (with CR LF)."""
+        ser = self._port(command)
+        try:
+            ser.write(command.encode("ascii") + b" ")
+            ser.flush()
+            if timeout is not None:
+                ser.timeout = timeout
+            line = ser.read_until(b"\n", 256)
+        except (serial.SerialException, OSError) as e:
+            raise PTUConnectionError(command, f"serial I/O failed on {self.url!r}: {e}") from e
+        finally:
+            if timeout is not None and self._ser is not None:
+                try:
+                    self._ser.timeout = self.timeout
+                except (serial.SerialException, OSError):
+                    pass
+        if not line.endswith(b"\n"):
+            self._recover()
+            wait = self.timeout if timeout is None else timeout
+            raise PTUTimeoutError(command, f"no complete reply within {wait:.3g} s (got {line[:40]!r})")
+        return line
+
+    def _checked(self, command: str, expect: str, timeout: float | None = None):
+        line = self._exchange(command, timeout)
+        try:
+            return parse_reply(command, line, expect)
+        except PTUError:
+            self._recover()
+            raise
+
+    def command(self, command: str, timeout: float | None = None) -> None:
+        """Send an action command and require the ``*`` acknowledgement."""
+        self._checked(command, "ack", timeout)
+
+    def query_int(self, command: str) -> int:
+        return self._checked(command, "int")
+
+    def query_float(self, command: str) -> float:
+        return self._checked(command, "float")
+
+    # ------------------------------------------------------------ units
+    def _res(self, axis: str) -> float:
+        if self.resolution_arcsec is None:
+            raise PTUConnectionError(f"{axis}R", "resolution unknown: the unit was never initialised")
+        return self.resolution_arcsec[0 if axis == "P" else 1]
+
+    def to_positions(self, axis: str, degrees: float) -> int:
+        """Degrees -> positions (rounded), checked against the queried limits."""
+        if axis not in ("P", "T"):
+            raise ValueError(f"axis must be 'P' or 'T', not {axis!r}")
+        if not math.isfinite(degrees):
+            raise PTULimitError(f"{axis}P", f"angle {degrees!r} is not finite")
+        pos = int(round(degrees * 3600.0 / self._res(axis)))
+        self._check_position(axis, pos, degrees)
+        return pos
+
+    def to_degrees(self, axis: str, positions: int) -> float:
+        return positions * self._res(axis) / 3600.0
+
+    def _check_position(self, axis: str, pos: int, degrees: float | None = None) -> None:
+        assert self.limits is not None
+        lo, hi = self.limits.pan if axis == "P" else self.limits.tilt
+        if not lo <= pos <= hi:
+            what = f"{degrees:.4f} deg = " if degrees is not None else ""
+            name = "pan" if axis == "P" else "tilt"
+            raise PTULimitError(
+                f"{axis}P{pos}",
+                f"{name} {what}{pos} positions is outside the unit's limits [{lo}, {hi}]"
+                f" = [{self.to_degrees(axis, lo):.3f}, {self.to_degrees(axis, hi):.3f}] deg",
+            )
+
+    # ------------------------------------------------------------ motion
+    def move_to(self, pan: float | None = None, tilt: float | None = None, *, wait: bool = True) -> None:
+        """Absolute move (``PP`` / ``TP``) to ``pan`` / ``tilt`` degrees; both checked before either is sent."""
+        cmds = []
+        target = list(self._target)
+        for i, (axis, deg) in enumerate((("P", pan), ("T", tilt))):
+            if deg is not None:
+                pos = self.to_positions(axis, deg)
+                cmds.append(f"{axis}P{pos}")
+                target[i] = pos
+        self._send_moves(cmds, tuple(target), wait)
+
+    def move_by(self, pan: float = 0.0, tilt: float = 0.0, *, wait: bool = True) -> None:
+        """Relative move (``PO`` / ``TO``) by ``pan`` / ``tilt`` degrees from the current target."""
+        cmds = []
+        target = list(self._target)
+        for i, (axis, deg) in enumerate((("P", pan), ("T", tilt))):
+            if deg:
+                if not math.isfinite(deg):
+                    raise PTULimitError(f"{axis}O", f"offset {deg!r} is not finite")
+                off = int(round(deg * 3600.0 / self._res(axis)))
+                self._check_position(axis, target[i] + off)
+                cmds.append(f"{axis}O{off}")
+                target[i] += off
+        self._send_moves(cmds, tuple(target), wait)
+
+    def _send_moves(self, cmds: list[str], target: tuple[int, int], wait: bool) -> None:
+        start = self._target
+        for c in cmds:
+            self.command(c)
+        self._target = target
+        if wait:
+            self.await_motion(start)
+
+    @property
+    def target(self) -> tuple[int, int]:
+        """The last commanded (pan, tilt) in positions (where the unit is heading)."""
+        return self._target
+
+    def await_motion(self, start: tuple[int, int] | None = None) -> None:
+        """``A``: block until the unit reports that every motion has finished.
+
+        The reply may take as long as the motion, so the timeout is the estimated
+        motion time (distance / speed from ``start``) plus ``await_margin``."""
+        est = 0.0
+        if start is not None:
+            for i in range(2):
+                speed = max(self._speed[i], 1)
+                est = max(est, abs(self._target[i] - start[i]) / speed)
+        self.command("A", timeout=self.timeout + est + self.await_margin)
+
+    def position(self) -> tuple[float, float]:
+        """Current (pan, tilt) in degrees, queried (``PP``, ``TP``)."""
+        p, t = self.position_counts()
+        return self.to_degrees("P", p), self.to_degrees("T", t)
+
+    def position_counts(self) -> tuple[int, int]:
+        return self.query_int("PP"), self.query_int("TP")
+
+    def set_speed(self, pan: float | None = None, tilt: float | None = None) -> None:
+        """Set the speed (``PS`` / ``TS``) in degrees/s, checked against ``PU`` / ``TU``."""
+        assert self.limits is not None
+        speed = list(self._speed)
+        for i, (axis, dps) in enumerate((("P", pan), ("T", tilt))):
+            if dps is None:
+                continue
+            top = self.limits.pan_speed_max if axis == "P" else self.limits.tilt_speed_max
+            pos = int(round(dps * 3600.0 / self._res(axis))) if math.isfinite(dps) else -1
+            if not 1 <= pos <= top:
+                raise PTULimitError(
+                    f"{axis}S{pos}",
+                    f"speed {dps!r} deg/s = {pos} positions/s is outside [1, {top}]",
+                )
+            self.command(f"{axis}S{pos}")
+            speed[i] = pos
+        self._speed = (speed[0], speed[1])
+
+    def speed(self) -> tuple[float, float]:
+        """Current speeds (pan, tilt) in degrees/s, queried (``PS``, ``TS``)."""
+        p, t = self.query_int("PS"), self.query_int("TS")
+        self._speed = (p, t)
+        return self.to_degrees("P", p), self.to_degrees("T", t)
+
+    def set_mode(self, mode: str) -> None:
+        """``"immediate"`` (``I``) or ``"slaved"`` (``S``: moves start at the next ``A``)."""
+        cmds = {"immediate": "I", "slaved": "S"}
+        if mode not in cmds:
+            raise ValueError(f"mode must be 'immediate' or 'slaved', not {mode!r}")
+        self.command(cmds[mode])
+
+    def reset(self, timeout: float = 30.0) -> None:
+        """``R``: recalibrate (the unit sweeps to its limits and back to 0, 0)."""
+        self._checked("R", "reset", timeout)
+        self._target = (0, 0)

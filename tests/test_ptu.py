@@ -1,0 +1,258 @@
+"""PTU-D46 driver against the pty simulator: round trips, limits, speed, faults, parser fuzz."""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from jaxrecog.hardware.ptu import (
+    PTU,
+    PTUConnectionError,
+    PTUError,
+    PTUErrorReply,
+    PTUGarbageError,
+    PTULimitError,
+    PTUTimeoutError,
+    parse_reply,
+)
+from jaxrecog.hardware.ptu_sim import PTUSimulator
+
+TIME_SCALE = 0.002
+
+
+@pytest.fixture
+def sim():
+    with PTUSimulator(time_scale=TIME_SCALE, seed=3) as s:
+        yield s
+
+
+@pytest.fixture
+def ptu(sim):
+    with PTU(sim.port, timeout=0.15, await_margin=0.5) as p:
+        yield p
+
+
+def deg(positions: float, res: float = 185.1428) -> float:
+    return positions * res / 3600.0
+
+
+def test_connect_switches_unit_to_terse_no_echo_and_queries(sim, ptu):
+    # the simulator powers up echoing and verbose, like the unit; the handshake fixes both
+    assert not sim.echo and sim.terse
+    assert ptu.resolution_arcsec == (185.1428, 185.1428)
+    assert ptu.limits.pan == (-3090, 3090) and ptu.limits.tilt == (-907, 604)
+    assert ptu.limits.pan_speed_max == 5833
+    assert {"PR", "TR", "PN", "PX", "TN", "TX"} <= set(sim.log)
+
+
+def test_resolution_is_queried_not_assumed():
+    with PTUSimulator(resolution_arcsec=(92.5714, 46.2857), time_scale=TIME_SCALE) as sim:
+        with PTU(sim.port, timeout=0.15) as ptu:
+            ptu.move_to(10.0, -5.0)
+            assert sim.axes["P"].target == round(10.0 * 3600 / 92.5714)
+            assert sim.axes["T"].target == round(-5.0 * 3600 / 46.2857)
+
+
+@pytest.mark.parametrize("pan,tilt", [(0.0, 0.0), (90.0, -30.0), (-158.9, 31.0), (12.345, -46.6), (-0.03, 0.02)])
+def test_move_round_trip(sim, ptu, pan, tilt):
+    ptu.move_to(pan, tilt)
+    p_pos, t_pos = round(pan * 3600 / 185.1428), round(tilt * 3600 / 185.1428)
+    assert (sim.axes["P"].target, sim.axes["T"].target) == (p_pos, t_pos)
+    assert sim.position() == (p_pos, t_pos)  # A returned only once the motors arrived
+    got = ptu.position()
+    assert got == pytest.approx((deg(p_pos), deg(t_pos)), abs=1e-12)
+    assert abs(got[0] - pan) <= deg(0.5) + 1e-12 and abs(got[1] - tilt) <= deg(0.5) + 1e-12
+
+
+def test_await_takes_the_motion_time(sim, ptu):
+    ptu.set_speed(pan=deg(500))  # 500 positions/s
+    t0 = time.monotonic()
+    ptu.move_to(pan=deg(2000))  # 2000 positions -> 4 simulated seconds
+    wall = time.monotonic() - t0
+    assert wall >= 4.0 * TIME_SCALE * 0.9
+    assert sim.position()[0] == 2000
+
+
+def test_offset_move(sim, ptu):
+    ptu.move_to(10.0, 5.0)
+    ptu.move_by(-3.0, 2.0)
+    assert sim.axes["P"].target == round(10.0 * 3600 / 185.1428) + round(-3.0 * 3600 / 185.1428)
+    assert sim.axes["T"].target == round(5.0 * 3600 / 185.1428) + round(2.0 * 3600 / 185.1428)
+    assert any(c.startswith("PO") for c in sim.log) and any(c.startswith("TO") for c in sim.log)
+    with pytest.raises(PTULimitError):
+        ptu.move_by(pan=200.0)
+
+
+def test_speed_round_trip(sim, ptu):
+    ptu.set_speed(50.0, 20.0)
+    assert sim.axes["P"].speed == round(50.0 * 3600 / 185.1428)
+    assert sim.axes["T"].speed == round(20.0 * 3600 / 185.1428)
+    assert ptu.speed() == pytest.approx((deg(sim.axes["P"].speed), deg(sim.axes["T"].speed)))
+    with pytest.raises(PTULimitError, match="speed"):
+        ptu.set_speed(pan=400.0)  # above PU = 5833 positions/s = 300 deg/s
+    with pytest.raises(PTULimitError):
+        ptu.set_speed(tilt=-1.0)
+
+
+@pytest.mark.parametrize("pan,tilt", [(170.0, None), (-159.5, None), (None, 31.5), (None, -50.0), (float("nan"), None)])
+def test_limits_are_checked_before_sending(sim, ptu, pan, tilt):
+    before = list(sim.log)
+    with pytest.raises(PTULimitError, match="limits|finite") as e:
+        ptu.move_to(pan, tilt)
+    assert e.value.command.startswith("PP" if pan is not None else "TP")
+    assert sim.log == before  # nothing went out
+
+
+def test_unit_refusal_is_an_error_reply_and_the_next_command_works(sim, ptu):
+    # a driver with wrong (too wide) limits lets a bad move through; the unit says '!'
+    ptu.limits = dataclasses.replace(ptu.limits, pan=(-9999, 9999))
+    with pytest.raises(PTUErrorReply, match="Maximum allowable Pan") as e:
+        ptu.move_to(pan=170.0)
+    assert e.value.command == f"PP{round(170 * 3600 / 185.1428)}"
+    ptu.move_to(pan=1.0)
+    assert sim.position()[0] == round(3600 / 185.1428)
+
+
+@pytest.mark.parametrize(
+    "fault,exc",
+    [("drop", PTUTimeoutError), ("error", PTUErrorReply), ("noise", PTUGarbageError)],
+)
+def test_fault_gives_its_error_naming_the_command_and_next_command_works(sim, ptu, fault, exc):
+    ptu.move_to(20.0, -10.0)
+    sim.inject(fault)
+    with pytest.raises(exc) as e:
+        ptu.query_int("PP")
+    assert e.value.command == "PP" and "'PP'" in str(e.value)
+    assert isinstance(e.value, PTUError)
+    assert ptu.position_counts() == (round(20 * 3600 / 185.1428), round(-10 * 3600 / 185.1428))
+
+
+@pytest.mark.parametrize("fault", ["drop", "error", "noise"])
+def test_fault_during_a_move_then_move_again(sim, ptu, fault):
+    sim.inject(fault)
+    with pytest.raises(PTUError) as e:
+        ptu.move_to(pan=30.0)
+    assert e.value.command.startswith("PP")
+    ptu.move_to(pan=-30.0, tilt=10.0)
+    assert sim.position() == (round(-30 * 3600 / 185.1428), round(10 * 3600 / 185.1428))
+
+
+def test_silent_unit_times_out_then_reconnect_recovers(sim, ptu):
+    sim.silent = True
+    t0 = time.monotonic()
+    with pytest.raises(PTUTimeoutError, match="no complete reply"):
+        ptu.position()
+    assert time.monotonic() - t0 < 1.0  # the timeout bounds the wait
+    with pytest.raises(PTUTimeoutError):
+        ptu.reconnect()  # the handshake itself times out while the unit is silent
+    sim.silent = False
+    ptu.reconnect()
+    ptu.move_to(5.0, 5.0)
+    assert ptu.position() == pytest.approx((5.0, 5.0), abs=deg(0.5))
+
+
+def test_closed_port_is_a_connection_error(ptu):
+    ptu.close()
+    with pytest.raises(PTUConnectionError, match="not open"):
+        ptu.position()
+    ptu.reconnect()
+    assert ptu.position() == (0.0, 0.0)
+
+
+def test_slaved_mode_moves_only_at_await(sim, ptu):
+    ptu.set_mode("slaved")
+    ptu.move_to(40.0, wait=False)
+    time.sleep(0.02)
+    assert sim.position()[0] == 0  # held until A
+    ptu.await_motion((0, 0))
+    assert sim.position()[0] == round(40 * 3600 / 185.1428)
+    ptu.set_mode("immediate")
+    with pytest.raises(ValueError):
+        ptu.set_mode("fast")
+
+
+def test_reset_returns_home(sim, ptu):
+    ptu.move_to(50.0, 20.0)
+    ptu.reset(timeout=1.0)
+    assert sim.position() == (0, 0)
+    assert ptu.position() == (0.0, 0.0)
+
+
+def test_any_pyserial_url_works(sim, capsys):
+    # spy:// wraps the port and logs the traffic (to stderr by default)
+    with PTU(f"spy://{sim.port}", timeout=0.15) as ptu:
+        ptu.move_to(pan=15.0)
+    assert f"PP{round(15 * 3600 / 185.1428)}" in capsys.readouterr().err
+
+
+def test_loopback_url_is_not_a_ptu():
+    # loop:// echoes the command back without a line end: a clear timeout naming ED
+    with pytest.raises(PTUTimeoutError, match="'ED'"):
+        PTU("loop://", timeout=0.05)
+
+
+def test_unopenable_port():
+    with pytest.raises(PTUConnectionError, match="cannot open"):
+        PTU("/nonexistent/ttyPTU", timeout=0.05)
+
+
+# ---------------------------------------------------------------- parser
+@pytest.mark.parametrize(
+    "line,expect,value",
+    [
+        (b"*\r\n", "ack", None),
+        (b"*", "ack", None),
+        (b"* 185.1428\r\n", "float", 185.1428),
+        (b"*185\r\n", "float", 185.0),
+        (b"* -3090\r\n", "int", -3090),
+        (b"*\t+604\r\n", "int", 604),
+        (b"!T!T!P!P*\r\n", "reset", None),
+        (b"*\r\n", "reset", None),
+    ],
+)
+def test_parse_reply_accepts(line, expect, value):
+    assert parse_reply("X", line, expect) == value
+
+
+@pytest.mark.parametrize(
+    "line,expect,exc",
+    [
+        (b"! Illegal argument\r\n", "ack", PTUErrorReply),
+        (b"! Maximum allowable Pan position is 3090\r\n", "int", PTUErrorReply),
+        (b"!P\r\n", "reset", PTUErrorReply),  # markers without the final "*"
+        (b"* 12x\r\n", "int", PTUGarbageError),
+        (b"* 1e5\r\n", "float", PTUGarbageError),
+        (b"* 1.5\r\n", "int", PTUGarbageError),
+        (b"* nan\r\n", "float", PTUGarbageError),
+        (b"**\r\n", "ack", PTUGarbageError),
+        (b"* 5\r\n", "ack", PTUGarbageError),
+        (b"*\r\n", "int", PTUGarbageError),
+        (b"\xff\xfe\r\n", "ack", PTUGarbageError),
+        (b"! bad \x80\r\n", "ack", PTUGarbageError),
+        (b"", "int", PTUGarbageError),
+    ],
+)
+def test_parse_reply_rejects(line, expect, exc):
+    with pytest.raises(exc) as e:
+        parse_reply("PP", line, expect)
+    assert e.value.command == "PP"
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.binary(max_size=40) | st.from_regex(rb"[*! ]{0,2}[-+0-9. A-Za-z]{0,16}(\r\n)?", fullmatch=True),
+       st.sampled_from(["ack", "int", "float", "reset"]))
+def test_fuzz_parse_reply_raises_only_ptu_errors(line, expect):
+    try:
+        value = parse_reply("PP", line, expect)
+    except (PTUErrorReply, PTUGarbageError) as e:
+        assert e.command == "PP"
+        return
+    if expect in ("ack", "reset"):
+        assert value is None
+    else:
+        assert isinstance(value, int if expect == "int" else float)
+        assert abs(value) < 1e13

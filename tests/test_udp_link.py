@@ -1,0 +1,230 @@
+"""UDP link: client against the controller simulator (faults) and against a hostile fake controller."""
+
+from __future__ import annotations
+
+import math
+import socket
+import threading
+import time
+
+import pytest
+
+from jaxrecog.hardware.controller_sim import (
+    LINEAR_RESOLUTION_M,
+    TURNTABLE_COUNTS,
+    ControllerSimulator,
+    LinkFaults,
+)
+from jaxrecog.hardware.datagram import Datagram, InPosition, Move, MsgType, decode, encode
+from jaxrecog.hardware.kinematics import Workspace, camera1_position, camera2_position
+from jaxrecog.hardware.positions import default_table
+from jaxrecog.hardware.udp_link import ControllerLink, ControllerRejected, LinkTimeoutError
+
+TABLE = default_table()
+
+
+def expected(move: Move, ws: Workspace = TABLE.workspace):
+    """Oracle: achieved positions = kinematics of the commanded angles, quantised to the encoders."""
+    x, y, _ = camera1_position(ws, move.cam1_pan, move.cam1_tilt)
+    (_, ty, _), _ = camera2_position(ws, move.cam2_pan)
+    return x, y, ty, move.turntable % (2 * math.pi)
+
+
+def assert_matches(res, move):
+    x, y, ty, tt = expected(move)
+    assert res.move == move
+    assert res.gantry_xy == pytest.approx((x, y), abs=LINEAR_RESOLUTION_M)
+    assert res.track_y == pytest.approx(ty, abs=LINEAR_RESOLUTION_M)
+    assert abs(math.remainder(res.turntable - tt, 2 * math.pi)) <= math.pi / TURNTABLE_COUNTS + 1e-12
+
+
+def move_of(i: int) -> Move:
+    v1, v2 = TABLE.views[0][(i * 7) % 32], TABLE.views[1][(i * 3) % 7]
+    return Move(v1.pan, v1.tilt, v2.pan, (i % 4) * math.pi / 2)
+
+
+def test_moves_report_the_kinematics_positions():
+    with ControllerSimulator(time_scale=0.001) as sim, ControllerLink(sim.address, timeout=0.2) as link:
+        assert link.ping() < 0.2
+        for i in range(10):
+            m = move_of(i)
+            res = link.move(*m.astuple())
+            assert_matches(res, m)
+            assert res.attempts == 1 and res.seq == i + 2  # the ping used seq 1
+        assert [e.move for e in sim.executed] == [move_of(i) for i in range(10)]
+
+
+def test_workspace_violation_is_rejected_not_retried():
+    with ControllerSimulator(time_scale=0.001) as sim, ControllerLink(sim.address, timeout=0.2, retries=3) as link:
+        with pytest.raises(ControllerRejected, match="camera 1 tilt") as e:
+            link.move(0.0, math.radians(5.0), 0.0, 0.0)  # tilt below the 10 deg limit
+        assert e.value.code == 1
+        with pytest.raises(ControllerRejected, match="track y"):
+            link.move(0.0, math.radians(45), math.radians(80), 0.0)  # track runs out
+        assert link.stats["sent"] == 2 and not sim.executed
+        with pytest.raises(ValueError, match="cam1_tilt"):
+            link.move(0.0, math.nan, 0.0, 0.0)
+        assert link.stats["sent"] == 2
+
+
+def test_200_moves_under_loss_duplication_reordering_and_corruption():
+    faults = LinkFaults(loss=0.2, duplicate=0.2, reorder=0.2, corrupt=0.05, delay_s=(0.0, 0.002), reorder_delay_s=0.012)
+    timeout, retries, n = 0.012, 25, 200
+    with ControllerSimulator(faults=faults, seed=7, time_scale=0.0005) as sim:
+        with ControllerLink(sim.address, timeout=timeout, retries=retries) as link:
+            t0 = time.monotonic()
+            for i in range(n):
+                m = move_of(i)
+                assert_matches(link.move(*m.astuple()), m)  # no wrong move accepted
+            total = time.monotonic() - t0
+    # every move executed exactly once, in order (idempotent retransmissions)
+    assert [e.move for e in sim.executed] == [move_of(i) for i in range(n)]
+    assert [e.seq for e in sim.executed] == list(range(1, n + 1))
+    s = link.stats
+    assert s["accepted"] == n and s["retransmit"] > 0
+    assert s["duplicate"] > 0 and s["stale"] + s["duplicate"] > 0 and s["corrupt"] > 0  # the faults happened
+    # bounded time: the worst case is every move using every retry; in practice far less
+    assert total < n * (retries + 1) * timeout
+    assert total < 20.0, f"{n} moves took {total:.2f} s; stats {dict(s)}"
+
+
+def test_silent_controller_times_out_in_bounded_time_then_recovers():
+    with ControllerSimulator(time_scale=0.001) as sim, ControllerLink(sim.address, timeout=0.03, retries=3) as link:
+        link.move(*move_of(0).astuple())
+        sim.silent = True
+        t0 = time.monotonic()
+        with pytest.raises(LinkTimeoutError, match="after 4 transmissions"):
+            link.move(*move_of(1).astuple())
+        assert 0.12 * 0.9 <= time.monotonic() - t0 < 1.0
+        sim.silent = False
+        m = move_of(2)
+        assert_matches(link.move(*m.astuple()), m)
+        # the move sent into the void was never executed, the others exactly once
+        assert [e.move for e in sim.executed] == [move_of(0), move_of(2)]
+
+
+def test_nobody_listening_is_a_timeout():
+    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    s.bind(("127.0.0.1", 0))
+    addr = s.getsockname()
+    s.close()
+    with ControllerLink(addr, timeout=0.02, retries=2) as link, pytest.raises(LinkTimeoutError):
+        link.move(*move_of(0).astuple())
+
+
+def test_long_move_is_acknowledged_with_moving_and_not_retransmitted():
+    # a 0.25 s motion with a 0.05 s timeout and a single retry: only MOVING makes it possible
+    with ControllerSimulator(time_scale=0.1, moving_after_s=0.01) as sim:
+        with ControllerLink(sim.address, timeout=0.05, retries=1) as link:
+            m = Move(math.radians(180), math.radians(30), 0.0, math.pi)
+            t0 = time.monotonic()
+            assert_matches(link.move(*m.astuple()), m)
+            assert time.monotonic() - t0 >= 0.1
+            assert link.stats["moving"] >= 1 and link.stats["sent"] == 1
+
+
+def test_controller_is_idempotent_and_never_moves_backwards():
+    with ControllerSimulator(time_scale=0.0001) as sim:
+        c = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        c.settimeout(0.5)
+        c.connect(sim.address)
+
+        def send(seq, i, session=5):
+            c.send(encode(Datagram(MsgType.MOVE, session, seq, move_of(i))))
+            return decode(c.recv(2048))
+
+        assert send(1, 1).type == MsgType.IN_POSITION
+        r2 = send(2, 2)
+        assert send(2, 2) == r2  # duplicate: cached reply, not a second move
+        c.send(encode(Datagram(MsgType.MOVE, 5, 1, move_of(1))))  # stale retransmission
+        time.sleep(0.05)
+        assert [e.seq for e in sim.executed] == [1, 2]
+        assert send(1, 3, session=6).seq == 1  # a new client session starts over
+        c.send(encode(Datagram(MsgType.MOVE, 5, 3, move_of(4))))  # the retired session is ignored
+        time.sleep(0.05)
+        assert [(e.session, e.seq) for e in sim.executed] == [(5, 1), (5, 2), (6, 1)]
+        c.close()
+
+
+def test_controller_binds_loopback_only():
+    with pytest.raises(ValueError, match="loopback"):
+        ControllerSimulator(host="0.0.0.0")
+    with pytest.raises(ValueError, match="loss"):
+        LinkFaults(loss=1.5)
+
+
+def test_same_seed_same_faults():
+    def run(seed):
+        faults = LinkFaults(loss=0.3, duplicate=0.3)
+        with ControllerSimulator(faults=faults, seed=seed, time_scale=0.0001) as sim:
+            # the timeout is far above a move's duration, so only the seeded faults cause resends
+            with ControllerLink(sim.address, timeout=0.08, retries=30, session=1) as link:
+                for i in range(12):
+                    link.move(*move_of(i).astuple())
+                time.sleep(0.01)
+                return dict(link.stats)
+
+    first = run(3)
+    assert first["retransmit"] > 0 and first["duplicate"] > 0
+    assert run(3) == first
+
+
+class HostileController:
+    """Answers each MOVE with a burst of wrong replies, then (optionally) the right one."""
+
+    def __init__(self, answer: bool = True):
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.settimeout(2.0)
+        self.address = self.sock.getsockname()
+        self.answer = answer
+        self.thread = threading.Thread(target=self.serve, daemon=True)
+        self.thread.start()
+
+    def serve(self):
+        try:
+            data, peer = self.sock.recvfrom(2048)
+        except OSError:
+            return
+        dg = decode(data)
+        m = dg.payload
+        right = InPosition(m, *expected(m))
+        wrong = InPosition(Move(m.cam1_pan + 0.1, m.cam1_tilt, m.cam2_pan, m.turntable), *expected(m))
+        burst = [
+            encode(Datagram(MsgType.IN_POSITION, dg.session ^ 1, dg.seq, right)),  # foreign session
+            encode(Datagram(MsgType.IN_POSITION, dg.session, dg.seq - 1, right)),  # stale
+            encode(Datagram(MsgType.IN_POSITION, dg.session, dg.seq + 1, right)),  # from the future
+            encode(Datagram(MsgType.IN_POSITION, dg.session, dg.seq, wrong)),  # echo of another move
+            encode(Datagram(MsgType.PONG, dg.session, dg.seq)),  # wrong type
+            encode(Datagram(MsgType.IN_POSITION, dg.session, dg.seq, right))[:-1] + b"\x00",  # bad CRC
+            b"hello",
+        ]
+        if self.answer:
+            burst.append(encode(Datagram(MsgType.IN_POSITION, dg.session, dg.seq, right)))
+        for b in burst:
+            self.sock.sendto(b, peer)
+
+    def close(self):
+        self.thread.join(timeout=2.0)
+        self.sock.close()
+
+
+def test_only_the_right_reply_is_accepted():
+    srv = HostileController()
+    with ControllerLink(srv.address, timeout=0.5, retries=0) as link:
+        link._seq = 10
+        m = move_of(3)
+        res = link.move(*m.astuple())
+    srv.close()
+    assert_matches(res, m)
+    assert {k: link.stats[k] for k in ("foreign", "stale", "future", "mismatched", "unexpected_type", "corrupt")} == {
+        "foreign": 1, "stale": 1, "future": 1, "mismatched": 1, "unexpected_type": 1, "corrupt": 2,
+    }
+
+
+def test_wrong_replies_alone_never_complete_a_move():
+    srv = HostileController(answer=False)
+    with ControllerLink(srv.address, timeout=0.1, retries=0) as link, pytest.raises(LinkTimeoutError):
+        link._seq = 10
+        link.move(*move_of(3).astuple())
+    srv.close()
