@@ -10,9 +10,30 @@ from .kinematics import (
     camera2_angles,
     camera2_position,
 )
+from .occluders import Board, OccluderLayout, random_occluders
 from .rig import Rig, RigError, config_from_index, index_from_config
 
+# The synthetic rig renders with pybullet, imported only when a scene is built
+# (scene.require_pybullet), so this package imports without the `sim` extra.
+from .render_db import contact_sheet, lookalike_distances, render_database
+from .scene import Intrinsics, Lighting, ObjectSpec, Part, Scene, default_objects
+from .synthetic import Noise, SyntheticRig
+
 __all__ = [
+    "Board",
+    "Intrinsics",
+    "Lighting",
+    "Noise",
+    "ObjectSpec",
+    "OccluderLayout",
+    "Part",
+    "Scene",
+    "SyntheticRig",
+    "contact_sheet",
+    "default_objects",
+    "lookalike_distances",
+    "random_occluders",
+    "render_database",
     "Rig",
     "RigError",
     "Workspace",
