@@ -27,7 +27,7 @@ same structure).  Index ``m`` is thesis object ``m + 1``:
 7. the same truck with a dark **sticker** inside the rear niche
 
 The niches are as deep as they are wide and roofed, so a sticker is seen only
-from cameras within about ±30° of its normal in azimuth and at low elevation:
+from cameras within 31° of its normal in azimuth and at low elevation:
 objects 4/5 and 6/7 (thesis 5/6 and 7/8) render identically from every other
 position.
 """
@@ -164,11 +164,11 @@ def _c(gray: float) -> tuple[float, float, float, float]:
 def _niche(face: str, centre: tuple[float, float, float], rgba, sticker_rgba=None) -> tuple[Part, ...]:
     """Two fins and an awning on a wall facing ``face`` (``"-x"``, ``"-y"``, ...),
     optionally a sticker on the wall between them.  ``centre`` is the middle of
-    the sticker on the wall surface.  Niche 4 cm wide and 4 cm deep, so the
-    back wall is hidden beyond 45° off its normal."""
+    the sticker on the wall surface.  The niche is 3 cm wide inside and 5 cm
+    deep, so its back wall is hidden beyond atan(3/5) = 31° off its normal."""
     axis = {"x": 0, "y": 1}[face[1]]
     sign = -1.0 if face[0] == "-" else 1.0
-    depth, half_w, half_h, t = 0.04, 0.022, 0.03, 0.002
+    depth, half_w, half_h, t = 0.05, 0.017, 0.03, 0.002
     cx, cy, cz = centre
 
     def at(normal_off: float, lateral: float, dz: float) -> tuple[float, float, float]:
