@@ -1,9 +1,11 @@
 """The rendered scene of the synthetic rig: turn-table, 8 objects, fixed lighting.
 
 Everything lives in **one pybullet client in DIRECT mode** and is rendered by its
-CPU TinyRenderer (headless).  Bodies are built once; a new object or pose only
-moves bodies (``resetBasePositionAndOrientation``), objects not on the
-turn-table are parked far above every camera.
+CPU TinyRenderer (headless).  Visual shapes are built once; a new pose only
+moves bodies (``resetBasePositionAndOrientation``), a new object swaps the few
+bodies made from those shapes (TinyRenderer transforms every body's triangles,
+even off-screen ones), and occluder boards are toggled by parking them far
+above every camera.
 
 Frames.  The *object frame* has its origin on the turn-table axis at the
 turn-table top, z up; objects span about z = 0 .. 0.2 m, so their centre is
@@ -417,7 +419,7 @@ class Scene:
 
     # -- state
     def set_object(self, obj: int, pose: int) -> None:
-        """Put object ``obj`` in pose ``pose`` on the turn-table (others parked)."""
+        """Put object ``obj`` in pose ``pose`` on the turn-table (only its bodies exist)."""
         if not 0 <= int(obj) < len(self.objects):
             raise ValueError(f"object {obj} is out of range 0..{len(self.objects) - 1}")
         if not 0 <= int(pose) < self.n_poses:
