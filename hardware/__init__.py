@@ -10,6 +10,7 @@ from .kinematics import (
     camera2_angles,
     camera2_position,
 )
+from .occluders import Board, OccluderLayout, random_occluders
 from .rig import Rig, RigError, config_from_index, index_from_config
 from .camera import Camera, CameraError, ImageSequenceCamera, VideoCamera
 from .config import ConfigError, RigConfig, load_config
@@ -18,6 +19,13 @@ from .hardware_rig import HardwareRig, SimulatedHardwareRig, rig_from_config
 from .ptu import PTU, PTUError, PTUErrorReply, PTUGarbageError, PTULimitError, PTUTimeoutError
 from .ptu_sim import PTUSimulator
 from .udp_link import ControllerLink, ControllerRejected, LinkError, LinkTimeoutError
+
+# The synthetic rig renders with pybullet, imported only when a scene is built
+# (scene.require_pybullet), so this package imports without the `sim` extra.
+from .render_db import contact_sheet, lookalike_distances, render_database
+from .scene import Intrinsics, Lighting, ObjectSpec, Part, Scene, default_objects
+from .synthetic import Noise, SyntheticRig
+from .dataset_rig import DatasetRig
 
 __all__ = [
     "Camera",
@@ -43,6 +51,21 @@ __all__ = [
     "VideoCamera",
     "load_config",
     "rig_from_config",
+    "Board",
+    "DatasetRig",
+    "Intrinsics",
+    "Lighting",
+    "Noise",
+    "ObjectSpec",
+    "OccluderLayout",
+    "Part",
+    "Scene",
+    "SyntheticRig",
+    "contact_sheet",
+    "default_objects",
+    "lookalike_distances",
+    "random_occluders",
+    "render_database",
     "Rig",
     "RigError",
     "Workspace",

@@ -1,0 +1,155 @@
+"""Render the training image database of the synthetic rig (thesis ch. 7).
+
+The thesis took 32 images per camera position (8 objects x 4 poses) at 32
+positions of camera 1 and 7 of camera 2: 1248 images.  :func:`render_database`
+writes them as the folder + ``manifest.csv`` format of ``docs/architecture.md``
+(columns ``path,camera,position,object,pose,split``), clean renders as the
+``train`` split and, optionally, perturbed renders (noise, pixel offsets,
+cardboard occluders) as the ``test`` split.
+"""
+
+from __future__ import annotations
+
+import csv
+import os
+from pathlib import Path
+from typing import Callable, Sequence
+
+import numpy as np
+
+from .occluders import random_occluders
+from .positions import CameraTable
+from .scene import ObjectSpec
+from .synthetic import Noise, SyntheticRig
+
+__all__ = ["MANIFEST_COLUMNS", "render_database", "contact_sheet", "lookalike_distances"]
+
+MANIFEST_COLUMNS = ("path", "camera", "position", "object", "pose", "split")
+
+
+def _write_png(path: Path, image: np.ndarray) -> None:
+    import cv2
+
+    if not cv2.imwrite(str(path), image):
+        raise OSError(f"could not write image {path}")
+
+
+def render_database(
+    out_dir: str | os.PathLike,
+    table: CameraTable | None = None,
+    objects: Sequence[ObjectSpec] | None = None,
+    poses: int = 4,
+    *,
+    rig: SyntheticRig | None = None,
+    test_per_view: int = 0,
+    test_noise: Noise = Noise(brightness=0.05, pixel=2.0, max_shift=2),
+    test_occluders: bool = False,
+    seed: int = 0,
+    progress: Callable[[int], object] | None = None,
+) -> Path:
+    """Render every (camera, position, object, pose) and write the database.
+
+    Args:
+        out_dir: folder to write (created; existing files of the same names are replaced).
+        table, objects, poses: scene of a new :class:`SyntheticRig` (ignored when ``rig`` is given).
+        rig: render with this rig instead (its table, objects and poses).
+        test_per_view: perturbed ``test`` images per (camera, position, object, pose); 0 = none.
+        test_noise: perturbations of the test images.
+        test_occluders: give each (object, pose) of the test split a random
+            cardboard layout (:func:`~.occluders.random_occluders`).
+        seed: seeds the test perturbations and layouts.
+        progress: called with the number of images just written (e.g. ``tqdm.update``).
+
+    Returns:
+        The path of ``manifest.csv``.  Train images: ``n_objects * poses`` per
+        position, ``sum(positions)`` positions (1248 for the defaults).
+    """
+    if test_per_view < 0:
+        raise ValueError(f"test_per_view must be >= 0, got {test_per_view}")
+    own = rig is None
+    if own:
+        rig = SyntheticRig(table, objects=objects, n_poses=poses, seed=seed)
+    out = Path(out_dir)
+    rows: list[tuple] = []
+    try:
+        rng = np.random.default_rng(seed)
+        for i, n_pos in enumerate(rig.positions):
+            for v in range(n_pos):
+                (out / "train" / f"c{i}" / f"v{v:02d}").mkdir(parents=True, exist_ok=True)
+                if test_per_view:
+                    (out / "test" / f"c{i}" / f"v{v:02d}").mkdir(parents=True, exist_ok=True)
+        for m in range(rig.n_objects):
+            for p in range(rig.n_poses):
+                rig.reset(m, p)
+                for i, n_pos in enumerate(rig.positions):
+                    for v in range(n_pos):
+                        img, _ = rig.render_clean(i, v)
+                        rel = f"train/c{i}/v{v:02d}/m{m}_p{p}.png"
+                        _write_png(out / rel, img)
+                        rows.append((rel, i, v, m, p, "train"))
+                    if progress is not None:
+                        progress(n_pos)
+                if test_per_view:
+                    layout = random_occluders(rng, rig.table, radius=rig.radius) if test_occluders else None
+                    rig.reset(m, p, layout)
+                    for i, n_pos in enumerate(rig.positions):
+                        for v in range(n_pos):
+                            for j in range(test_per_view):
+                                img, _ = rig.render_noisy(i, v, test_noise)
+                                rel = f"test/c{i}/v{v:02d}/m{m}_p{p}_{j}.png"
+                                _write_png(out / rel, img)
+                                rows.append((rel, i, v, m, p, "test"))
+                        if progress is not None:
+                            progress(n_pos * test_per_view)
+                    rig.reset(m, p)
+    finally:
+        if own:
+            rig.close()
+    rows.sort(key=lambda r: (r[5] != "train", r[1], r[2], r[3], r[4], r[0]))
+    manifest = out / "manifest.csv"
+    with open(manifest, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(MANIFEST_COLUMNS)
+        w.writerows(rows)
+    return manifest
+
+
+def contact_sheet(rig: SyntheticRig, views: Sequence[tuple[int, int]], gap: int = 2) -> np.ndarray:
+    """Clean renders of every object (rows) in every pose, for each ``(camera,
+    position)`` in ``views`` (column blocks), tiled into one ``uint8`` image."""
+    H, W = rig.image_shape
+    cols = len(views) * rig.n_poses
+    sheet = np.full(((H + gap) * rig.n_objects - gap, (W + gap) * cols + gap * 3 * (len(views) - 1) - gap), 255, np.uint8)
+    for m in range(rig.n_objects):
+        for p in range(rig.n_poses):
+            rig.reset(m, p)
+            for b, (i, v) in enumerate(views):
+                img, _ = rig.render_clean(i, v)
+                c = b * rig.n_poses + p
+                x0 = c * (W + gap) + b * 3 * gap
+                y0 = m * (H + gap)
+                sheet[y0 : y0 + H, x0 : x0 + W] = img
+    return sheet
+
+
+def lookalike_distances(rig: SyntheticRig, a: int, b: int) -> np.ndarray:
+    """Distance between objects ``a`` and ``b`` per pose and position.
+
+    ``d = || y_a / ||y_a|| - y_b / ||y_b|| ||`` on the clean images (the
+    unit-energy scaling of eq. 4.1), so 0 means identical and sqrt(2) is the
+    largest possible.
+
+    Returns:
+        ``float [n_poses, sum(positions)]``, positions of camera 0 first.
+    """
+    out = np.zeros((rig.n_poses, sum(rig.positions)))
+    for p in range(rig.n_poses):
+        imgs = []
+        for m in (a, b):
+            rig.reset(m, p)
+            y = np.stack(
+                [rig.render_clean(i, v)[0].ravel() for i, n in enumerate(rig.positions) for v in range(n)]
+            ).astype(np.float64)
+            imgs.append(y / np.linalg.norm(y, axis=1, keepdims=True))
+        out[p] = np.linalg.norm(imgs[0] - imgs[1], axis=1)
+    return out

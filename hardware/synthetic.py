@@ -1,0 +1,240 @@
+"""``SyntheticRig``: the thesis's two-camera rig (ch. 6, app. C) as a rendered scene.
+
+Cameras sit at the eye positions of a :class:`~.positions.CameraTable` (the
+appendix-C kinematics turn planner angles into those positions) and always look
+at the object centre.  Each position has its own zoom (``Intrinsics.fov``), as
+the thesis's predefined zoom tables.  Rendering is pybullet's CPU TinyRenderer
+in DIRECT mode (:mod:`.scene`), one client per rig.
+
+Per capture, optionally (seeded): brightness noise ``y <- g y + n`` with gain
+``g ~ N(1, brightness^2)`` and pixel noise ``n ~ N(0, pixel^2)`` gray levels,
+and a random integer pixel offset of at most ``max_shift`` in x and y -- the
+perturbations of the thesis's training set (ch. 7), here applied to captures.
+
+The true occluded fraction of the object in an image is measured from the
+segmentation mask: ``1 - (object pixels with the boards) / (object pixels
+without them)``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Sequence
+
+import numpy as np
+
+from .occluders import OccluderLayout
+from .positions import CameraTable, default_table
+from .rig import RigError
+from .scene import Intrinsics, Lighting, ObjectSpec, Scene
+
+__all__ = ["Noise", "SyntheticRig"]
+
+
+@dataclasses.dataclass(frozen=True)
+class Noise:
+    """Per-capture perturbations (all off by default).
+
+    Attributes:
+        brightness: standard deviation of the multiplicative gain around 1.
+        pixel: standard deviation of additive per-pixel noise (gray levels).
+        max_shift: largest random image offset in pixels (x and y, integers).
+    """
+
+    brightness: float = 0.0
+    pixel: float = 0.0
+    max_shift: int = 0
+
+    def __post_init__(self):
+        if self.brightness < 0 or self.pixel < 0 or self.max_shift < 0:
+            raise ValueError(f"noise settings must be >= 0, got {self}")
+
+    @property
+    def off(self) -> bool:
+        return self.brightness == 0 and self.pixel == 0 and self.max_shift == 0
+
+
+class SyntheticRig:
+    """A :class:`~.rig.Rig` whose images are renders of the scene.
+
+    Args:
+        table: camera positions (default :func:`~.positions.default_table`, 32 x 7);
+            any number of cameras.
+        objects: object specs (default the 8 of :func:`~.scene.default_objects`).
+        n_poses: poses per object, pose ``p`` at ``360° p / n_poses``.
+        intrinsics: image size, clip planes and zoom rule.
+        lighting: the fixed light.
+        noise: per-capture perturbations (default none).
+        seed: seeds the generator of the perturbations.
+
+    Attributes:
+        fov: ``fov[i][v]``, vertical field of view (degrees) of camera ``i`` at position ``v``.
+        radius: bounding radius of the objects about the object centre (m).
+        last_occlusion: true occluded fraction per camera in the last capture.
+    """
+
+    def __init__(
+        self,
+        table: CameraTable | None = None,
+        *,
+        objects: Sequence[ObjectSpec] | None = None,
+        n_poses: int = 4,
+        intrinsics: Intrinsics = Intrinsics(),
+        lighting: Lighting = Lighting(),
+        noise: Noise = Noise(),
+        seed: int = 0,
+    ):
+        self.table = default_table() if table is None else table
+        if self.table.n_cameras < 1 or min(self.table.positions) < 1:
+            raise ValueError(f"the camera table needs >= 1 camera with >= 1 position, got {self.table.positions}")
+        self.intrinsics = intrinsics
+        self.noise = noise
+        self.scene = Scene(objects, self.table.workspace.object_xyz, n_poses, lighting)
+        self.radius = self.scene.radius
+        self._centre = np.asarray(self.scene.centre)
+        self.fov = tuple(tuple(self._fov(view.eye) for view in views) for views in self.table.views)
+        self._rng = np.random.default_rng(seed)
+        self._state: tuple[int, int] | None = None
+        self._layout: OccluderLayout | None = None
+        self._config: tuple[int, ...] | None = None
+        self._clean_pixels: dict[tuple, int] = {}
+        self.last_occlusion: list[float] = []
+
+    # -- Rig protocol
+    @property
+    def positions(self) -> tuple[int, ...]:
+        return self.table.positions
+
+    @property
+    def image_shape(self) -> tuple[int, int]:
+        return (self.intrinsics.height, self.intrinsics.width)
+
+    @property
+    def n_objects(self) -> int:
+        return len(self.scene.objects)
+
+    @property
+    def n_poses(self) -> int:
+        return self.scene.n_poses
+
+    def reset(self, object: int, pose: int, occluders: OccluderLayout | None = None) -> None:
+        """Put ``object`` in ``pose`` on the turn-table; ``occluders`` is an
+        :class:`~.occluders.OccluderLayout` or ``None`` (clean scene)."""
+        if occluders is not None and not isinstance(occluders, OccluderLayout):
+            raise TypeError(f"occluders must be an OccluderLayout or None, got {type(occluders).__name__}")
+        try:
+            self.scene.set_object(object, pose)
+        except ValueError as err:
+            raise RigError(str(err)) from err
+        self._state = (int(object), int(pose))
+        layout = occluders if occluders is not None and len(occluders) else None
+        self.scene.set_occluders(layout.boards if layout else (), key=layout)
+        self._layout = layout
+
+    def move(self, configuration: Sequence[int]) -> None:
+        """Move camera ``i`` to position ``configuration[i]``."""
+        cfg = tuple(int(v) for v in configuration)
+        if len(cfg) != self.table.n_cameras:
+            raise RigError(f"configuration {cfg} has {len(cfg)} entries, the rig has {self.table.n_cameras} cameras")
+        for i, (v, n) in enumerate(zip(cfg, self.positions)):
+            if not 0 <= v < n:
+                raise RigError(f"configuration {cfg}: camera {i} position {v} is out of range 0..{n - 1}")
+        self._config = cfg
+
+    def capture(self) -> list[np.ndarray]:
+        """One ``uint8 [H, W]`` image per camera; sets ``last_occlusion``."""
+        if self._config is None:
+            raise RigError("capture() before move(): the cameras have no position yet")
+        images, fractions = [], []
+        for i, v in enumerate(self._config):
+            img, frac = self._render(i, self.table.views[i][v].eye, self.noise)
+            images.append(img)
+            fractions.append(frac)
+        self.last_occlusion = fractions
+        return images
+
+    # -- extras
+    def render_at(self, camera: int, eye: Sequence[float], *, noisy: bool = True) -> tuple[np.ndarray, float]:
+        """Render camera ``camera`` from an arbitrary ``eye`` (x, y, z), looking at
+        the object, zoomed by the same rule as the table's positions.
+
+        Returns:
+            (``uint8 [H, W]`` image, true occluded fraction of the object).
+        """
+        if not 0 <= int(camera) < self.table.n_cameras:
+            raise RigError(f"camera {camera} is out of range 0..{self.table.n_cameras - 1}")
+        eye = tuple(float(c) for c in eye)
+        if len(eye) != 3 or not np.all(np.isfinite(eye)):
+            raise RigError(f"eye must be 3 finite coordinates, got {eye}")
+        return self._render(int(camera), eye, self.noise if noisy else Noise())
+
+    def render_clean(self, camera: int, position: int) -> tuple[np.ndarray, np.ndarray]:
+        """Noise-free image and object mask (``bool [H, W]``) at a table position,
+        with the current occluders in place."""
+        eye = self.table.views[camera][position].eye
+        self._need_state()
+        self.scene.show_occluders(self._layout is not None)
+        img, seg = self.scene.render(eye, self._fov(eye), self.intrinsics)
+        return img, np.isin(seg, self.scene.object_ids)
+
+    def render_noisy(self, camera: int, position: int, noise: Noise) -> tuple[np.ndarray, float]:
+        """Image at a table position with the given perturbations (for test sets)."""
+        return self._render(camera, self.table.views[camera][position].eye, noise)
+
+    def close(self) -> None:
+        self.scene.close()
+
+    def __enter__(self) -> "SyntheticRig":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # -- internals
+    def _need_state(self) -> None:
+        if self._state is None:
+            raise RigError("no object on the turn-table: call reset(object, pose) first")
+
+    def _fov(self, eye: Sequence[float]) -> float:
+        dist = float(np.linalg.norm(np.asarray(eye, dtype=float) - self._centre))
+        try:
+            return self.intrinsics.fov(self.radius, dist)
+        except ValueError as err:
+            raise RigError(f"eye {tuple(eye)}: {err}") from err
+
+    def _render(self, camera: int, eye: Sequence[float], noise: Noise) -> tuple[np.ndarray, float]:
+        self._need_state()
+        fov = self._fov(eye)
+        shift = (0, 0)
+        if noise.max_shift:
+            shift = tuple(int(s) for s in self._rng.integers(-noise.max_shift, noise.max_shift + 1, size=2))
+        if self._layout is None:
+            self.scene.show_occluders(False)
+            img, _ = self.scene.render(eye, fov, self.intrinsics, shift)
+            frac = 0.0
+        else:
+            self.scene.show_occluders(True)
+            img, seg = self.scene.render(eye, fov, self.intrinsics, shift)
+            seen = int(np.isin(seg, self.scene.object_ids).sum())
+            clean = self._clean_count(eye, fov)
+            frac = min(max(1.0 - seen / clean, 0.0), 1.0)
+        if noise.brightness or noise.pixel:
+            y = img.astype(np.float32)
+            if noise.brightness:
+                y *= max(0.0, 1.0 + noise.brightness * float(self._rng.standard_normal()))
+            if noise.pixel:
+                y += noise.pixel * self._rng.standard_normal(y.shape, dtype=np.float32)
+            img = np.clip(np.rint(y), 0, 255).astype(np.uint8)
+        return img, frac
+
+    def _clean_count(self, eye: Sequence[float], fov: float) -> int:
+        key = (self._state, tuple(round(float(c), 9) for c in eye))
+        count = self._clean_pixels.get(key)
+        if count is None:
+            self.scene.show_occluders(False)
+            _, seg = self.scene.render(eye, fov, self.intrinsics)
+            count = int(np.isin(seg, self.scene.object_ids).sum())
+            if count == 0:
+                raise RigError(f"the object is not in view from eye {tuple(eye)}")
+            self._clean_pixels[key] = count
+        return count
