@@ -49,6 +49,7 @@ __all__ = [
     "occluder_bank",
     "draw_plan",
     "plan_rng",
+    "ShiftWindows",
     "apply_geometry",
     "augment_images",
 ]
@@ -251,21 +252,32 @@ def draw_plan(rng: np.random.Generator, n_images: int, params: AugmentParams,
 # pixel space
 # --------------------------------------------------------------------------
 
+class ShiftWindows:
+    """Every integer shift of a stack of images, as a zero-copy view
+    ``view[c, s - dy, s - dx] = image c shifted by (dy, dx)``, ``uint8
+    [C, 2s+1, 2s+1, H, W]`` over the edge-padded images (built once, reused)."""
+
+    def __init__(self, images: np.ndarray, max_shift: int):
+        images = np.asarray(images, dtype=np.uint8)
+        s = int(max_shift)
+        H, W = images.shape[1:]
+        self.max_shift = s
+        self.padded = np.pad(images, ((0, 0), (s, s), (s, s)), mode="edge")
+        self.view = np.lib.stride_tricks.sliding_window_view(self.padded, (H, W), axis=(1, 2))
+
+
 def apply_geometry(images: np.ndarray, plan: SamplePlan, bank: OccluderBank, level: int,
                    max_shift: int, *, return_masks: bool = False):
     """``m ⊙ S_d x`` for every sample of ``plan``: shift then occlude, ``uint8 [B, H, W]``.
 
     Shifts are vectorised through a sliding-window view of the edge-padded
-    images; occluders are pasted per sample (a slice each).  With
+    images (pass a :class:`ShiftWindows` to reuse it across batches); occluders are pasted per sample (a slice each).  With
     ``return_masks`` also returns the occluder masks ``bool [B, H, W]``.
     """
-    images = np.asarray(images, dtype=np.uint8)
-    s = max_shift
-    padded = np.pad(images, ((0, 0), (s, s), (s, s)), mode="edge")
-    H, W = images.shape[1:]
-    win = np.lib.stride_tricks.sliding_window_view(padded, (H, W), axis=(1, 2))
+    win = images if isinstance(images, ShiftWindows) else ShiftWindows(images, max_shift)
+    s = win.max_shift
     # a shift by (dy, dx) moves content down/right: out[y, x] = x[y - dy, x - dx]
-    out = win[plan.image, s - plan.dy, s - plan.dx]  # [B, H, W] copy
+    out = win.view[plan.image, s - plan.dy, s - plan.dx]  # [B, H, W] copy
     masks = np.zeros(out.shape, bool) if return_masks else None
     temps = bank.templates[level]
     if temps:
