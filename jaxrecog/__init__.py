@@ -8,3 +8,50 @@ Information or a Cramér-Rao bound.
 """
 
 __version__ = "0.1.0"
+
+from .augment import DB1_LEVELS, DB2_LEVELS, SHAPES, AugmentParams, augment_images
+from .database import DatabaseError, ImageDatabase, NonGrayImageWarning, load_database, write_database
+from .features import ImageError, project, project_batch, project_camera
+from .modelfile import (
+    FORMAT_VERSION,
+    ModelFileContentError,
+    ModelFileCorruptError,
+    ModelFileError,
+    ModelFileMissingError,
+    ModelFileTruncatedError,
+    ModelFileVersionError,
+    load_model,
+    save_model,
+)
+from .sensor_model import CameraModel, SensorModel
+from .train import TrainingInfo, train_model
+
+__all__ = [
+    "AugmentParams",
+    "CameraModel",
+    "DB1_LEVELS",
+    "DB2_LEVELS",
+    "DatabaseError",
+    "FORMAT_VERSION",
+    "ImageDatabase",
+    "ImageError",
+    "ModelFileContentError",
+    "ModelFileCorruptError",
+    "ModelFileError",
+    "ModelFileMissingError",
+    "ModelFileTruncatedError",
+    "ModelFileVersionError",
+    "NonGrayImageWarning",
+    "SHAPES",
+    "SensorModel",
+    "TrainingInfo",
+    "augment_images",
+    "load_database",
+    "load_model",
+    "project",
+    "project_batch",
+    "project_camera",
+    "save_model",
+    "train_model",
+    "write_database",
+]

@@ -1,0 +1,112 @@
+"""One eigenspace per camera position (thesis §4.1, eq. 4.1-4.12).
+
+The training images of one position (one per class, ``C`` of them) are scaled
+to unit energy, ``x̂_i = y_i / ||y_i||`` (eq. 4.1-4.2), mean-adjusted,
+``x_i = x̂_i - x̄`` (eq. 4.3-4.4), and arranged as ``S = [x_1 ... x_C]``
+(``D x C``, eq. 4.5).  Instead of the ``D x D`` matrix ``Q = S Sᵀ`` (eq. 4.6) we
+diagonalise the small Gram matrix ``T = Sᵀ S`` (``C x C``, eq. 4.7):
+``T v'_i = λ'_i v'_i`` gives ``λ_i = λ'_i`` (eq. 4.9) and the unit eigenvector
+``v_i = λ'_i^{-1/2} S v'_i`` of ``Q`` (eq. 4.10).  Eigenvalues are those of
+``S Sᵀ`` (not divided by ``C``).  Each basis vector's sign is fixed so that its
+entry of largest magnitude is positive.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["unit_energy", "Eigenspace", "position_eigenspace", "choose_n_components"]
+
+# eigenvalues below this fraction of the largest count as zero (rank deficiency)
+RANK_TOL = 1e-10
+
+
+def unit_energy(images: np.ndarray) -> np.ndarray:
+    """Eq. 4.1-4.2: ``x̂ = y / ||y||`` per row of ``images [N, D]`` (float64).
+
+    Raises:
+        ValueError: naming the row of an image with zero energy.
+    """
+    y = np.asarray(images, dtype=np.float64).reshape(len(images), -1)
+    norm = np.linalg.norm(y, axis=1)
+    bad = np.flatnonzero(~(norm > 0) | ~np.isfinite(norm))
+    if bad.size:
+        raise ValueError(f"training image {int(bad[0])} has zero or non-finite energy")
+    return y / norm[:, None]
+
+
+class Eigenspace:
+    """Full eigen-decomposition of one position (all non-zero components).
+
+    Attributes:
+        mean: ``x̄ [D]`` (eq. 4.4).
+        basis: ``[D, R]`` orthonormal eigenvectors of ``S Sᵀ`` (eq. 4.10),
+            ``R`` = numerical rank (at most ``C - 1``), eigenvalues descending.
+        eigenvalues: ``[R]`` (eq. 4.9, 4.12).
+    """
+
+    def __init__(self, mean: np.ndarray, basis: np.ndarray, eigenvalues: np.ndarray):
+        self.mean = mean
+        self.basis = basis
+        self.eigenvalues = eigenvalues
+
+    @property
+    def rank(self) -> int:
+        return int(self.eigenvalues.shape[0])
+
+    def truncate(self, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(mean [D], basis [D, k], eigenvalues [k])``."""
+        if not 1 <= k <= self.rank:
+            raise ValueError(f"n_components={k} but this position's eigenspace has rank {self.rank}")
+        return self.mean, self.basis[:, :k], self.eigenvalues[:k]
+
+
+def position_eigenspace(images: np.ndarray) -> Eigenspace:
+    """Eigenspace of the training images ``[C, H, W]`` (or ``[C, D]``) of one
+    camera position via the Gram matrix ``Sᵀ S`` (eq. 4.1-4.10), in float64."""
+    xhat = unit_energy(images)                      # [C, D]   eq. 4.1
+    mean = xhat.mean(axis=0)                        # [D]      eq. 4.4
+    S = (xhat - mean).T                             # [D, C]   eq. 4.3, 4.5
+    T = S.T @ S                                     # [C, C]   eq. 4.7
+    lam, vp = np.linalg.eigh(T)
+    order = np.argsort(lam)[::-1]
+    lam, vp = lam[order], vp[:, order]
+    keep = lam > RANK_TOL * max(lam[0], np.finfo(np.float64).tiny)
+    lam, vp = lam[keep], vp[:, keep]
+    V = (S @ vp) / np.sqrt(lam)                     # [D, R]   eq. 4.10
+    # re-orthonormalise against round-off (V is orthonormal in exact arithmetic)
+    V, _ = np.linalg.qr(V)
+    idx = np.argmax(np.abs(V), axis=0)
+    V = V * np.sign(V[idx, np.arange(V.shape[1])])
+    return Eigenspace(mean, V, lam)
+
+
+def choose_n_components(spectra: list[np.ndarray], n_components: int | float) -> int:
+    """K shared by all positions.
+
+    ``n_components`` an ``int``: that K.  A ``float`` in ``(0, 1]``: the
+    smallest K such that every position captures at least that fraction of its
+    energy, ``sum_{i<=K} λ_i / sum_i λ_i``.  K never exceeds the smallest rank.
+
+    Raises:
+        ValueError: K larger than some position's rank, or a bad fraction.
+    """
+    min_rank = min(len(s) for s in spectra)
+    if isinstance(n_components, (bool, np.bool_)):
+        raise TypeError("n_components must be an int (K) or a float energy fraction")
+    if isinstance(n_components, (int, np.integer)):
+        k = int(n_components)
+        if not 1 <= k <= min_rank:
+            raise ValueError(
+                f"n_components={k} but the smallest eigenspace rank is {min_rank} "
+                f"(at most one less than the number of training images per position)"
+            )
+        return k
+    frac = float(n_components)
+    if not 0.0 < frac <= 1.0:
+        raise ValueError(f"energy fraction must be in (0, 1], got {frac}")
+    k = 1
+    for lam in spectra:
+        cum = np.cumsum(lam) / lam.sum()
+        k = max(k, int(np.searchsorted(cum, frac - 1e-12) + 1))
+    return min(k, min_rank)

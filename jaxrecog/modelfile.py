@@ -1,0 +1,253 @@
+"""The model file: one versioned ``.npz``, written atomically, validated on load.
+
+Layout (format version :data:`FORMAT_VERSION`): ``format_version`` (int64
+scalar), ``meta`` (UTF-8 JSON as uint8 bytes: sizes, static fields, training
+parameters, sha256 of the manifest, sha256 of the array contents) and per camera
+``camera{i}.{mean_image,basis,eigenvalues,mu,var[,chol]}`` (float32).
+
+Saving writes a temporary file in the target folder, fsyncs it, then
+``os.replace``s it over the target (and fsyncs the folder): a crash at any
+moment leaves either the old or the new file, never a broken one.  Loading
+raises one :class:`ModelFileError` subclass per failure, each with a one-line
+message naming the file.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import tempfile
+import zipfile
+from pathlib import Path
+
+import jax.numpy as jnp
+import numpy as np
+
+from .sensor_model import CameraModel, SensorModel
+
+__all__ = [
+    "FORMAT_VERSION",
+    "ModelFileError",
+    "ModelFileMissingError",
+    "ModelFileCorruptError",
+    "ModelFileTruncatedError",
+    "ModelFileVersionError",
+    "ModelFileContentError",
+    "save_model",
+    "load_model",
+    "load_model_meta",
+]
+
+FORMAT_VERSION = 1
+_FIELDS = ("mean_image", "basis", "eigenvalues", "mu", "var", "chol")
+
+
+class ModelFileError(Exception):
+    """A model file cannot be loaded."""
+
+
+class ModelFileMissingError(ModelFileError, FileNotFoundError):
+    """No file at the path."""
+
+
+class ModelFileCorruptError(ModelFileError):
+    """The bytes are damaged (not a zip, bad CRC, checksum mismatch, bad metadata)."""
+
+
+class ModelFileTruncatedError(ModelFileError):
+    """The file ends early (a zip whose end record is missing)."""
+
+
+class ModelFileVersionError(ModelFileError):
+    """The file's format version is not the one this code reads."""
+
+
+class ModelFileContentError(ModelFileError):
+    """Arrays missing, of the wrong shape or dtype, or non-finite / non-positive."""
+
+
+def _arrays(model: SensorModel) -> dict[str, np.ndarray]:
+    out = {}
+    for i, cam in enumerate(model.cameras):
+        for f in _FIELDS:
+            x = getattr(cam, f)
+            if x is not None:
+                out[f"camera{i}.{f}"] = np.asarray(x, dtype=np.float32)
+    return out
+
+
+def _content_hash(arrays: dict[str, np.ndarray]) -> str:
+    h = hashlib.sha256()
+    for k in sorted(arrays):
+        h.update(k.encode())
+        h.update(str(arrays[k].shape).encode())
+        h.update(np.ascontiguousarray(arrays[k]).tobytes())
+    return h.hexdigest()
+
+
+def save_model(path: str | os.PathLike, model: SensorModel, *, training: dict | None = None,
+               manifest_sha256: str | None = None) -> Path:
+    """Write ``model`` to ``path`` atomically (temp file + fsync + ``os.replace``).
+
+    ``training`` (JSON-serialisable parameters) and ``manifest_sha256`` are
+    stored as provenance (see :class:`~jaxrecog.train.TrainingInfo`).
+    """
+    path = Path(path)
+    arrays = _arrays(model)
+    meta = {
+        "format_version": FORMAT_VERSION,
+        "n_cameras": model.n_cameras,
+        "positions": list(model.positions),
+        "n_objects": model.n_objects,
+        "n_poses": model.n_poses,
+        "levels": list(model.levels),
+        "image_shape": list(model.image_shape),
+        "covariance": model.covariance,
+        "n_components": model.n_components,
+        "training": training or {},
+        "manifest_sha256": manifest_sha256,
+        "content_sha256": _content_hash(arrays),
+    }
+    payload = {
+        "format_version": np.array(FORMAT_VERSION, dtype=np.int64),
+        "meta": np.frombuffer(json.dumps(meta, sort_keys=True).encode(), dtype=np.uint8),
+        **arrays,
+    }
+    folder = path.parent if str(path.parent) else Path(".")
+    folder.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=folder)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            np.savez(f, **payload)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except FileNotFoundError:
+            pass
+        raise
+    try:  # make the rename itself durable
+        dfd = os.open(folder, os.O_RDONLY)
+        try:
+            os.fsync(dfd)
+        finally:
+            os.close(dfd)
+    except OSError:
+        pass
+    return path
+
+
+def _open(path: Path) -> dict[str, np.ndarray]:
+    if not path.is_file():
+        raise ModelFileMissingError(f"model file {path}: no such file")
+    with open(path, "rb") as f:
+        head = f.read(4)
+    if head != b"PK\x03\x04":
+        raise ModelFileCorruptError(f"model file {path}: not a model file (no .npz/zip header)")
+    try:
+        with zipfile.ZipFile(path):
+            pass
+    except zipfile.BadZipFile:
+        raise ModelFileTruncatedError(
+            f"model file {path}: truncated (zip end record missing; interrupted copy or write?)"
+        ) from None
+    try:
+        with np.load(path, allow_pickle=False) as npz:
+            return {k: npz[k] for k in npz.files}
+    except (zipfile.BadZipFile, ValueError, OSError, EOFError, KeyError) as e:
+        kind = type(e).__name__
+        raise ModelFileCorruptError(f"model file {path}: damaged content ({kind}: {e})"
+                                    .replace("\n", " ")) from None
+
+
+def load_model_meta(path: str | os.PathLike) -> dict:
+    """The metadata dict of a model file (after the version check)."""
+    return _read(Path(path))[1]
+
+
+def _read(path: Path) -> tuple[dict[str, np.ndarray], dict]:
+    data = _open(path)
+    if "format_version" not in data:
+        raise ModelFileCorruptError(f"model file {path}: no format_version entry")
+    version = int(np.asarray(data["format_version"]).reshape(-1)[0])
+    if version != FORMAT_VERSION:
+        raise ModelFileVersionError(
+            f"model file {path}: format version {version}, this jaxrecog reads version "
+            f"{FORMAT_VERSION} (retrain or convert the model)"
+        )
+    try:
+        meta = json.loads(bytes(data["meta"]).decode())
+    except (KeyError, ValueError) as e:
+        raise ModelFileCorruptError(f"model file {path}: unreadable metadata ({e})") from None
+    arrays = {k: v for k, v in data.items() if k not in ("format_version", "meta")}
+    if _content_hash(arrays) != meta.get("content_sha256"):
+        raise ModelFileCorruptError(f"model file {path}: array checksum mismatch (damaged content)")
+    return arrays, meta
+
+
+def load_model(path: str | os.PathLike) -> SensorModel:
+    """Load and validate a model file (version, shapes, dtypes, finiteness).
+
+    Raises:
+        ModelFileMissingError, ModelFileCorruptError, ModelFileTruncatedError,
+        ModelFileVersionError, ModelFileContentError: one line naming the file.
+    """
+    path = Path(path)
+    arrays, meta = _read(path)
+
+    def bad(msg: str):
+        return ModelFileContentError(f"model file {path}: {msg}")
+
+    try:
+        n_cam = int(meta["n_cameras"])
+        positions = [int(v) for v in meta["positions"]]
+        C = int(meta["n_objects"]) * int(meta["n_poses"])
+        L = len(meta["levels"])
+        H, W = (int(x) for x in meta["image_shape"])
+        K = int(meta["n_components"])
+        cov = meta["covariance"]
+    except (KeyError, TypeError, ValueError) as e:
+        raise bad(f"metadata lacks a valid field ({e})") from None
+    if cov not in ("diag", "full") or len(positions) != n_cam or n_cam < 1:
+        raise bad(f"inconsistent metadata (covariance {cov!r}, positions {positions})")
+    D = H * W
+    cameras = []
+    for i, V in enumerate(positions):
+        expect = {
+            "mean_image": (V, D), "basis": (V, D, K), "eigenvalues": (V, K),
+            "mu": (V, C, L, K), "var": (V, C, L, K),
+        }
+        if cov == "full":
+            expect["chol"] = (V, C, L, K, K)
+        fields = {}
+        for f, shape in expect.items():
+            key = f"camera{i}.{f}"
+            if key not in arrays:
+                raise bad(f"missing array {key}")
+            x = arrays[key]
+            if x.dtype != np.float32:
+                raise bad(f"{key} has dtype {x.dtype}, expected float32")
+            if x.shape != shape:
+                raise bad(f"{key} has shape {x.shape}, expected {shape}")
+            if not np.all(np.isfinite(x)):
+                raise bad(f"{key} contains NaN or infinite values")
+            fields[f] = x
+        if np.any(fields["var"] <= 0):
+            raise bad(f"camera{i}.var has non-positive variances")
+        if cov == "full" and np.any(np.diagonal(fields["chol"], axis1=-2, axis2=-1) <= 0):
+            raise bad(f"camera{i}.chol has a non-positive diagonal")
+        cameras.append(CameraModel(**{f: jnp.asarray(x) for f, x in fields.items()}))
+    extra = set(arrays) - {f"camera{i}.{f}" for i in range(n_cam) for f in _FIELDS}
+    if extra:
+        raise bad(f"unexpected arrays {sorted(extra)}")
+    return SensorModel(
+        cameras=tuple(cameras),
+        n_objects=int(meta["n_objects"]),
+        n_poses=int(meta["n_poses"]),
+        levels=tuple(float(x) for x in meta["levels"]),
+        image_shape=(H, W),
+        covariance=cov,
+    )

@@ -1,0 +1,177 @@
+"""The sensor model (thesis §4.2-4.3): eigenspaces plus Gaussian likelihoods.
+
+For camera ``i``, position ``v``, class ``c = object * n_poses + pose`` and
+occlusion level ``k``: ``p(g | c, k, v) = N(g; mu[v, c, k], Σ[v, c, k])``
+(eq. 4.18-4.19, 4.22), fitted by maximum likelihood (eq. 4.23-4.24) from the
+projected augmented samples.  Fitting streams samples through sufficient
+statistics (:class:`GaussianAccumulator`), so the samples are never all held.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+
+from ._types import Bases, Cholesky, Eigenvalues, MeanImages, Means, Variances
+
+__all__ = ["CameraModel", "SensorModel", "GaussianAccumulator", "fit_gaussians"]
+
+
+class CameraModel(eqx.Module):
+    """Eigenspaces and Gaussians of one camera (arrays over its ``V`` positions).
+
+    Attributes:
+        mean_image: ``[V, D]`` mean of the unit-energy training images (eq. 4.4).
+        basis: ``[V, D, K]`` orthonormal top-K eigenvectors (eq. 4.10).
+        eigenvalues: ``[V, K]`` eigenvalues of ``S Sᵀ`` (eq. 4.9).
+        mu: ``[V, C, L, K]`` ML means (eq. 4.23).
+        var: ``[V, C, L, K]`` ML variances, floored (eq. 4.24); with a full
+            covariance, the diagonal of the floored covariance.
+        chol: ``[V, C, L, K, K]`` lower Cholesky factor of the floored full
+            covariance, or ``None`` (diagonal model).
+    """
+
+    mean_image: MeanImages
+    basis: Bases
+    eigenvalues: Eigenvalues
+    mu: Means
+    var: Variances
+    chol: Cholesky | None = None
+
+    @property
+    def n_positions(self) -> int:
+        return int(self.basis.shape[0])
+
+    @property
+    def n_components(self) -> int:
+        return int(self.basis.shape[2])
+
+
+class SensorModel(eqx.Module):
+    """The trained model: one :class:`CameraModel` per camera plus static sizes."""
+
+    cameras: tuple[CameraModel, ...]
+    n_objects: int = eqx.field(static=True)
+    n_poses: int = eqx.field(static=True)
+    levels: tuple[float, ...] = eqx.field(static=True)
+    image_shape: tuple[int, int] = eqx.field(static=True)
+    covariance: str = eqx.field(static=True, default="diag")
+
+    @property
+    def n_cameras(self) -> int:
+        return len(self.cameras)
+
+    @property
+    def positions(self) -> tuple[int, ...]:
+        return tuple(c.n_positions for c in self.cameras)
+
+    @property
+    def n_classes(self) -> int:
+        return self.n_objects * self.n_poses
+
+    @property
+    def n_levels(self) -> int:
+        return len(self.levels)
+
+    @property
+    def n_components(self) -> int:
+        return self.cameras[0].n_components
+
+    def summary(self) -> str:
+        """A few human-readable lines: sizes, levels and feature statistics."""
+        H, W = self.image_shape
+        lines = [
+            f"SensorModel: {self.n_cameras} camera(s), positions {self.positions}, "
+            f"{self.n_objects} objects x {self.n_poses} poses = {self.n_classes} classes",
+            f"  images {H}x{W} (D={H * W}), K={self.n_components} components, "
+            f"{self.n_levels} occlusion level(s) {tuple(round(x, 2) for x in self.levels)}, "
+            f"covariance {self.covariance}",
+        ]
+        for i, cam in enumerate(self.cameras):
+            lam = np.asarray(cam.eigenvalues)
+            energy = lam.sum(axis=1)
+            sd = np.sqrt(np.asarray(cam.var))
+            lines.append(
+                f"  camera {i}: {cam.n_positions} eigenspaces, eigenvalue sum "
+                f"{energy.min():.3g}..{energy.max():.3g}, feature sd "
+                f"{sd.min():.3g}..{sd.max():.3g}"
+            )
+        n_gauss = sum(c.n_positions for c in self.cameras) * self.n_classes * self.n_levels
+        lines.append(f"  {n_gauss} Gaussians (positions x classes x levels)")
+        return "\n".join(lines)
+
+
+class GaussianAccumulator:
+    """Streaming sufficient statistics of ``[C, L]`` Gaussians in ``K`` dims.
+
+    Samples are added in batches; each is stored relative to a per-(class,
+    level) reference point ``ref`` (e.g. the clean image's features) to avoid
+    cancellation, in float64: count ``n``, ``Σ(g - ref)`` and ``Σ(g - ref)²``
+    (diag) or ``Σ(g - ref)(g - ref)ᵀ`` (full).
+    """
+
+    def __init__(self, n_classes: int, n_levels: int, k: int, *, full: bool = False,
+                 ref: np.ndarray | None = None):
+        self.full = full
+        self.ref = np.zeros((n_classes, n_levels, k)) if ref is None else \
+            np.asarray(ref, np.float64).reshape(n_classes, n_levels, k)
+        self.n = np.zeros((n_classes, n_levels))
+        self.s1 = np.zeros((n_classes, n_levels, k))
+        self.s2 = np.zeros((n_classes, n_levels, k, k) if full else (n_classes, n_levels, k))
+
+    def add(self, g: np.ndarray, classes: np.ndarray, level: int | np.ndarray) -> None:
+        """Add samples ``g [B, K]`` of classes ``[B]`` at level(s) ``level``."""
+        g = np.asarray(g, np.float64)
+        classes = np.asarray(classes)
+        lev = np.broadcast_to(np.asarray(level), classes.shape)
+        if g.shape[0] == 0:
+            return
+        # group by (class, level): sort, then sum contiguous segments
+        key = classes * self.n.shape[1] + lev
+        order = np.argsort(key, kind="stable")
+        key, g, classes, lev = key[order], g[order], classes[order], lev[order]
+        starts = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
+        d = g - self.ref[classes, lev]
+        c, l = classes[starts], lev[starts]
+        self.n[c, l] += np.diff(np.r_[starts, len(key)])
+        self.s1[c, l] += np.add.reduceat(d, starts, axis=0)
+        sq = d[:, :, None] * d[:, None, :] if self.full else d * d
+        self.s2[c, l] += np.add.reduceat(sq, starts, axis=0)
+
+    def finalize(self, var_floor: float | np.ndarray = 0.0):
+        """ML estimates (eq. 4.23-4.24, divisor ``n``): ``(mu, var, chol)``.
+
+        ``var_floor`` (scalar or per class/level ``[C, L]``) keeps every Gaussian
+        proper: diagonal ``var = max(var_ML, floor)``; full
+        ``Σ = Σ_ML + floor·I``, ``chol = cholesky(Σ)``, ``var = diag(Σ)``.
+        """
+        if np.any(self.n < 2):
+            raise ValueError("every (class, level) needs at least two samples")
+        n = self.n[..., None]
+        m = self.s1 / n
+        mu = self.ref + m
+        floor = np.broadcast_to(np.asarray(var_floor, np.float64), self.n.shape)[..., None]
+        if not self.full:
+            var = np.maximum(self.s2 / n - m * m, floor)
+            return mu, var, None
+        cov = self.s2 / n[..., None] - m[..., :, None] * m[..., None, :]
+        cov = 0.5 * (cov + np.swapaxes(cov, -1, -2))
+        k = cov.shape[-1]
+        cov = cov + floor[..., None] * np.eye(k)
+        chol = np.linalg.cholesky(cov)
+        var = np.diagonal(cov, axis1=-2, axis2=-1).copy()
+        return mu, var, chol
+
+
+def fit_gaussians(g: np.ndarray, classes: np.ndarray, levels: np.ndarray, n_classes: int,
+                  n_levels: int, *, full: bool = False, var_floor: float = 0.0):
+    """ML Gaussians of samples ``g [B, K]`` in one pass (convenience wrapper of
+    :class:`GaussianAccumulator`)."""
+    acc = GaussianAccumulator(n_classes, n_levels, g.shape[1], full=full)
+    acc.add(g, classes, levels)
+    return acc.finalize(var_floor)
+
+
+def as_jax(x: np.ndarray | None):
+    return None if x is None else jnp.asarray(np.asarray(x, np.float32))

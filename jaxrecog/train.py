@@ -1,0 +1,231 @@
+"""Training: image database -> eigenspaces -> augmented samples -> Gaussians.
+
+:func:`train_model` is the public entry.  For every camera position it builds
+the eigenspace of the clean training images (:mod:`jaxrecog.eigenspace`), then
+streams the augmented samples of every (class, level) through
+:class:`~jaxrecog.sensor_model.GaussianAccumulator` in batches — the samples
+are never all held.
+
+Speed: the projection is linear, so the expensive part per sample is one row
+of a matmul of the (shifted, occluded) clean image ``z = m ⊙ S_d x`` with
+``[V | 1]`` (features and pixel sum at once), done in float32 for a whole
+batch.  The brightness offset ``b`` and the pixel noise ``n`` of the
+augmentation model ``y = z + b·1 + n`` (:mod:`jaxrecog.augment`) are added in
+feature space *exactly in distribution*: with ``u = z + b·1``,
+``ρ = ||u - V Vᵀ u||`` and independent ``α ~ N(0, σ² I_K)``, ``β ~ N(0, σ²)``,
+``γ ~ σ² χ²(D - K - 1)`` (the coordinates of ``n`` along ``V``, along the
+residual of ``u`` and the squared rest)::
+
+    Vᵀ y   = Vᵀ u + α
+    ||y||² = ||u||² + 2 (Vᵀu · α + ρ β) + ||α||² + β² + γ
+    g      = Vᵀ y / ||y|| - Vᵀ x̄                      (eq. 4.1-4.11)
+
+This is the unclipped, unrounded pixel model; the 8-bit images of
+:func:`~jaxrecog.augment.augment_images` differ only where ``y`` leaves
+``[0, 255]`` and by rounding (variance 1/12 gray level²).  Level-0 samples
+take ``Vᵀ z`` from a table of all ``(2s+1)²`` shifts of each image.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import time
+from typing import Callable
+
+import jax.numpy as jnp
+import numpy as np
+
+from .augment import AugmentParams, SamplePlan, ShiftWindows, apply_geometry, draw_plan, levels_for, occluder_bank, plan_rng
+from .database import ImageDatabase, load_database
+from .eigenspace import choose_n_components, position_eigenspace
+from .sensor_model import CameraModel, GaussianAccumulator, SensorModel
+
+__all__ = ["train_model", "TrainingInfo"]
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainingInfo:
+    """What :func:`train_model` did: parameters, sizes, provenance, time."""
+
+    params: dict
+    manifest_sha256: str
+    seconds: float
+
+    def to_dict(self) -> dict:
+        return {"params": self.params, "manifest_sha256": self.manifest_sha256,
+                "seconds": self.seconds}
+
+
+def train_model(
+    database: ImageDatabase | str | os.PathLike,
+    *,
+    kind: str = "DB1",
+    n_components: int | float = 20,
+    samples_per_image: int = 100,
+    covariance: str = "diag",
+    seed: int = 0,
+    progress: Callable[[int, int], None] | None = None,
+    augment: AugmentParams | None = None,
+    var_floor: float = 1e-6,
+    batch_size: int = 256,
+    return_info: bool = False,
+) -> SensorModel | tuple[SensorModel, TrainingInfo]:
+    """Train the sensor model of a database (thesis ch. 4, §7.1).
+
+    Args:
+        database: an :class:`ImageDatabase` or a folder to load.
+        kind: ``"DB1"`` (noise + shifts, one level) or ``"DB2"`` (adds occlusion
+            levels 5..25 %).
+        n_components: K (``int``) or the energy fraction to capture (``float``
+            in (0, 1]); one K for all positions, see
+            :func:`~jaxrecog.eigenspace.choose_n_components`.
+        samples_per_image: augmented samples per training image and level.
+        covariance: ``"diag"`` (default) or ``"full"``.
+        seed: everything random derives from it.
+        progress: called as ``progress(done, total)`` after each position.
+        augment: augmentation settings (``samples_per_image`` overrides its field).
+        var_floor: variance floor relative to the mean training-image variance
+            per component, ``floor_v = var_floor * sum(λ_v) / (K * C)``.
+        batch_size: samples projected per matmul.
+        return_info: also return a :class:`TrainingInfo`.
+
+    Returns:
+        The :class:`SensorModel` (float32 arrays), and the info if asked.
+    """
+    t0 = time.perf_counter()
+    if covariance not in ("diag", "full"):
+        raise ValueError(f"covariance must be 'diag' or 'full', got {covariance!r}")
+    levels = levels_for(kind)
+    params = dataclasses.replace(augment or AugmentParams(), samples_per_image=samples_per_image)
+    db = database if isinstance(database, ImageDatabase) else load_database(database)
+    H, W = db.image_shape
+    C = db.n_classes
+
+    # eigenspaces of every position (clean images), then one K for all
+    train = [db.train_images(i) for i in range(db.n_cameras)]        # [V, C, H, W] each
+    spaces = [[position_eigenspace(t[v]) for v in range(t.shape[0])] for t in train]
+    K = choose_n_components([s.eigenvalues for cam in spaces for s in cam], n_components)
+    bank = occluder_bank(levels, (H, W), params, seed)
+
+    total = sum(len(s) for s in spaces)
+    done = 0
+    cameras = []
+    for i, cam_spaces in enumerate(spaces):
+        fields = {k: [] for k in ("mean_image", "basis", "eigenvalues", "mu", "var", "chol")}
+        for v, space in enumerate(cam_spaces):
+            mean, basis, lam = space.truncate(K)
+            mu, var, chol = _fit_position(
+                train[i][v], mean, basis, lam, levels, params, bank, seed, i, v,
+                full=covariance == "full", var_floor=var_floor, batch_size=batch_size,
+            )
+            for k, x in zip(fields, (mean, basis, lam, mu, var, chol)):
+                fields[k].append(x)
+            done += 1
+            if progress is not None:
+                progress(done, total)
+        stacked = {k: (None if x[0] is None else jnp.asarray(np.stack(x).astype(np.float32)))
+                   for k, x in fields.items()}
+        cameras.append(CameraModel(**stacked))
+    model = SensorModel(
+        cameras=tuple(cameras),
+        n_objects=db.n_objects,
+        n_poses=db.n_poses,
+        levels=tuple(float(x) for x in levels),
+        image_shape=(H, W),
+        covariance=covariance,
+    )
+    if not return_info:
+        return model
+    info = TrainingInfo(
+        params={
+            "kind": kind,
+            "n_components": n_components,
+            "K": K,
+            "samples_per_image": samples_per_image,
+            "covariance": covariance,
+            "seed": seed,
+            "var_floor": var_floor,
+            "augment": {k: (list(x) if isinstance(x, tuple) else x)
+                        for k, x in dataclasses.asdict(params).items()},
+            "positions": list(db.positions),
+            "n_objects": db.n_objects,
+            "n_poses": db.n_poses,
+            "image_shape": [H, W],
+        },
+        manifest_sha256=db.manifest_sha256,
+        seconds=time.perf_counter() - t0,
+    )
+    return model, info
+
+
+def _fit_position(images, mean, basis, lam, levels, params, bank, seed, camera, position, *,
+                  full, var_floor, batch_size):
+    """Gaussians ``[C, L, K]`` of one camera position from streamed samples."""
+    C, H, W = images.shape
+    D, K = basis.shape
+    s = params.max_shift
+    sigma = float(params.noise_sigma)
+    vaug = np.concatenate([basis, np.ones((D, 1))], axis=1).astype(np.float32)   # [D, K+1]
+    vt1 = basis.sum(axis=0)                                                        # Vᵀ1 [K]
+    vt_mean = mean @ basis                                                         # Vᵀx̄ [K]
+    flat = images.reshape(C, D).astype(np.float64)
+    g_clean = (flat / np.linalg.norm(flat, axis=1, keepdims=True) - mean) @ basis  # [C, K]
+    acc = GaussianAccumulator(C, len(levels), K, full=full,
+                              ref=np.broadcast_to(g_clean[:, None, :], (C, len(levels), K)))
+
+    win = ShiftWindows(images, s)
+    # level 0: a table of Vᵀz, Σz, ||z||² over every shift of every image
+    side = 2 * s + 1
+    dy, dx = np.meshgrid(np.arange(-s, s + 1), np.arange(-s, s + 1), indexing="ij")
+    table_p = np.empty((C, side * side, K + 1), np.float64)
+    table_q = np.empty((C, side * side), np.float64)
+    for c in range(C):
+        z = side * side
+        plan = SamplePlan(np.full(z, c), dy.ravel(), dx.ravel(), np.full(z, -1),
+                          np.zeros(z, np.int64), np.zeros(z, np.int64), np.zeros(z))
+        w = apply_geometry(win, plan, bank, 0, s).reshape(z, D).astype(np.float32)
+        table_p[c] = w @ vaug
+        table_q[c] = np.einsum("bd,bd->b", w, w, dtype=np.float64)
+
+    buf = np.empty((batch_size, D), np.float32)
+    for k in range(len(levels)):
+        rng = plan_rng(seed, camera, position, k)
+        plan = draw_plan(rng, C, params, bank, k, (H, W))
+        B = len(plan)
+        alpha = rng.standard_normal((B, K)) * sigma
+        beta = rng.standard_normal(B) * sigma
+        gamma = rng.chisquare(D - K - 1, size=B) * sigma**2 if sigma > 0 else np.zeros(B)
+        for start in range(0, B, batch_size):
+            sl = slice(start, min(start + batch_size, B))
+            p = plan.take(sl)
+            if bank.templates[k]:
+                w = buf[: len(p)]  # reused float32 buffer: no page faults per batch
+                np.copyto(w, apply_geometry(win, p, bank, k, s).reshape(len(p), D),
+                          casting="unsafe")
+                pz = (w @ vaug).astype(np.float64)
+                qz = np.einsum("bd,bd->b", w, w).astype(np.float64)
+            else:
+                idx = (p.dy + s) * side + (p.dx + s)
+                pz = table_p[p.image, idx]
+                qz = table_q[p.image, idx]
+            g = _noisy_features(pz, qz, p.brightness, alpha[sl], beta[sl], gamma[sl],
+                                vt1, vt_mean, D)
+            acc.add(g, p.image, k)
+    floor = var_floor * lam.sum() / (K * C)
+    return acc.finalize(floor)
+
+
+def _noisy_features(pz, qz, b, alpha, beta, gamma, vt1, vt_mean, D):
+    """Features of ``y = z + b·1 + n`` from ``[Vᵀz | Σz]``, ``||z||²`` and the noise
+    coordinates (module docstring), float64 ``[B, K]``."""
+    K = vt1.shape[0]
+    vtu = pz[:, :K] + b[:, None] * vt1[None, :]
+    uu = qz + 2.0 * b * pz[:, K] + b * b * D
+    rho = np.sqrt(np.maximum(uu - np.einsum("bk,bk->b", vtu, vtu), 0.0))
+    vty = vtu + alpha
+    yy = uu + 2.0 * (np.einsum("bk,bk->b", vtu, alpha) + rho * beta) \
+        + np.einsum("bk,bk->b", alpha, alpha) + beta * beta + gamma
+    if np.any(~(yy > 0)):
+        raise FloatingPointError("an augmented sample has zero energy")
+    return vty / np.sqrt(yy)[:, None] - vt_mean[None, :]

@@ -1,0 +1,154 @@
+"""Model file: bit-exact round trip, one clear error per failure, crash-safe save."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import zipfile
+
+import numpy as np
+import pytest
+
+from jaxrecog.modelfile import (
+    FORMAT_VERSION, ModelFileContentError, ModelFileCorruptError, ModelFileMissingError,
+    ModelFileTruncatedError, ModelFileVersionError, load_model, load_model_meta, save_model,
+)
+from jaxrecog.testing import make_database
+from jaxrecog.train import train_model
+
+
+@pytest.fixture(scope="module")
+def models():
+    db = make_database(positions=(2, 1), n_objects=2, n_poses=2, image_shape=(16, 20))
+    diag, info = train_model(db, kind="DB2", n_components=2, samples_per_image=5, return_info=True)
+    full = train_model(db, kind="DB1", n_components=3, samples_per_image=6, covariance="full")
+    return diag, full, info
+
+
+def _leaves(m):
+    return [np.asarray(getattr(c, f)) for c in m.cameras
+            for f in ("mean_image", "basis", "eigenvalues", "mu", "var", "chol")
+            if getattr(c, f) is not None]
+
+
+@pytest.mark.parametrize("which", [0, 1])
+def test_round_trip_bit_exact(tmp_path, models, which):
+    m, info = models[which], models[2]
+    p = save_model(tmp_path / "m.npz", m, training=info.params, manifest_sha256=info.manifest_sha256)
+    got = load_model(p)
+    a, b = _leaves(m), _leaves(got)
+    assert len(a) == len(b)
+    for x, y in zip(a, b):
+        assert x.dtype == y.dtype == np.float32 and x.tobytes() == y.tobytes()
+    assert (got.levels, got.image_shape, got.covariance, got.n_objects, got.n_poses) == \
+        (m.levels, m.image_shape, m.covariance, m.n_objects, m.n_poses)
+    meta = load_model_meta(p)
+    assert meta["manifest_sha256"] == info.manifest_sha256 and meta["training"]["kind"] == "DB2"
+    assert meta["format_version"] == FORMAT_VERSION
+    assert [f for f in os.listdir(tmp_path)] == ["m.npz"]       # no temp left behind
+
+
+def _rewrite(src, dst, change):
+    with np.load(src) as z:
+        d = {k: z[k] for k in z.files}
+    change(d)
+    with open(dst, "wb") as f:
+        np.savez(f, **d)
+
+
+def test_errors_each_their_own(tmp_path, models):
+    m = models[0]
+    good = save_model(tmp_path / "good.npz", m)
+    raw = good.read_bytes()
+    with pytest.raises(ModelFileMissingError, match="no such file"):
+        load_model(tmp_path / "absent.npz")
+    (tmp_path / "trunc.npz").write_bytes(raw[: len(raw) // 2])
+    with pytest.raises(ModelFileTruncatedError, match="truncated"):
+        load_model(tmp_path / "trunc.npz")
+    (tmp_path / "junk.npz").write_bytes(b"hello, not a model" * 10)
+    with pytest.raises(ModelFileCorruptError, match="not a model file"):
+        load_model(tmp_path / "junk.npz")
+    flipped = bytearray(raw)
+    with zipfile.ZipFile(good) as z:
+        info = z.getinfo("camera0.mu.npy")
+    mid = info.header_offset + 30 + len(info.filename) + info.file_size // 2 + 64
+    flipped[mid] ^= 0xFF
+    (tmp_path / "flip.npz").write_bytes(bytes(flipped))
+    with pytest.raises(ModelFileCorruptError, match="damaged|checksum"):
+        load_model(tmp_path / "flip.npz")
+
+    def version(d):
+        d["format_version"] = np.array(FORMAT_VERSION + 1)
+    _rewrite(good, tmp_path / "v.npz", version)
+    with pytest.raises(ModelFileVersionError, match=f"format version {FORMAT_VERSION + 1}"):
+        load_model(tmp_path / "v.npz")
+
+    def nan_with_valid_hash(d):
+        from jaxrecog.modelfile import _content_hash
+        d["camera0.mu"] = d["camera0.mu"].copy()
+        d["camera0.mu"][0, 0, 0, 0] = np.nan
+        meta = json.loads(bytes(d["meta"]).decode())
+        meta["content_sha256"] = _content_hash({k: v for k, v in d.items() if "." in k})
+        d["meta"] = np.frombuffer(json.dumps(meta).encode(), np.uint8)
+    _rewrite(good, tmp_path / "nan.npz", nan_with_valid_hash)
+    with pytest.raises(ModelFileContentError, match="camera0.mu contains NaN"):
+        load_model(tmp_path / "nan.npz")
+
+    def wrong_dtype(d):
+        from jaxrecog.modelfile import _content_hash
+        d["camera1.var"] = d["camera1.var"].astype(np.float64)
+        meta = json.loads(bytes(d["meta"]).decode())
+        meta["content_sha256"] = _content_hash({k: v for k, v in d.items() if "." in k})
+        d["meta"] = np.frombuffer(json.dumps(meta).encode(), np.uint8)
+    _rewrite(good, tmp_path / "dt.npz", wrong_dtype)
+    with pytest.raises(ModelFileContentError, match="camera1.var has dtype float64"):
+        load_model(tmp_path / "dt.npz")
+    for f in ("trunc", "junk", "flip", "v", "nan", "dt"):
+        with pytest.raises(Exception) as e:
+            load_model(tmp_path / f"{f}.npz")
+        assert "\n" not in str(e.value) and str(tmp_path) in str(e.value)
+
+
+_WRITER = textwrap.dedent("""
+    import os, sys, time
+    import numpy as np
+    import jax.numpy as jnp
+    from jaxrecog.sensor_model import CameraModel, SensorModel
+    from jaxrecog.modelfile import save_model
+    V, C, L, K, H, W = 4, 8, 2, 30, 120, 160
+    r = np.random.default_rng(1)
+    f = lambda *s: jnp.asarray(r.random(s, dtype=np.float32) + 0.5)
+    cam = CameraModel(f(V, H * W), f(V, H * W, K), f(V, K), f(V, C, L, K), f(V, C, L, K))
+    m = SensorModel((cam,), 4, 2, (0.0, 0.1), (H, W), "diag")
+    real_fsync = os.fsync
+    def stall(fd):           # the data is written; stop right before the rename
+        print("writing", flush=True)
+        time.sleep(60)
+    os.fsync = stall
+    save_model(sys.argv[1], m)
+""")
+
+
+def test_killed_writer_leaves_old_file(tmp_path, models):
+    target = tmp_path / "model.npz"
+    save_model(target, models[0])
+    before = target.read_bytes()
+    proc = subprocess.Popen([sys.executable, "-c", _WRITER, str(target)],
+                            stdout=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline().strip() == "writing"
+        temps = [p for p in os.listdir(tmp_path) if p.endswith(".tmp")]
+        assert len(temps) == 1 and (tmp_path / temps[0]).stat().st_size > 5_000_000
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=30)
+        proc.stdout.close()
+    assert proc.returncode == -signal.SIGKILL
+    assert target.read_bytes() == before
+    got = load_model(target)
+    for x, y in zip(_leaves(models[0]), _leaves(got)):
+        assert x.tobytes() == y.tobytes()
