@@ -3,7 +3,11 @@
 Layout (format version :data:`FORMAT_VERSION`): ``format_version`` (int64
 scalar), ``meta`` (UTF-8 JSON as uint8 bytes: sizes, static fields, training
 parameters, sha256 of the manifest, sha256 of the array contents) and per camera
-``camera{i}.{mean_image,basis,eigenvalues,mu,var[,chol]}`` (float32).
+``camera{i}.{mean_image,basis,eigenvalues,mu,var[,chol][,calibration]}``
+(float32).  Version 2 added the optional ``calibration`` ``[V, L]`` variance
+factors (:mod:`jaxrecog.calibration`) and the ``calibration`` metadata entry;
+version-1 files still load, as uncalibrated models, with a
+:class:`ModelFileVersionWarning`.
 
 Saving writes a temporary file in the target folder, fsyncs it, then
 ``os.replace``s it over the target (and fsyncs the folder): a crash at any
@@ -18,6 +22,7 @@ import hashlib
 import json
 import os
 import tempfile
+import warnings
 import zipfile
 from pathlib import Path
 
@@ -34,13 +39,15 @@ __all__ = [
     "ModelFileTruncatedError",
     "ModelFileVersionError",
     "ModelFileContentError",
+    "ModelFileVersionWarning",
     "save_model",
     "load_model",
     "load_model_meta",
 ]
 
-FORMAT_VERSION = 1
-_FIELDS = ("mean_image", "basis", "eigenvalues", "mu", "var", "chol")
+FORMAT_VERSION = 2
+_OLD_VERSIONS = (1,)  # still read, as uncalibrated models, with a warning
+_FIELDS = ("mean_image", "basis", "eigenvalues", "mu", "var", "chol", "calibration")
 
 
 class ModelFileError(Exception):
@@ -67,6 +74,11 @@ class ModelFileContentError(ModelFileError):
     """Arrays missing, of the wrong shape or dtype, or non-finite / non-positive."""
 
 
+class ModelFileVersionWarning(UserWarning):
+    """A model file of an older, still readable format version was loaded
+    (version 1: no calibration, the model loads uncalibrated)."""
+
+
 def _arrays(model: SensorModel) -> dict[str, np.ndarray]:
     out = {}
     for i, cam in enumerate(model.cameras):
@@ -87,11 +99,14 @@ def _content_hash(arrays: dict[str, np.ndarray]) -> str:
 
 
 def save_model(path: str | os.PathLike, model: SensorModel, *, training: dict | None = None,
-               manifest_sha256: str | None = None) -> Path:
+               manifest_sha256: str | None = None, calibration: dict | None = None) -> Path:
     """Write ``model`` to ``path`` atomically (temp file + fsync + ``os.replace``).
 
     ``training`` (JSON-serialisable parameters) and ``manifest_sha256`` are
-    stored as provenance (see :class:`~jaxrecog.train.TrainingInfo`).
+    stored as provenance (see :class:`~jaxrecog.train.TrainingInfo`);
+    ``calibration`` (JSON-serialisable, e.g.
+    :meth:`jaxrecog.calibration.CalibrationInfo.to_dict`) likewise.  The
+    calibration factors themselves are arrays of the model.
     """
     path = Path(path)
     arrays = _arrays(model)
@@ -106,6 +121,8 @@ def save_model(path: str | os.PathLike, model: SensorModel, *, training: dict | 
         "covariance": model.covariance,
         "n_components": model.n_components,
         "training": training or {},
+        "calibrated": any(c.calibration is not None for c in model.cameras),
+        "calibration": calibration or {},
         "manifest_sha256": manifest_sha256,
         "content_sha256": _content_hash(arrays),
     }
@@ -173,7 +190,12 @@ def _read(path: Path) -> tuple[dict[str, np.ndarray], dict]:
     if "format_version" not in data:
         raise ModelFileCorruptError(f"model file {path}: no format_version entry")
     version = int(np.asarray(data["format_version"]).reshape(-1)[0])
-    if version != FORMAT_VERSION:
+    if version in _OLD_VERSIONS:
+        warnings.warn(
+            f"model file {path}: format version {version} (older than {FORMAT_VERSION}); "
+            f"loaded as an uncalibrated model", ModelFileVersionWarning, stacklevel=3,
+        )
+    elif version != FORMAT_VERSION:
         raise ModelFileVersionError(
             f"model file {path}: format version {version}, this jaxrecog reads version "
             f"{FORMAT_VERSION} (retrain or convert the model)"
@@ -182,6 +204,7 @@ def _read(path: Path) -> tuple[dict[str, np.ndarray], dict]:
         meta = json.loads(bytes(data["meta"]).decode())
     except (KeyError, ValueError) as e:
         raise ModelFileCorruptError(f"model file {path}: unreadable metadata ({e})") from None
+    meta["format_version"] = version
     arrays = {k: v for k, v in data.items() if k not in ("format_version", "meta")}
     if _content_hash(arrays) != meta.get("content_sha256"):
         raise ModelFileCorruptError(f"model file {path}: array checksum mismatch (damaged content)")
@@ -222,6 +245,8 @@ def load_model(path: str | os.PathLike) -> SensorModel:
         }
         if cov == "full":
             expect["chol"] = (V, C, L, K, K)
+        if f"camera{i}.calibration" in arrays and meta["format_version"] >= 2:
+            expect["calibration"] = (V, L)
         fields = {}
         for f, shape in expect.items():
             key = f"camera{i}.{f}"
@@ -239,8 +264,11 @@ def load_model(path: str | os.PathLike) -> SensorModel:
             raise bad(f"camera{i}.var has non-positive variances")
         if cov == "full" and np.any(np.diagonal(fields["chol"], axis1=-2, axis2=-1) <= 0):
             raise bad(f"camera{i}.chol has a non-positive diagonal")
+        if "calibration" in fields and np.any(fields["calibration"] <= 0):
+            raise bad(f"camera{i}.calibration has non-positive factors")
         cameras.append(CameraModel(**{f: jnp.asarray(x) for f, x in fields.items()}))
-    extra = set(arrays) - {f"camera{i}.{f}" for i in range(n_cam) for f in _FIELDS}
+    known = _FIELDS if meta["format_version"] >= 2 else _FIELDS[:-1]
+    extra = set(arrays) - {f"camera{i}.{f}" for i in range(n_cam) for f in known}
     if extra:
         raise bad(f"unexpected arrays {sorted(extra)}")
     return SensorModel(

@@ -12,6 +12,7 @@ from __future__ import annotations
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Array, Float
 
 from ._types import Bases, Cholesky, Eigenvalues, MeanImages, Means, Variances
 
@@ -30,6 +31,10 @@ class CameraModel(eqx.Module):
             covariance, the diagonal of the floored covariance.
         chol: ``[V, C, L, K, K]`` lower Cholesky factor of the floored full
             covariance, or ``None`` (diagonal model).
+        calibration: ``[V, L]`` variance inflation factors ``s`` already
+            applied to ``var`` (and ``sqrt(s)`` to ``chol``) by
+            :func:`jaxrecog.calibration.apply_calibration`, kept so they can be
+            reported; ``None`` = uncalibrated (all factors 1).
     """
 
     mean_image: MeanImages
@@ -38,6 +43,7 @@ class CameraModel(eqx.Module):
     mu: Means
     var: Variances
     chol: Cholesky | None = None
+    calibration: Float[Array, "V L"] | None = None
 
     @property
     def n_positions(self) -> int:
@@ -97,6 +103,13 @@ class SensorModel(eqx.Module):
                 f"{energy.min():.3g}..{energy.max():.3g}, feature sd "
                 f"{sd.min():.3g}..{sd.max():.3g}"
             )
+        for i, cam in enumerate(self.cameras):
+            if cam.calibration is not None:
+                f = np.asarray(cam.calibration)
+                lines.append(
+                    f"  camera {i} calibration: variance factors {f.min():.3g}..{f.max():.3g} "
+                    f"(median {np.median(f):.3g}) over {f.shape[0]} positions x {f.shape[1]} level(s)"
+                )
         n_gauss = sum(c.n_positions for c in self.cameras) * self.n_classes * self.n_levels
         lines.append(f"  {n_gauss} Gaussians (positions x classes x levels)")
         return "\n".join(lines)
