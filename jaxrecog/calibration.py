@@ -286,10 +286,10 @@ def _neg_log_posterior(theta: Float[Array, " P"], q: Float[Array, "N C L"],
 
 
 @eqx.filter_jit
-def _fit_positions(q, logdet, true_cls, mask, *, n_params: int, K: int, prior_sd: float,
-                   max_iter: int, tol: float):
+def _fit_positions(q, logdet, true_cls, mask, prior_sd, max_iter, tol, *, n_params: int, K: int):
     """vmap over positions of the L-BFGS fit: ``(theta [V, P], iters [V],
-    converged [V], nll0 [V], nll1 [V])``."""
+    converged [V], nll0 [V], nll1 [V])``.  ``prior_sd``, ``max_iter``, ``tol``
+    are traced scalars (changing them does not recompile)."""
 
     def fit_one(q, logdet, true_cls, mask):
         n = jnp.maximum(jnp.sum(mask), 1).astype(q.dtype)
@@ -298,7 +298,7 @@ def _fit_positions(q, logdet, true_cls, mask, *, n_params: int, K: int, prior_sd
             nll = _neg_log_posterior(theta, q, logdet, true_cls, mask, K)
             return (jnp.sum(nll) + 0.5 * jnp.sum(theta * theta) / prior_sd**2) / n
 
-        opt = optax.lbfgs()
+        opt = optax.lbfgs()   # zoom line search (a backtracking one stalls near the optimum in float32)
         value_and_grad = optax.value_and_grad_from_state(loss)
         theta0 = jnp.zeros((n_params,), q.dtype)
 
@@ -311,11 +311,11 @@ def _fit_positions(q, logdet, true_cls, mask, *, n_params: int, K: int, prior_sd
         def cond(carry):
             theta, state, it = carry
             grad = optax.tree_utils.tree_get(state, "grad")
-            gnorm = optax.tree_utils.tree_l2_norm(grad)
+            gnorm = jnp.linalg.norm(grad)
             return (it == 0) | ((it < max_iter) & (gnorm >= tol))
 
         theta, state, it = jax.lax.while_loop(cond, body, (theta0, opt.init(theta0), jnp.asarray(0)))
-        gnorm = optax.tree_utils.tree_l2_norm(jax.grad(loss)(theta))
+        gnorm = jnp.linalg.norm(jax.grad(loss)(theta))
         nll0 = jnp.sum(_neg_log_posterior(theta0, q, logdet, true_cls, mask, K)) / n
         nll1 = jnp.sum(_neg_log_posterior(theta, q, logdet, true_cls, mask, K)) / n
         return theta, it, gnorm < tol, nll0, nll1
@@ -343,7 +343,7 @@ def fit_factors(camera: CameraModel, features: CameraFeatures, *, per_level: boo
         raise ValueError(f"need prior_sd > 0, max_iter >= 1, tol > 0 (got {prior_sd}, {max_iter}, {tol})")
     V, C, L, K = camera.mu.shape
     counts = np.bincount(features.position, minlength=V)
-    n_max = max(int(counts.max()), 1)
+    n_max = 1 << max(int(counts.max()) - 1, 0).bit_length()   # power of two: fewer recompiles
     # group by position into padded [V, n_max] slots
     order = np.argsort(features.position, kind="stable")
     pos = features.position[order]
@@ -358,8 +358,8 @@ def fit_factors(camera: CameraModel, features: CameraFeatures, *, per_level: boo
     q, logdet = jax.vmap(mahalanobis_terms, in_axes=(0, 0, None if camera.chol is None else 0, 0))(
         camera.mu, camera.var, camera.chol, g)
     theta, it, conv, nll0, nll1 = _fit_positions(
-        q, logdet, cls, jnp.asarray(mask), n_params=L if per_level else 1, K=K,
-        prior_sd=float(prior_sd), max_iter=int(max_iter), tol=float(tol))
+        q, logdet, cls, jnp.asarray(mask), jnp.asarray(prior_sd, dtype), jnp.asarray(int(max_iter)),
+        jnp.asarray(tol, dtype), n_params=L if per_level else 1, K=K)
     s = np.broadcast_to(np.exp(np.asarray(theta, np.float64)), (V, L)).astype(np.float32)
     if not np.all(np.isfinite(s)):
         raise FloatingPointError("calibration diverged (non-finite factor)")
