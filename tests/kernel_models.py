@@ -30,3 +30,16 @@ def random_belief(rng, n_classes=4, levels=(2, 3), concentration=1.0):
     pc = rng.dirichlet(np.full(n_classes, concentration))
     pk = tuple(rng.dirichlet(np.full(l, concentration), size=n_classes) for l in levels)
     return Belief(np.log(pc), tuple(np.log(p) for p in pk))
+
+
+def jitted():
+    """Jitted kernels for the tests (eager dispatch of the many small ops is slow)."""
+    import jax
+
+    from jaxrecog import kernels as K
+
+    return (
+        jax.jit(K.mi_tables, static_argnames=("samples_per_stratum", "store")),
+        jax.jit(K.mutual_information, static_argnames=("target", "levels", "with_stderr")),
+        jax.jit(K.fisher_information, static_argnames=("n_objects", "n_poses", "sigma_s", "levels", "with_stderr")),
+    )
