@@ -5,7 +5,10 @@ positions of camera 1 and 7 of camera 2: 1248 images.  :func:`render_database`
 writes them as the folder + ``manifest.csv`` format of ``docs/architecture.md``
 (columns ``path,camera,position,object,pose,split``), clean renders as the
 ``train`` split and, optionally, perturbed renders (noise, pixel offsets,
-cardboard occluders) as the ``test`` split.
+cardboard occluders) as the ``test`` split and held-out views near the
+training views (object yaw, camera offset, lighting, noise:
+:class:`~.synthetic.Perturb`) as the ``calib`` split, for calibrating the
+sensor model's confidence (:mod:`jaxrecog.calibration`).
 """
 
 from __future__ import annotations
@@ -20,7 +23,7 @@ import numpy as np
 from .occluders import random_occluders
 from .positions import CameraTable
 from .scene import ObjectSpec
-from .synthetic import Noise, SyntheticRig
+from .synthetic import Noise, Perturb, SyntheticRig
 
 __all__ = ["MANIFEST_COLUMNS", "render_database", "contact_sheet", "lookalike_distances"]
 
@@ -46,6 +49,10 @@ def render_database(
     test_occluders: bool = False,
     seed: int = 0,
     progress: Callable[[int], object] | None = None,
+    calib_per_view: int = 0,
+    calib_perturb: Perturb = Perturb(),
+    calib_occluders: bool = False,
+    train: bool = True,
 ) -> Path:
     """Render every (camera, position, object, pose) and write the database.
 
@@ -59,6 +66,10 @@ def render_database(
             cardboard layout (:func:`~.occluders.random_occluders`).
         seed: seeds the test perturbations and layouts.
         progress: called with the number of images just written (e.g. ``tqdm.update``).
+        calib_per_view: held-out ``calib`` images per (camera, position, object, pose); 0 = none.
+        calib_perturb: their perturbations (seeded by ``seed``, independent of the test split's).
+        calib_occluders: give each (object, pose) of the calib split a random layout.
+        train: write the ``train`` split (``False``: e.g. a calib-only folder).
 
     Returns:
         The path of ``manifest.csv``.  Train images: ``n_objects * poses`` per
@@ -66,6 +77,8 @@ def render_database(
     """
     if test_per_view < 0:
         raise ValueError(f"test_per_view must be >= 0, got {test_per_view}")
+    if calib_per_view < 0:
+        raise ValueError(f"calib_per_view must be >= 0, got {calib_per_view}")
     own = rig is None
     if own:
         rig = SyntheticRig(table, objects=objects, n_poses=poses, seed=seed)
@@ -73,15 +86,16 @@ def render_database(
     rows: list[tuple] = []
     try:
         rng = np.random.default_rng(seed)
+        calib_rng = np.random.default_rng([seed, 0xCA1])
+        splits = [s for s, n in (("train", train), ("test", test_per_view), ("calib", calib_per_view)) if n]
         for i, n_pos in enumerate(rig.positions):
             for v in range(n_pos):
-                (out / "train" / f"c{i}" / f"v{v:02d}").mkdir(parents=True, exist_ok=True)
-                if test_per_view:
-                    (out / "test" / f"c{i}" / f"v{v:02d}").mkdir(parents=True, exist_ok=True)
+                for s in splits:
+                    (out / s / f"c{i}" / f"v{v:02d}").mkdir(parents=True, exist_ok=True)
         for m in range(rig.n_objects):
             for p in range(rig.n_poses):
                 rig.reset(m, p)
-                for i, n_pos in enumerate(rig.positions):
+                for i, n_pos in enumerate(rig.positions if train else ()):
                     for v in range(n_pos):
                         img, _ = rig.render_clean(i, v)
                         rel = f"train/c{i}/v{v:02d}/m{m}_p{p}.png"
@@ -102,10 +116,24 @@ def render_database(
                         if progress is not None:
                             progress(n_pos * test_per_view)
                     rig.reset(m, p)
+                if calib_per_view:
+                    layout = random_occluders(calib_rng, rig.table, radius=rig.radius) if calib_occluders else None
+                    rig.reset(m, p, layout)
+                    for i, n_pos in enumerate(rig.positions):
+                        for v in range(n_pos):
+                            for j in range(calib_per_view):
+                                img, _ = rig.render_perturbed(i, v, calib_perturb, calib_rng)
+                                rel = f"calib/c{i}/v{v:02d}/m{m}_p{p}_{j}.png"
+                                _write_png(out / rel, img)
+                                rows.append((rel, i, v, m, p, "calib"))
+                        if progress is not None:
+                            progress(n_pos * calib_per_view)
+                    rig.reset(m, p)
     finally:
         if own:
             rig.close()
-    rows.sort(key=lambda r: (r[5] != "train", r[1], r[2], r[3], r[4], r[0]))
+    order = {"train": 0, "test": 1, "calib": 2}
+    rows.sort(key=lambda r: (order[r[5]], r[1], r[2], r[3], r[4], r[0]))
     manifest = out / "manifest.csv"
     with open(manifest, "w", newline="") as fh:
         w = csv.writer(fh)

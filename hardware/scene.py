@@ -367,7 +367,7 @@ class Scene:
         except Exception:
             self.close()
             raise
-        self._current: tuple[int, int] | None = None
+        self._current: tuple[int, int, float] | None = None
         self.object_ids: np.ndarray = np.zeros(0, dtype=np.int32)
         self.occluder_ids: list[int] = []
         self._occluder_poses: list[tuple[tuple[float, float, float], tuple[float, ...]]] = []
@@ -418,14 +418,15 @@ class Scene:
         return out
 
     # -- state
-    def set_object(self, obj: int, pose: int) -> None:
-        """Put object ``obj`` in pose ``pose`` on the turn-table (only its bodies exist)."""
+    def set_object(self, obj: int, pose: int, yaw_offset_deg: float = 0.0) -> None:
+        """Put object ``obj`` in pose ``pose`` on the turn-table (only its bodies exist),
+        turned by a further ``yaw_offset_deg`` degrees (held-out perturbed views)."""
         if not 0 <= int(obj) < len(self.objects):
             raise ValueError(f"object {obj} is out of range 0..{len(self.objects) - 1}")
         if not 0 <= int(pose) < self.n_poses:
             raise ValueError(f"pose {pose} is out of range 0..{self.n_poses - 1}")
-        obj, pose = int(obj), int(pose)
-        if self._current == (obj, pose):
+        obj, pose, off = int(obj), int(pose), float(yaw_offset_deg)
+        if self._current == (obj, pose, off):
             return
         p, cid = self._p, self.client
         if self._current is None or self._current[0] != obj:
@@ -435,14 +436,14 @@ class Scene:
             for body in self.object_ids:
                 p.removeBody(int(body), physicsClientId=cid)
             self.object_ids = np.array([self._body(vis, _PARK, orn) for vis, _, orn in self._shapes[obj]], dtype=np.int32)
-        yaw = 2.0 * math.pi * pose / self.n_poses
+        yaw = 2.0 * math.pi * pose / self.n_poses + math.radians(off)
         q_yaw = p.getQuaternionFromEuler((0.0, 0.0, yaw))
         Rz = _rotation((0.0, 0.0, yaw))
         for body, (_, pos, orn) in zip(self.object_ids, self._shapes[obj]):
             world = self.origin + Rz @ pos
             _, q = p.multiplyTransforms((0, 0, 0), q_yaw, (0, 0, 0), orn.tolist())
             p.resetBasePositionAndOrientation(int(body), world.tolist(), q, physicsClientId=cid)
-        self._current = (obj, pose)
+        self._current = (obj, pose, off)
 
     def set_occluders(self, boards, key: object = None) -> None:
         """Replace the occluder boards: ``boards`` is a sequence of objects with

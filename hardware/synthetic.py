@@ -28,7 +28,7 @@ from .positions import CameraTable, default_table
 from .rig import RigError
 from .scene import Intrinsics, Lighting, ObjectSpec, Scene
 
-__all__ = ["Noise", "SyntheticRig"]
+__all__ = ["Noise", "Perturb", "SyntheticRig"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -52,6 +52,30 @@ class Noise:
     @property
     def off(self) -> bool:
         return self.brightness == 0 and self.pixel == 0 and self.max_shift == 0
+
+
+@dataclasses.dataclass(frozen=True)
+class Perturb:
+    """Small departures from the training views, for held-out calibration renders.
+
+    Attributes:
+        yaw_deg: object yaw offset drawn uniformly in ``[-yaw_deg, yaw_deg]`` degrees.
+        eye_offset: camera displacement, isotropic Gaussian with sd
+            ``eye_offset / sqrt(3)`` times the eye-object distance per axis
+            (the camera keeps looking at the object centre).
+        light: relative jitter of the light direction (Gaussian, per axis) and of
+            the ambient / diffuse coefficients (gain ``1 + light · N(0, 1)``).
+        noise: the per-capture perturbations on top.
+    """
+
+    yaw_deg: float = 3.0
+    eye_offset: float = 0.02
+    light: float = 0.1
+    noise: Noise = Noise(brightness=0.05, pixel=2.0, max_shift=2)
+
+    def __post_init__(self):
+        if self.yaw_deg < 0 or self.eye_offset < 0 or self.light < 0:
+            raise ValueError(f"perturbations must be >= 0, got {self}")
 
 
 class SyntheticRig:
@@ -181,6 +205,33 @@ class SyntheticRig:
         """Image at a table position with the given perturbations (for test sets)."""
         return self._render(camera, self.table.views[camera][position].eye, noise)
 
+    def render_perturbed(self, camera: int, position: int, perturb: Perturb,
+                         rng: np.random.Generator) -> tuple[np.ndarray, float]:
+        """Image near a table position: the object turned a few degrees, the
+        camera displaced, the light changed and ``perturb.noise`` applied (all
+        drawn from ``rng``, capture noise from the rig's generator); the scene
+        is restored afterwards.  Returns (image, true occluded fraction)."""
+        self._need_state()
+        obj, pose = self._state
+        eye = np.asarray(self.table.views[camera][position].eye, dtype=float)
+        dist = float(np.linalg.norm(eye - self._centre))
+        yaw = float(rng.uniform(-perturb.yaw_deg, perturb.yaw_deg)) if perturb.yaw_deg else 0.0
+        eye = eye + rng.standard_normal(3) * perturb.eye_offset * dist / np.sqrt(3.0)
+        light = self.scene.lighting
+        if perturb.light:
+            j = perturb.light
+            direction = np.asarray(light.direction) * (1.0 + j * rng.standard_normal(3))
+            gain = np.clip(1.0 + j * rng.standard_normal(2), 0.5, 1.5)
+            self.scene.lighting = dataclasses.replace(
+                light, direction=tuple(float(x) for x in direction),
+                ambient=float(light.ambient * gain[0]), diffuse=float(light.diffuse * gain[1]))
+        try:
+            self.scene.set_object(obj, pose, yaw)
+            return self._render(camera, tuple(eye), perturb.noise)
+        finally:
+            self.scene.lighting = light
+            self.scene.set_object(obj, pose)
+
     def close(self) -> None:
         self.scene.close()
 
@@ -228,7 +279,7 @@ class SyntheticRig:
         return img, frac
 
     def _clean_count(self, eye: Sequence[float], fov: float) -> int:
-        key = (self._state, tuple(round(float(c), 9) for c in eye))
+        key = (self.scene._current, tuple(round(float(c), 9) for c in eye))
         count = self._clean_pixels.get(key)
         if count is None:
             self.scene.show_occluders(False)

@@ -314,3 +314,39 @@ def test_reliability_plot_writes_png(tmp_path):
     path = reliability_plot({"uncalibrated": a, "calibrated": b}, tmp_path / "rel.png")
     data = path.read_bytes()
     assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000
+
+
+# ---------------------------------------------------------------- synthetic calib split
+
+
+def test_synthetic_calib_split_is_perturbed_near_the_training_view(tmp_path):
+    pytest.importorskip("pybullet")
+    from jaxrecog.database import load_database
+    from jaxrecog.hardware import SyntheticRig, render_database
+    from jaxrecog.hardware.positions import CameraTable, default_table
+    from jaxrecog.hardware.scene import default_objects
+    from jaxrecog.hardware.synthetic import Noise, Perturb
+
+    t = default_table()
+    small = CameraTable(t.workspace, (t.views[0][::16], t.views[1][::4]))      # 2 + 2 positions
+    unit = lambda y: y.astype(np.float64).ravel() / np.linalg.norm(y.astype(np.float64))
+    with SyntheticRig(small, objects=default_objects()[:2], n_poses=2, seed=3) as rig:
+        rig.reset(1, 0)
+        clean = rig.render_clean(0, 1)[0]
+        other_pose = (rig.reset(1, 1), rig.render_clean(0, 1)[0])[1]
+        rig.reset(1, 0)
+        quiet = Perturb(noise=Noise())
+        a = rig.render_perturbed(0, 1, quiet, np.random.default_rng(7))[0]
+        b = rig.render_perturbed(0, 1, quiet, np.random.default_rng(7))[0]
+        np.testing.assert_array_equal(a, b)                                    # seeded
+        np.testing.assert_array_equal(rig.render_clean(0, 1)[0], clean)        # scene restored
+        d_pert = np.linalg.norm(unit(a) - unit(clean))
+        assert 0 < d_pert < 0.5 * np.linalg.norm(unit(other_pose) - unit(clean))
+        with pytest.raises(ValueError, match="perturbations must be >= 0"):
+            Perturb(yaw_deg=-1)
+        render_database(tmp_path, rig=rig, calib_per_view=1, seed=2)
+    db = load_database(tmp_path)
+    assert len(db.rows("train")) == 4 * 4 and len(db.rows("calib")) == 4 * 4
+    calib = db.images[db.rows("calib")]
+    train = db.images[db.rows("train")]
+    assert not any(np.array_equal(c, tr) for c, tr in zip(calib, train))
