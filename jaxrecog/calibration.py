@@ -286,10 +286,12 @@ def _neg_log_posterior(theta: Float[Array, " P"], q: Float[Array, "N C L"],
 
 
 @eqx.filter_jit
-def _fit_positions(q, logdet, true_cls, mask, prior_sd, max_iter, tol, *, n_params: int, K: int):
+def _fit_positions(q, logdet, true_cls, mask, prior_sd, max_iter, tol, log_min, *, n_params: int, K: int):
     """vmap over positions of the L-BFGS fit: ``(theta [V, P], iters [V],
-    converged [V], nll0 [V], nll1 [V])``.  ``prior_sd``, ``max_iter``, ``tol``
-    are traced scalars (changing them does not recompile)."""
+    converged [V], nll0 [V], nll1 [V])``.  ``prior_sd``, ``max_iter``, ``tol``,
+    ``log_min`` are traced scalars (changing them does not recompile).  The
+    unconstrained optimum is clipped to ``theta >= log_min`` afterwards (exact
+    for one factor per position, where ``J_v`` is unimodal in practice)."""
 
     def fit_one(q, logdet, true_cls, mask):
         n = jnp.maximum(jnp.sum(mask), 1).astype(q.dtype)
@@ -316,6 +318,7 @@ def _fit_positions(q, logdet, true_cls, mask, prior_sd, max_iter, tol, *, n_para
 
         theta, state, it = jax.lax.while_loop(cond, body, (theta0, opt.init(theta0), jnp.asarray(0)))
         gnorm = jnp.linalg.norm(jax.grad(loss)(theta))
+        theta = jnp.maximum(theta, log_min)
         nll0 = jnp.sum(_neg_log_posterior(theta0, q, logdet, true_cls, mask, K)) / n
         nll1 = jnp.sum(_neg_log_posterior(theta, q, logdet, true_cls, mask, K)) / n
         return theta, it, gnorm < tol, nll0, nll1
@@ -324,7 +327,8 @@ def _fit_positions(q, logdet, true_cls, mask, prior_sd, max_iter, tol, *, n_para
 
 
 def fit_factors(camera: CameraModel, features: CameraFeatures, *, per_level: bool = False,
-                prior_sd: float = 1.0, max_iter: int = 100, tol: float = 1e-5):
+                prior_sd: float = 1.0, max_iter: int = 100, tol: float = 1e-5,
+                min_factor: float | None = 1.0):
     """Fit one camera's variance factors ``s [V, L]`` (module docstring).
 
     Args:
@@ -334,13 +338,16 @@ def fit_factors(camera: CameraModel, features: CameraFeatures, *, per_level: boo
         prior_sd: sd ``σ`` of the Gaussian prior on ``log s``.
         max_iter, tol: L-BFGS iteration cap and gradient-norm tolerance (on the
             per-image mean objective).
+        min_factor: lower bound on ``s`` (default 1: inflate only, never make the
+            model surer than trained); ``None`` = unbounded.
 
     Returns:
         ``(s [V, L], iterations [V], converged [V], nll_before [V], nll_after [V], n_images [V])``
         as NumPy arrays.
     """
-    if not prior_sd > 0 or not max_iter >= 1 or not tol > 0:
-        raise ValueError(f"need prior_sd > 0, max_iter >= 1, tol > 0 (got {prior_sd}, {max_iter}, {tol})")
+    if not prior_sd > 0 or not max_iter >= 1 or not tol > 0 or not (min_factor is None or min_factor > 0):
+        raise ValueError(f"need prior_sd > 0, max_iter >= 1, tol > 0, min_factor > 0 or None "
+                         f"(got {prior_sd}, {max_iter}, {tol}, {min_factor})")
     V, C, L, K = camera.mu.shape
     counts = np.bincount(features.position, minlength=V)
     n_max = 1 << max(int(counts.max()) - 1, 0).bit_length()   # power of two: fewer recompiles
@@ -359,7 +366,8 @@ def fit_factors(camera: CameraModel, features: CameraFeatures, *, per_level: boo
         camera.mu, camera.var, camera.chol, g)
     theta, it, conv, nll0, nll1 = _fit_positions(
         q, logdet, cls, jnp.asarray(mask), jnp.asarray(prior_sd, dtype), jnp.asarray(int(max_iter)),
-        jnp.asarray(tol, dtype), n_params=L if per_level else 1, K=K)
+        jnp.asarray(tol, dtype), jnp.asarray(-jnp.inf if min_factor is None else math.log(min_factor), dtype),
+        n_params=L if per_level else 1, K=K)
     s = np.broadcast_to(np.exp(np.asarray(theta, np.float64)), (V, L)).astype(np.float32)
     if not np.all(np.isfinite(s)):
         raise FloatingPointError("calibration diverged (non-finite factor)")
@@ -415,8 +423,8 @@ def uncalibrated(model: SensorModel) -> SensorModel:
 
 
 def calibrate_model(model: SensorModel, calib, *, per_level: bool = False, prior_sd: float = 1.0,
-                    max_iter: int = 100, tol: float = 1e-5, split: str = "calib"
-                    ) -> tuple[SensorModel, CalibrationInfo]:
+                    max_iter: int = 100, tol: float = 1e-5, min_factor: float | None = 1.0,
+                    split: str = "calib") -> tuple[SensorModel, CalibrationInfo]:
     """Fit variance factors on held-out views and return the calibrated model.
 
     Args:
@@ -426,6 +434,7 @@ def calibrate_model(model: SensorModel, calib, *, per_level: bool = False, prior
         per_level: one factor per (position, occlusion level) instead of per position.
         prior_sd: sd of the Gaussian prior on ``log s`` (smaller = stay nearer 1).
         max_iter, tol: L-BFGS cap and gradient-norm tolerance.
+        min_factor: lower bound on the factors (default 1: inflation only); ``None`` = unbounded.
         split: which rows of a database to use.
 
     Returns:
@@ -433,7 +442,8 @@ def calibrate_model(model: SensorModel, calib, *, per_level: bool = False, prior
         holds the accumulated factors, ``info.factors`` this fit's.
     """
     feats = _as_features(model, calib, split)
-    res = [fit_factors(cam, f, per_level=per_level, prior_sd=prior_sd, max_iter=max_iter, tol=tol)
+    res = [fit_factors(cam, f, per_level=per_level, prior_sd=prior_sd, max_iter=max_iter, tol=tol,
+                       min_factor=min_factor)
            for cam, f in zip(model.cameras, feats.cameras)]
     out = apply_calibration(model, [r[0] for r in res])
     info = CalibrationInfo(
@@ -441,6 +451,6 @@ def calibrate_model(model: SensorModel, calib, *, per_level: bool = False, prior
         converged=tuple(r[2] for r in res), nll_before=tuple(r[3] for r in res),
         nll_after=tuple(r[4] for r in res), n_images=tuple(r[5] for r in res),
         settings={"per_level": per_level, "prior_sd": prior_sd, "max_iter": max_iter, "tol": tol,
-                  "split": split},
+                  "min_factor": min_factor, "split": split},
     )
     return out, info

@@ -99,6 +99,16 @@ def test_per_level_factors(rng):
     assert shared.factors[0][0, 0] == shared.factors[0][0, 1]
 
 
+def test_factors_below_one_only_when_unbounded(rng):
+    model = _model(rng, V=2, sep=0.8)
+    feats = _draw(rng, model, np.full((2, 1), 0.5), n=300)
+    _, free = calibrate_model(model, feats, min_factor=None)
+    np.testing.assert_allclose(free.factors[0], 0.5, rtol=0.10)
+    _, bounded = calibrate_model(model, feats)                      # default: inflation only
+    np.testing.assert_array_equal(bounded.factors[0], 1.0)
+    assert np.all(bounded.nll_after[0] == bounded.nll_before[0])
+
+
 def test_mahalanobis_terms_match_scipy(rng):
     model = _model(rng, V=1, L=2, K=4, full=True)
     cam = model.cameras[0]
@@ -132,14 +142,15 @@ def test_prior_shrinks_few_images_and_empty_positions_stay_one(rng):
 @pytest.mark.slow
 def test_vmapped_fit_equals_per_position_fit(rng):
     model = _model(rng, V=3)
-    feats = _draw(rng, model, np.array([[3.0], [1.0], [5.0]]), n=40).cameras[0]
-    s_all = fit_factors(model.cameras[0], feats)[0]
+    feats = _draw(rng, model, np.array([[3.0], [0.7], [5.0]]), n=40).cameras[0]
+    s_all = fit_factors(model.cameras[0], feats, min_factor=None)[0]
     for v in range(3):
         cam = model.cameras[0]
         one = CameraModel(cam.mean_image[v:v + 1], cam.basis[v:v + 1], cam.eigenvalues[v:v + 1],
                           cam.mu[v:v + 1], cam.var[v:v + 1])
         sel = feats.position == v
-        s_one = fit_factors(one, CameraFeatures(feats.g[sel], feats.position[sel] * 0, feats.cls[sel]))[0]
+        s_one = fit_factors(one, CameraFeatures(feats.g[sel], feats.position[sel] * 0, feats.cls[sel]),
+                            min_factor=None)[0]
         np.testing.assert_allclose(s_one[0], s_all[v], rtol=1e-4)
 
 
