@@ -59,6 +59,7 @@ def main(argv=None) -> int:
     ap.add_argument("--light", type=float, default=0.1, help="relative lighting jitter")
     ap.add_argument("--per-level", action="store_true", help="one factor per (position, level)")
     ap.add_argument("--prior-sd", type=float, default=1.0)
+    ap.add_argument("--min-factor", type=float, default=1.0, help="lower bound on the factors (<= 0: unbounded)")
     ap.add_argument("--bins", type=int, default=10)
     args = ap.parse_args(argv)
 
@@ -82,7 +83,9 @@ def main(argv=None) -> int:
 
     model_path = prepared.models[case.database]
     full = load_model(model_path)
-    cal_full, info = calibrate_model(full, calib_db, per_level=args.per_level, prior_sd=args.prior_sd)
+    min_factor = args.min_factor if args.min_factor > 0 else None
+    cal_full, info = calibrate_model(full, calib_db, per_level=args.per_level, prior_sd=args.prior_sd,
+                                     min_factor=min_factor)
     print(info.summary(), flush=True)
     cal_path = model_path.with_name(model_path.stem + "-calibrated.npz")
     save_model(cal_path, cal_full, calibration=info.to_dict())
@@ -91,13 +94,15 @@ def main(argv=None) -> int:
         models = {k: restrict_cameras(m, case.cameras) for k, m in models.items()}
 
     results, metrics = {}, {}
+    tag = (f"-{'perlevel' if args.per_level else 'perpos'}-sd{args.prior_sd:g}-min{min_factor or 0:g}"
+           f"-y{args.yaw:g}-e{args.eye_offset:g}-l{args.light:g}-c{args.calib_per_view}")
     for label, model in models.items():
         rig = make_rig(settings, case.cameras, seed=settings.seed)      # same capture noise for both
         specs = _specs(case, settings, rig, model.n_objects, model.n_poses)
         rec = _recognizer(model, args.planner, settings)
         store = TrialStore(args.workdir / "trials" / (
             f"calib-{label}-case-{case.name}-{args.planner}-n{args.trials}-seed{args.seed}"
-            f"{'-perlevel' if args.per_level and label == 'calibrated' else ''}.jsonl"))
+            f"{tag if label == 'calibrated' else ''}.jsonl"))
         t1 = time.perf_counter()
         res = run_campaign(rec, rig, specs, key=jr.PRNGKey(settings.seed + 1), batch=settings.batch, store=store)
         rig.close()
@@ -117,7 +122,7 @@ def main(argv=None) -> int:
     print(table)
     out = args.workdir / "results"
     out.mkdir(parents=True, exist_ok=True)
-    stem = f"calibration-case-{case.name}-{args.planner}-n{args.trials}"
+    stem = f"calibration-case-{case.name}-{args.planner}-n{args.trials}{tag}"
     png = reliability_plot(results, out / f"{stem}.png", n_bins=args.bins, p_threshold=settings.p_threshold,
                            title=f"Reliability, case {case.name}, {args.planner}")
     (out / f"{stem}.md").write_text(table + "\n")
