@@ -51,7 +51,7 @@ def render_database(
     progress: Callable[[int], object] | None = None,
     calib_per_view: int = 0,
     calib_perturb: Perturb = Perturb(),
-    calib_occluders: bool = False,
+    calib_occluders: bool | Callable[[np.random.Generator, int, int], object] = False,
     train: bool = True,
 ) -> Path:
     """Render every (camera, position, object, pose) and write the database.
@@ -68,7 +68,9 @@ def render_database(
         progress: called with the number of images just written (e.g. ``tqdm.update``).
         calib_per_view: held-out ``calib`` images per (camera, position, object, pose); 0 = none.
         calib_perturb: their perturbations (seeded by ``seed``, independent of the test split's).
-        calib_occluders: give each (object, pose) of the calib split a random layout.
+        calib_occluders: ``True``: give each (object, pose) of the calib split a
+            random layout; a callable ``(rng, camera, position) -> layout | None``:
+            a layout per calib image (e.g. a board in front of that view).
         train: write the ``train`` split (``False``: e.g. a calib-only folder).
 
     Returns:
@@ -117,11 +119,15 @@ def render_database(
                             progress(n_pos * test_per_view)
                     rig.reset(m, p)
                 if calib_per_view:
-                    layout = random_occluders(calib_rng, rig.table, radius=rig.radius) if calib_occluders else None
+                    per_view = callable(calib_occluders)
+                    layout = random_occluders(calib_rng, rig.table, radius=rig.radius) \
+                        if calib_occluders is True else None
                     rig.reset(m, p, layout)
                     for i, n_pos in enumerate(rig.positions):
                         for v in range(n_pos):
                             for j in range(calib_per_view):
+                                if per_view:
+                                    rig.reset(m, p, calib_occluders(calib_rng, i, v))
                                 img, _ = rig.render_perturbed(i, v, calib_perturb, calib_rng)
                                 rel = f"calib/c{i}/v{v:02d}/m{m}_p{p}_{j}.png"
                                 _write_png(out / rel, img)

@@ -32,7 +32,11 @@ from jaxrecog.calibration import calibrate_model
 from jaxrecog.calibration_plots import reliability_plot
 from jaxrecog.campaign import run_campaign
 from jaxrecog.database import load_database
-from jaxrecog.experiments import CASES, Settings, _recognizer, _specs, make_rig, prepare
+from jaxrecog.experiments import (CASES, OCCLUDER_OFFSET, OCCLUDER_SIZE, Settings, _recognizer, _specs,
+                                  make_rig, prepare)
+from jaxrecog.hardware import OccluderLayout, random_occluders
+from jaxrecog.hardware.positions import CameraTable
+from jaxrecog.hardware.scene import default_objects, object_radius
 from jaxrecog.hardware import render_database
 from jaxrecog.hardware.positions import default_table
 from jaxrecog.hardware.synthetic import Noise, Perturb
@@ -61,6 +65,8 @@ def main(argv=None) -> int:
     ap.add_argument("--prior-sd", type=float, default=1.0)
     ap.add_argument("--min-factor", type=float, default=1.0, help="lower bound on the factors (<= 0: unbounded)")
     ap.add_argument("--bins", type=int, default=10)
+    ap.add_argument("--occluded-fraction", type=float, default=0.5,
+                    help="occluded cases: share of calib views with a board in front of that view")
     args = ap.parse_args(argv)
 
     case = CASES[args.case]
@@ -75,10 +81,25 @@ def main(argv=None) -> int:
                       noise=Noise(brightness=b, pixel=p, max_shift=int(s)))
     calib_dir = args.workdir / (f"calib-{'occ' if case.occluded else 'clean'}-n{args.calib_per_view}"
                                 f"-y{args.yaw:g}-e{args.eye_offset:g}-l{args.light:g}-seed{args.seed}")
+    table = default_table()
+    radius = object_radius(default_objects())
+
+    def board_in_front(rng, camera, position):
+        """Like the campaigns' first board (experiments._occluder_factory), for a share of the views."""
+        if rng.random() >= args.occluded_fraction:
+            return None
+        one = CameraTable(table.workspace, tuple((views[position if i == camera else 0],)
+                                                 for i, views in enumerate(table.views)))
+        return OccluderLayout(random_occluders(rng, one, radius=radius, cameras=(camera,), size=OCCLUDER_SIZE,
+                                               offset=OCCLUDER_OFFSET).boards)
+
+    if case.occluded:
+        calib_dir = calib_dir.with_name(calib_dir.name + f"-front{args.occluded_fraction:g}")
     if not (calib_dir / "manifest.csv").exists():
         print(f"rendering calibration views into {calib_dir} ...", flush=True)
-        render_database(calib_dir, default_table(), train=False, calib_per_view=args.calib_per_view,
-                        calib_perturb=perturb, calib_occluders=case.occluded, seed=args.seed + 1000)
+        render_database(calib_dir, table, train=False, calib_per_view=args.calib_per_view,
+                        calib_perturb=perturb, calib_occluders=board_in_front if case.occluded else False,
+                        seed=args.seed + 1000)
     calib_db = load_database(calib_dir)
 
     model_path = prepared.models[case.database]
@@ -95,7 +116,8 @@ def main(argv=None) -> int:
 
     results, metrics = {}, {}
     tag = (f"-{'perlevel' if args.per_level else 'perpos'}-sd{args.prior_sd:g}-min{min_factor or 0:g}"
-           f"-y{args.yaw:g}-e{args.eye_offset:g}-l{args.light:g}-c{args.calib_per_view}")
+           f"-y{args.yaw:g}-e{args.eye_offset:g}-l{args.light:g}-c{args.calib_per_view}"
+           f"{f'-front{args.occluded_fraction:g}' if case.occluded else ''}")
     for label, model in models.items():
         rig = make_rig(settings, case.cameras, seed=settings.seed)      # same capture noise for both
         specs = _specs(case, settings, rig, model.n_objects, model.n_poses)
