@@ -79,6 +79,13 @@ class AugmentParams:
     max_shift: int = 3
     shapes: tuple[str, ...] = SHAPES
     n_templates: int = 16
+    #: Common random numbers across the images of one position: sample ``j`` of
+    #: every image uses the same shift, brightness, noise and occluder.  Two
+    #: classes whose clean images are identical (the look-alike pairs seen from
+    #: a view without the sticker) then get identical Gaussians, instead of
+    #: Gaussians that differ by sampling noise alone — differences the
+    #: recognizer would otherwise read as evidence.
+    shared_draws: bool = True
 
     def __post_init__(self):
         if self.samples_per_image < 2:
@@ -230,21 +237,24 @@ def draw_plan(rng: np.random.Generator, n_images: int, params: AugmentParams,
     B = n_images * n
     s = params.max_shift
     image = np.repeat(np.arange(n_images), n)
-    dy = rng.integers(-s, s + 1, size=B)
-    dx = rng.integers(-s, s + 1, size=B)
-    brightness = rng.normal(0.0, params.brightness_sigma, size=B) if params.brightness_sigma > 0 \
-        else np.zeros(B)
+    m = n if params.shared_draws else B  # draws per image (shared) or per sample
+    dy = rng.integers(-s, s + 1, size=m)
+    dx = rng.integers(-s, s + 1, size=m)
+    brightness = rng.normal(0.0, params.brightness_sigma, size=m) if params.brightness_sigma > 0 \
+        else np.zeros(m)
     temps = bank.templates[level]
     if temps:
-        template = rng.integers(len(temps), size=B)
+        template = rng.integers(len(temps), size=m)
         hs = np.array([t.shape[0] for t in temps])[template]
         ws = np.array([t.shape[1] for t in temps])[template]
-        y0 = np.floor(rng.random(B) * (H - hs + 1)).astype(np.int64)
-        x0 = np.floor(rng.random(B) * (W - ws + 1)).astype(np.int64)
+        y0 = np.floor(rng.random(m) * (H - hs + 1)).astype(np.int64)
+        x0 = np.floor(rng.random(m) * (W - ws + 1)).astype(np.int64)
     else:
-        template = np.full(B, -1)
-        y0 = np.zeros(B, np.int64)
-        x0 = np.zeros(B, np.int64)
+        template = np.full(m, -1)
+        y0 = np.zeros(m, np.int64)
+        x0 = np.zeros(m, np.int64)
+    if params.shared_draws:  # row i * n + j takes draw j
+        dy, dx, template, y0, x0, brightness = (np.tile(a, n_images) for a in (dy, dx, template, y0, x0, brightness))
     return SamplePlan(image, dy, dx, template, y0, x0, brightness)
 
 

@@ -66,13 +66,23 @@ def plan_trials(
     return specs
 
 
-def batched_step(recognizer: Recognizer):
-    """``(states, images[B, n, H, W], keys[B]) -> (states, decisions)``, jitted,
-    vmapped over a batch of trials."""
+def batched_step(recognizer: Recognizer, *, vectorize: bool = False):
+    """``(states, images[B, n, H, W], keys[B]) -> (states, decisions)``: the steps
+    of a batch of trials in one jitted call.
+
+    By default the batch is a ``lax.map`` (a loop inside the compiled
+    program), not a ``vmap``: the kernels guard underflow with a ``lax.cond``
+    that runs the exact logsumexp only when needed, and ``vmap`` turns that
+    cond into a select that always runs both branches.  Measured on 2 cores
+    (DB2 model, 16 trials): MI 6.6 ms/trial alone vs 17.9 ms/trial vmapped;
+    CRLB 115 ms vs 652 ms.  ``vectorize=True`` gives the ``vmap`` form.
+    """
 
     @eqx.filter_jit
     def run(rec, states, images, keys):
-        return jax.vmap(lambda s, im, k: rec.step(s, im, k))(states, images, keys)
+        if vectorize:
+            return jax.vmap(lambda s, im, k: rec.step(s, im, k))(states, images, keys)
+        return jax.lax.map(lambda args: rec.step(*args), (states, images, keys))
 
     return lambda states, images, keys: run(recognizer, states, images, keys)
 

@@ -95,6 +95,8 @@ class CRLBPlanner(Planner):
     """Minus the chosen criterion of J_g(a)^-1 (eq. 5.25): smaller bound = better."""
 
     tables: K.MITables
+    n_objects: int = eqx.field(static=True, default=1)
+    n_poses: int = eqx.field(static=True, default=1)
     criterion: str = eqx.field(static=True, default="trace")
     sigma_s: float = eqx.field(static=True, default=K.DEFAULT_SIGMA_S)
 
@@ -103,10 +105,12 @@ class CRLBPlanner(Planner):
         mus, vars, chols = model_arrays(model)
         j = max(1, math.ceil(samples / _strata(model)))
         tables = K.mi_tables(mus, vars, key=key, samples_per_stratum=j, chols=chols, store="full")
-        return cls(math.prod(m.shape[0] for m in mus), tables, criterion, sigma_s)
+        return cls(math.prod(m.shape[0] for m in mus), tables, model.n_objects, model.n_poses, criterion, sigma_s)
 
     def scores(self, prior, key):
-        fisher = K.fisher_information(self.tables, prior, key=key, sigma_s=self.sigma_s)
+        fisher = K.fisher_information(
+            self.tables, prior, key=key, n_objects=self.n_objects, n_poses=self.n_poses, sigma_s=self.sigma_s
+        )
         return -K.crlb_criterion(fisher, kind=self.criterion)
 
 

@@ -193,9 +193,12 @@ def _fit_position(images, mean, basis, lam, levels, params, bank, seed, camera, 
         rng = plan_rng(seed, camera, position, k)
         plan = draw_plan(rng, C, params, bank, k, (H, W))
         B = len(plan)
-        alpha = rng.standard_normal((B, K)) * sigma
-        beta = rng.standard_normal(B) * sigma
-        gamma = rng.chisquare(D - K - 1, size=B) * sigma**2 if sigma > 0 else np.zeros(B)
+        m = params.samples_per_image if params.shared_draws else B
+        alpha = rng.standard_normal((m, K)) * sigma
+        beta = rng.standard_normal(m) * sigma
+        gamma = rng.chisquare(D - K - 1, size=m) * sigma**2 if sigma > 0 else np.zeros(m)
+        if params.shared_draws:  # same noise draw j for every class (AugmentParams.shared_draws)
+            alpha, beta, gamma = np.tile(alpha, (C, 1)), np.tile(beta, C), np.tile(gamma, C)
         for start in range(0, B, batch_size):
             sl = slice(start, min(start + batch_size, B))
             p = plan.take(sl)

@@ -101,3 +101,28 @@ def test_energy_choice_and_progress(db):
     assert calls[-1] == (6, 6) and len(calls) == 6
     lam = np.asarray(m.cameras[0].eigenvalues)
     assert 1 <= m.n_components <= 5 and np.all(np.diff(lam, axis=1) <= 0)
+
+
+def test_identical_images_get_identical_gaussians_with_shared_draws():
+    """Look-alike classes (identical clean images at a position) must not be told
+    apart by sampling noise: with common random numbers their Gaussians match
+    exactly; with independent draws they do not."""
+    import dataclasses
+
+    from jaxrecog import AugmentParams, ImageDatabase, train_model
+    from jaxrecog.testing import make_database
+
+    db = make_database(positions=(2,), n_objects=4, n_poses=2)
+    images = db.images.copy()
+    # make object 2 a copy of object 1 at every position
+    for r in np.flatnonzero(db.object == 2):
+        twin = np.flatnonzero((db.object == 1) & (db.pose == db.pose[r]) & (db.position == db.position[r]))[0]
+        images[r] = images[twin]
+    twin_db = ImageDatabase.from_arrays(images, db.camera, db.position, db.object, db.pose, db.split)
+    for shared in (True, False):
+        params = dataclasses.replace(AugmentParams(), shared_draws=shared)
+        model = train_model(twin_db, kind="DB2", n_components=4, samples_per_image=20, augment=params)
+        cam = model.cameras[0]
+        same_mu = np.array_equal(np.asarray(cam.mu[:, 2:4]), np.asarray(cam.mu[:, 4:6]))  # object 1 vs 2
+        same_var = np.array_equal(np.asarray(cam.var[:, 2:4]), np.asarray(cam.var[:, 4:6]))
+        assert (same_mu and same_var) == shared

@@ -1,0 +1,206 @@
+"""Benchmark the estimation kernels on a thesis-sized random model.
+
+C = 32 classes (8 objects x 4 poses), L = 6 levels, K = 20, positions 32 x 7
+(A = 224 configurations).  Reports compile time and the median / min of
+repeated calls (``block_until_ready``), the ratio against the NumPy reference
+(timed on a subset of samples and scaled linearly, as the reference loops over
+every configuration, state and sample) and, for the CRLB, against VEGAS at
+equal error on a small problem.  Writes JSON (default out/bench/kernels.json).
+
+Numbers from a shared 2-core machine are noisy.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import platform
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxrecog import kernels as K
+from jaxrecog.kernels import reference as R
+
+
+def _timeit(fn, *args, repeat=20):
+    t0 = time.perf_counter()
+    jax.block_until_ready(fn(*args))
+    compile_s = time.perf_counter() - t0
+    times = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        jax.block_until_ready(fn(*args))
+        times.append(time.perf_counter() - t0)
+    return {"compile_s": compile_s, "median_ms": 1e3 * float(np.median(times)), "min_ms": 1e3 * float(np.min(times))}
+
+
+def thesis_model(rng, n_classes=32, levels=6, positions=(32, 7), dim=20):
+    mus = tuple(jnp.asarray(rng.normal(scale=0.3, size=(v, n_classes, levels, dim)), jnp.float32) for v in positions)
+    vars = tuple(jnp.asarray(rng.uniform(0.005, 0.02, size=(v, n_classes, levels, dim)), jnp.float32) for v in positions)
+    return mus, vars
+
+
+def random_belief(rng, n_classes, levels, n_cams):
+    pc = rng.dirichlet(np.ones(n_classes))
+    pk = tuple(rng.dirichlet(np.ones(levels), size=n_classes) for _ in range(n_cams))
+    return K.Belief(jnp.asarray(np.log(pc), jnp.float32), tuple(jnp.asarray(np.log(p), jnp.float32) for p in pk))
+
+
+def numpy_mi_per_sample_ms(mus, vars, tables, belief, n_samples):
+    """Time the NumPy reference on ``n_samples`` (state, sample) pairs of one configuration."""
+    mus = [np.asarray(m, float)[:1] for m in mus]
+    vars = [np.asarray(v, float)[:1] for v in vars]
+    lj = np.asarray(K.log_joint(belief), float)
+    # keep only the first few states (zero the rest) and one sample per stratum
+    mask = np.full(lj.shape, -np.inf)
+    flat = mask.reshape(-1)
+    flat[:n_samples] = lj.reshape(-1)[:n_samples]
+    zs = [np.asarray(z)[:, :, :1] for z in tables.z]
+    t0 = time.perf_counter()
+    R.mutual_information_ref(mus, vars, zs, mask)
+    return 1e3 * (time.perf_counter() - t0) / n_samples
+
+
+def vegas_equal_error(rng):
+    """CRLB: kernel vs VEGAS on a small 1-camera problem (3-D integral), equal error on J[occ, occ]."""
+    import vegas
+    from scipy.special import logsumexp
+
+    jax.config.update("jax_enable_x64", True)
+    try:
+        sigma = 0.4
+        mu = rng.normal(size=(1, 2, 2, 1))
+        var = rng.uniform(0.3, 1.2, size=(1, 2, 2, 1))
+        log_p = np.log(np.full((2, 2), 0.25))
+        b = K.Belief(jnp.asarray(np.log([0.5, 0.5])), (jnp.asarray(np.log(np.full((2, 2), 0.5))),))
+        fis_fn = jax.jit(K.fisher_information, static_argnames=("n_objects", "n_poses", "with_stderr"))
+        tables = K.mi_tables((jnp.asarray(mu),), (jnp.asarray(var),), key=jax.random.PRNGKey(0), samples_per_stratum=1000)
+        timing = _timeit(lambda: fis_fn(tables, b, key=jax.random.PRNGKey(1), n_objects=2, n_poses=1, with_stderr=True))
+        fis, se = fis_fn(tables, b, key=jax.random.PRNGKey(1), n_objects=2, n_poses=1, with_stderr=True)
+        target_err = float(se[0, 2, 2])
+
+        cs, ks = np.meshgrid(np.arange(2), np.arange(2), indexing="ij")
+        cs, ks = cs.ravel(), ks.ravel()
+        m, v = mu[0, :, :, 0].ravel(), var[0, :, :, 0].ravel()
+
+        @vegas.lbatchintegrand
+        def f(x):
+            x = np.asarray(x)
+            logw0 = log_p.ravel()[None] - 0.5 * ((x[:, :1] - cs) ** 2 + (x[:, 1:2] - ks) ** 2) / sigma**2 - np.log(2 * np.pi * sigma**2)
+            lg = logw0 - 0.5 * ((x[:, 2:3] - m) ** 2 / v + np.log(2 * np.pi * v))
+            w0 = np.exp(logw0 - logsumexp(logw0, 1, keepdims=True))
+            wg = np.exp(lg - logsumexp(lg, 1, keepdims=True))
+            dk = (wg @ ks - w0 @ ks) / sigma**2
+            return np.exp(logsumexp(lg, 1)) * dk * dk
+
+        lo, hi = float(np.min(m - 8 * np.sqrt(v))), float(np.max(m + 8 * np.sqrt(v)))
+        neval = 2000
+        while True:
+            integ = vegas.Integrator([[-3.2, 4.2], [-3.2, 4.2], [lo, hi]])
+            t0 = time.perf_counter()
+            integ(f, nitn=5, neval=neval)
+            res = integ(f, nitn=10, neval=neval)
+            vt = time.perf_counter() - t0
+            if res.sdev <= target_err or neval > 2_000_000:
+                break
+            neval *= 2
+        return {
+            "problem": "1 camera, C=2, L=2, K=1, one configuration, J[occ,occ]",
+            "kernel_ms": timing["median_ms"],
+            "kernel_value": float(fis[0, 2, 2]),
+            "kernel_stderr": target_err,
+            "vegas_ms": 1e3 * vt,
+            "vegas_value": float(res.mean),
+            "vegas_stderr": float(res.sdev),
+            "vegas_neval_per_itn": neval,
+            "ratio_vegas_over_kernel": 1e3 * vt / timing["median_ms"],
+            # MC time scales as error^-2: VEGAS time rescaled to the kernel's error
+            "vegas_ms_at_equal_error": 1e3 * vt * (float(res.sdev) / target_err) ** 2,
+            "ratio_vegas_over_kernel_at_equal_error": 1e3 * vt * (float(res.sdev) / target_err) ** 2
+            / timing["median_ms"],
+        }
+    finally:
+        jax.config.update("jax_enable_x64", False)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", default="out/bench/kernels.json")
+    ap.add_argument("--repeat", type=int, default=20)
+    ap.add_argument("--quick", action="store_true", help="skip the NumPy and VEGAS baselines")
+    args = ap.parse_args(argv)
+    rng = np.random.default_rng(0)
+    n_c, n_l = 32, 6
+    mus, vars = thesis_model(rng)
+    belief = random_belief(rng, n_c, n_l, 2)
+    out = {
+        "device": str(jax.devices()[0]),
+        "cpu_count": os.cpu_count(),
+        "platform": platform.platform(),
+        "jax": jax.__version__,
+        "model": {"C": n_c, "L": n_l, "K": 20, "positions": [32, 7], "A": 224, "dtype": "float32"},
+        "note": "shared 2-core machine: noisy",
+    }
+    tables_fn = jax.jit(K.mi_tables, static_argnames=("samples_per_stratum", "store"))
+    mi_fn = jax.jit(K.mutual_information, static_argnames=("target", "levels"))
+    fis_fn = jax.jit(K.fisher_information, static_argnames=("n_objects", "n_poses", "levels"))
+    crit_fn = jax.jit(K.crlb_criterion, static_argnames=("kind",))
+    out["mi"] = {}
+    for j in (1, 4):
+        t0 = time.perf_counter()
+        tables = jax.block_until_ready(tables_fn(mus, vars, key=jax.random.PRNGKey(0), samples_per_stratum=j))
+        build_s = time.perf_counter() - t0
+        spc = K.samples_per_configuration(tables)
+        entry = {"samples_per_configuration": spc, "samples_per_stratum": j, "tables_build_s_incl_compile": build_s,
+                 "tables_mbytes": sum(x.nbytes for x in jax.tree_util.tree_leaves(tables)) / 2**20}
+        for levels in ("uniform", "belief"):
+            for target in ("state", "class"):
+                entry[f"{levels}/{target}"] = _timeit(
+                    lambda: mi_fn(tables, belief, target=target, levels=levels), repeat=args.repeat
+                )
+        out["mi"][f"J={j}"] = entry
+        if j == 1:
+            crlb = lambda: crit_fn(fis_fn(tables, belief, key=jax.random.PRNGKey(1), n_objects=8, n_poses=4))
+            out["crlb"] = {"samples_per_configuration": spc, **_timeit(crlb, repeat=args.repeat)}
+            tables1 = tables
+    lls = tuple(jnp.asarray(rng.normal(size=(n_c, n_l)), jnp.float32) for _ in range(2))
+    step = jax.jit(K.update)
+    out["belief_update"] = _timeit(lambda: step(belief, lls), repeat=200)
+    step2 = jax.jit(lambda b, l: K.update(K.transition(b, jnp.array([True, False]), "sticky", 0.8), l))
+    out["belief_transition_update"] = _timeit(lambda: step2(belief, lls), repeat=200)
+    if not args.quick:
+        per = numpy_mi_per_sample_ms(mus, vars, tables1, belief, n_samples=6)
+        full_ms = per * out["mi"]["J=1"]["samples_per_configuration"] * 224
+        out["numpy_reference_mi"] = {
+            "method": "reference timed on 6 (state, sample) pairs of one configuration, scaled linearly to 224 x samples",
+            "per_sample_ms": per,
+            "estimated_ms_J1": full_ms,
+            "ratio_vs_kernel_uniform_state": full_ms / out["mi"]["J=1"]["uniform/state"]["median_ms"],
+            "ratio_vs_kernel_belief_state": full_ms / out["mi"]["J=1"]["belief/state"]["median_ms"],
+        }
+        lj = np.asarray(K.log_joint(belief), float)
+        t0 = time.perf_counter()
+        R.fisher_score_difference_ref(np.zeros(4), [np.zeros(20), np.zeros(20)], (0, 0),
+                                      [np.asarray(m, float) for m in mus], [np.asarray(v, float) for v in vars], lj, 4, 0.4)
+        per_f = 1e3 * (time.perf_counter() - t0)
+        est_f = per_f * out["crlb"]["samples_per_configuration"] * 224
+        out["numpy_reference_crlb"] = {
+            "method": "one brute-force score difference timed, scaled to 224 x samples",
+            "per_sample_ms": per_f, "estimated_ms": est_f,
+            "ratio_vs_kernel": est_f / out["crlb"]["median_ms"],
+        }
+        out["crlb_vs_vegas"] = vegas_equal_error(rng)
+    path = Path(args.out)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(out, indent=2))
+    print(json.dumps(out, indent=2))
+
+
+if __name__ == "__main__":
+    main()

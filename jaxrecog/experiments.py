@@ -1,0 +1,319 @@
+"""The thesis's experiments (chapter 7) on the synthetic rig.
+
+``prepare`` renders the training database and trains the DB1 and DB2 sensor
+models (cached in the work folder); ``run_case`` runs one case with several
+planners on the *same* trials (same poses, initial configurations and
+occluder layouts per trial) and returns the thesis-shaped tables.
+Observations are rendered images with capture noise — never samples of the
+Gaussian model under test.
+
+Cases (DESIGN.md §4):
+
+============== ======== =========== ======= ======================
+name           database scene       cameras planners (default)
+============== ======== =========== ======= ======================
+i              DB1      clean       both    mi, crlb, random
+ii             DB1      occluders   both    mi, crlb
+iii            DB2      occluders   both    mi, crlb
+single-clean   DB1      clean       cam 1   mi
+single-occluded DB2     occluders   cam 1   mi
+============== ======== =========== ======= ======================
+
+Occluders: one cardboard board in front of every camera's *initial* view, so
+that the first images of both cameras are occluded (thesis §7.2); the
+recognizer has to move to see past them.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from pathlib import Path
+from typing import Callable, Sequence
+
+import jax.random as jr
+
+from .campaign import TrialSpec, plan_trials, run_campaign
+from .results import ObjectRow, TrialResult, TrialStore, summarize, table_json, table_markdown
+from .thesis import SINGLE_CAMERA, TABLES
+
+__all__ = ["Case", "CASES", "Settings", "Prepared", "CaseReport", "prepare", "make_rig", "run_case", "run_trace"]
+
+
+@dataclasses.dataclass(frozen=True)
+class Case:
+    name: str
+    title: str
+    database: str  # "DB1" | "DB2"
+    occluded: bool
+    cameras: tuple[int, ...] | None  # None = all cameras
+    planners: tuple[str, ...]
+
+
+CASES: dict[str, Case] = {
+    c.name: c
+    for c in (
+        Case("i", "Case (i): non-occluded objects, DB1 model", "DB1", False, None, ("mi", "crlb", "random")),
+        Case("ii", "Case (ii): occluded objects, no occlusion model (DB1)", "DB1", True, None, ("mi", "crlb")),
+        Case("iii", "Case (iii): occluded objects, occlusion model (DB2)", "DB2", True, None, ("mi", "crlb")),
+        Case("single-clean", "Single camera (camera 1), non-occluded, DB1", "DB1", False, (0,), ("mi",)),
+        Case("single-occluded", "Single camera (camera 1), occluded, DB2", "DB2", True, (0,), ("mi",)),
+    )
+}
+
+
+@dataclasses.dataclass(frozen=True)
+class Settings:
+    """Everything that defines a run (defaults: the thesis protocol).
+
+    Attributes:
+        workdir: where the database, models, trials and tables go.
+        trials_per_object: thesis: ~100.
+        seed: seeds trials, occluders, training and the planners' tables.
+        samples: Monte Carlo samples per configuration for MI / CRLB.
+        batch: trials run in lockstep (one vmapped planning call).
+        n_components: eigenspace dimension K.
+        samples_per_image: augmented samples per training image.
+        p_threshold, max_steps: stop rule (thesis: 0.95, 7).
+        capture_noise: (brightness sd, pixel sd, max shift px) of every capture.
+        transition: "uniform" (thesis) or "sticky".
+    """
+
+    workdir: Path = Path("out/experiments")
+    trials_per_object: int = 100
+    seed: int = 0
+    samples: int = 1024
+    batch: int = 16
+    n_components: int = 20
+    samples_per_image: int = 100
+    p_threshold: float = 0.95
+    max_steps: int = 7
+    capture_noise: tuple[float, float, int] = (0.05, 2.0, 2)
+    transition: str = "uniform"
+
+    def __post_init__(self):
+        object.__setattr__(self, "workdir", Path(self.workdir))
+        if self.trials_per_object < 1:
+            raise ValueError("trials_per_object must be >= 1")
+
+
+@dataclasses.dataclass(frozen=True)
+class Prepared:
+    database: Path
+    models: dict[str, Path]  # "DB1" / "DB2" -> model file
+
+
+def _progress_bar(total: int, desc: str, enabled: bool):
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, desc=desc, unit="img" if "render" in desc else "trial", disable=not enabled, dynamic_ncols=True)
+
+
+def prepare(settings: Settings, *, progress: bool = False, databases: Sequence[str] = ("DB1", "DB2")) -> Prepared:
+    """Render the training database (once) and train the requested models
+    (cached by their training parameters and the manifest's hash)."""
+    from .database import load_database
+    from .hardware import render_database
+    from .hardware.positions import default_table
+    from .modelfile import ModelFileError, load_model_meta, save_model
+    from .train import train_model
+
+    work = settings.workdir
+    db_dir = work / "database"
+    manifest = db_dir / "manifest.csv"
+    if not manifest.exists():
+        table = default_table()
+        n_images = sum(table.positions) * 8 * 4
+        with _progress_bar(n_images, "render database", progress) as bar:
+            render_database(db_dir, table, progress=bar.update)
+    db = None
+    models = {}
+    for kind in databases:
+        path = work / f"model-{kind.lower()}-K{settings.n_components}-S{settings.samples_per_image}-seed{settings.seed}.npz"
+        fresh = False
+        if path.exists():
+            try:
+                meta = load_model_meta(path)
+                fresh = True
+                if db is None:
+                    db = load_database(db_dir)
+                fresh = meta.get("manifest_sha256") in (None, db.manifest_sha256)
+            except ModelFileError:
+                fresh = False
+        if not fresh:
+            db = db or load_database(db_dir)
+            n_pos = int(sum(db.positions))
+            with _progress_bar(n_pos, f"train {kind}", progress) as bar:
+                model, info = train_model(
+                    db,
+                    kind=kind,
+                    n_components=settings.n_components,
+                    samples_per_image=settings.samples_per_image,
+                    seed=settings.seed,
+                    progress=lambda done, total: bar.update(done - bar.n),
+                    return_info=True,
+                )
+            save_model(path, model, training=info.to_dict(), manifest_sha256=db.manifest_sha256)
+        models[kind] = path
+    return Prepared(db_dir, models)
+
+
+def make_rig(settings: Settings, cameras: tuple[int, ...] | None = None, *, seed: int = 0):
+    """The synthetic rig with the thesis table (or a subset of its cameras)."""
+    from .hardware import Noise, SyntheticRig
+    from .hardware.positions import CameraTable, default_table
+
+    table = default_table()
+    if cameras is not None:
+        table = CameraTable(table.workspace, tuple(table.views[i] for i in cameras))
+    b, p, s = settings.capture_noise
+    return SyntheticRig(table, noise=Noise(brightness=b, pixel=p, max_shift=int(s)), seed=seed)
+
+
+#: Board half-sizes and offsets (units of the object radius) of the scene's
+#: cardboard occluders: chosen so that the first view of each camera loses
+#: roughly 10-40 % of the object (measured from segmentation, see
+#: ``TrialResult.occluded_fraction``), "comparable to the levels of the second
+#: training set" (thesis §7.2).
+OCCLUDER_SIZE = (0.18, 0.38)
+OCCLUDER_OFFSET = (0.2, 0.8)
+
+
+def _occluder_factory(rig):
+    """Cardboard for one trial (thesis §7.2): a board in front of each camera's
+    *initial* view, so both first images are occluded, plus one board per
+    camera facing a random other position, so moving is not a guaranteed
+    escape."""
+    from .hardware import OccluderLayout, random_occluders
+    from .hardware.positions import CameraTable
+
+    def factory(rng, initial):
+        first = CameraTable(rig.table.workspace, tuple((views[v],) for views, v in zip(rig.table.views, initial)))
+        a = random_occluders(rng, first, radius=rig.radius, size=OCCLUDER_SIZE, offset=OCCLUDER_OFFSET)
+        b = random_occluders(rng, rig.table, radius=rig.radius, size=OCCLUDER_SIZE, offset=OCCLUDER_OFFSET)
+        return OccluderLayout(a.boards + b.boards)
+
+    return factory
+
+
+def _specs(case: Case, settings: Settings, rig, n_objects: int, n_poses: int, objects=None) -> list[TrialSpec]:
+    return plan_trials(
+        n_objects,
+        n_poses,
+        rig.positions,
+        settings.trials_per_object,
+        seed=settings.seed,
+        objects=objects,
+        occluders=_occluder_factory(rig) if case.occluded else None,
+    )
+
+
+def _recognizer(model, planner_name: str, settings: Settings):
+    from .planners import make_planner
+    from .recognizer import Recognizer
+
+    planner = make_planner(planner_name, model, key=jr.PRNGKey(settings.seed), samples=settings.samples)
+    return Recognizer(model, planner, p_threshold=settings.p_threshold, max_steps=settings.max_steps, transition=settings.transition)
+
+
+def _load(prepared: Prepared, case: Case):
+    from .modelfile import load_model
+    from .recognizer import restrict_cameras
+
+    model = load_model(prepared.models[case.database])
+    return restrict_cameras(model, case.cameras) if case.cameras is not None else model
+
+
+@dataclasses.dataclass
+class CaseReport:
+    case: Case
+    settings: Settings
+    rows: dict[str, list[ObjectRow]]
+    results: dict[str, list[TrialResult]]
+    seconds: dict[str, float]
+
+    def reference(self, planner: str):
+        """The thesis's (rate, exit, views) rows for this case and planner, if any."""
+        t = TABLES.get((self.case.name, planner.split("-")[0]))
+        if t is not None:
+            return [(r, e, v) for r, e, v in zip(t.rate, t.exit_prob, t.views)] + [t.average]
+        if self.case.name.startswith("single-"):
+            rate, views, exitp = SINGLE_CAMERA[self.case.name.split("-")[1]]
+            return [None] * 8 + [(rate, exitp if exitp is not None else float("nan"), views)]
+        return None
+
+    def markdown(self) -> str:
+        parts = [f"### {self.case.title}", ""]
+        for planner, rows in self.rows.items():
+            ref = self.reference(planner)
+            n = self.settings.trials_per_object
+            parts.append(table_markdown(rows, f"{planner.upper()} — {n} trials per object, {self.seconds[planner]:.0f} s", reference=ref))
+        return "\n".join(parts)
+
+    def to_json(self) -> dict:
+        return {
+            "case": dataclasses.asdict(self.case),
+            "settings": {k: (str(v) if isinstance(v, Path) else v) for k, v in dataclasses.asdict(self.settings).items()},
+            "tables": {p: table_json(r) for p, r in self.rows.items()},
+            "seconds": self.seconds,
+        }
+
+    def write(self, folder: Path | None = None) -> tuple[Path, Path]:
+        folder = Path(folder or self.settings.workdir / "results")
+        folder.mkdir(parents=True, exist_ok=True)
+        md = folder / f"case-{self.case.name}.md"
+        js = folder / f"case-{self.case.name}.json"
+        md.write_text(self.markdown())
+        js.write_text(json.dumps(self.to_json(), indent=1))
+        return md, js
+
+
+def run_case(
+    name: str,
+    settings: Settings,
+    planners: Sequence[str] | None = None,
+    *,
+    progress: bool = False,
+    prepared: Prepared | None = None,
+    on_result: Callable[[str, TrialResult], None] | None = None,
+) -> CaseReport:
+    """Run one thesis case with each planner on the same trials (resumable:
+    finished trials are kept in ``workdir/trials``)."""
+    if name not in CASES:
+        raise ValueError(f"unknown case {name!r}; choose one of {', '.join(CASES)}")
+    case = CASES[name]
+    prepared = prepared or prepare(settings, progress=progress, databases=(case.database,))
+    model = _load(prepared, case)
+    rig = make_rig(settings, case.cameras, seed=settings.seed)
+    specs = _specs(case, settings, rig, model.n_objects, model.n_poses)
+    rows, results, seconds = {}, {}, {}
+    for planner in planners or case.planners:
+        rec = _recognizer(model, planner, settings)
+        store = TrialStore(settings.workdir / "trials" / f"case-{name}-{planner}-n{settings.trials_per_object}-seed{settings.seed}.jsonl")
+        t0 = time.perf_counter()
+        with _progress_bar(len(specs), f"case {name} {planner}", progress) as bar:
+            already = len(store.load())
+            bar.update(min(already, len(specs)))
+            res = run_campaign(rec, rig, specs, key=jr.PRNGKey(settings.seed + 1), batch=settings.batch, store=store, progress=bar.update)
+        seconds[planner] = time.perf_counter() - t0
+        results[planner] = res
+        rows[planner] = summarize(res, model.n_objects)
+        if on_result is not None:
+            for r in res:
+                on_result(planner, r)
+    return CaseReport(case, settings, rows, results, seconds)
+
+
+def run_trace(settings: Settings, *, object: int = 5, planner: str = "mi", case: str = "iii", trial: int = 0, prepared: Prepared | None = None) -> TrialResult:
+    """One traced trial (object probabilities per step), like thesis Table 7.8
+    (object 6 = index 5, occluded, case iii)."""
+    c = CASES[case]
+    prepared = prepared or prepare(settings, databases=(c.database,))
+    model = _load(prepared, c)
+    rig = make_rig(settings, c.cameras, seed=settings.seed)
+    one = dataclasses.replace(settings, trials_per_object=trial + 1)
+    spec = [s for s in _specs(c, one, rig, model.n_objects, model.n_poses, objects=[object])][trial]
+    rec = _recognizer(model, planner, settings)
+    (res,) = run_campaign(rec, rig, [spec], key=jr.PRNGKey(settings.seed + 2), batch=1, trace=True)
+    return res

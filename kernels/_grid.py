@@ -1,0 +1,100 @@
+"""Shared machinery: mixtures over classes c' on the product grid of camera positions.
+
+Both planners need, for every stratum (c, j) and every point of the product
+grid x = (x_0, x_1, ...) with x_i = (v_i, k_i),
+
+    log Z[c, j, x] = log sum_c' exp(extra[c, j, c'] + sum_i tab_i[c, j, x_i, c'])
+
+and posterior means of features over c'.  Shifting each camera's table by its
+maximum over c' turns the sum over c' into a batched matrix product
+(an einsum for n cameras) instead of a logsumexp over the materialised
+[C, J, X_0, X_1, ..., C'] array.  Where the shifted sum underflows (a row's sum
+below ``tau``), the exact logsumexp over the materialised array is used
+instead, under ``lax.cond`` so it costs nothing when no row underflows.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+_GRID_LETTERS = "pqrstuvwxy"
+
+
+def lse(x, axis):
+    """logsumexp that is -inf (not NaN) for an all -inf slice."""
+    m = jnp.max(x, axis=axis, keepdims=True)
+    m = jnp.where(jnp.isfinite(m), m, 0.0)
+    s = jnp.sum(jnp.exp(x - m), axis=axis)
+    return jnp.log(s) + jnp.squeeze(m, axis)
+
+
+def _expand(a, i, n):
+    """[C, J, X_i, ...] -> [C, J, 1, .., X_i, .., 1, ...] (X_i at grid slot i of n)."""
+    shape = a.shape[:2] + (1,) * i + (a.shape[2],) + (1,) * (n - 1 - i) + a.shape[3:]
+    return a.reshape(shape)
+
+
+def grid_mixture(tabs, extra, feats=()):
+    """log Z and posterior means over c' on the product grid (see module doc).
+
+    Args:
+        tabs: per camera ``[C, J, X_i, C']``.
+        extra: ``[C, J, C']`` added once (e.g. log P(c')).
+        feats: ``(camera, f)`` pairs, ``f`` a rank-4 array broadcastable to
+            ``[C, J, X_camera, C']``;
+            returns the mean of f under the posterior w(c') = exp(...) / Z.
+
+    Returns:
+        ``(logZ [C, J, X_0, ..., X_{n-1}], [mean [C, J, X_0, ...] per feat], n_underflow)``.
+    """
+    n = len(tabs)
+    dtype = tabs[0].dtype
+    finfo = jnp.finfo(dtype)
+    n_c = tabs[0].shape[-1]
+    tau = n_c * float(finfo.tiny) / float(finfo.eps)
+    ts = [tabs[0] + extra[:, :, None, :]] + list(tabs[1:])
+    ms = []
+    es = []
+    for t in ts:
+        m = jnp.max(t, axis=-1)
+        m = jnp.where(jnp.isfinite(m), m, 0.0)
+        ms.append(m)
+        es.append(jnp.exp(t - m[..., None]))
+    letters = _GRID_LETTERS[:n]
+    spec = ",".join(f"cj{l}z" for l in letters) + f"->cj{letters}"
+
+    def contract(ops):
+        return jnp.einsum(spec, *ops)
+
+    z = contract(es)
+    mtot = sum(_expand(m, i, n) for i, m in enumerate(ms))
+    logz = jnp.log(z) + mtot
+    means = []
+    for cam, f in feats:
+        ops = list(es)
+        ops[cam] = es[cam] * f
+        means.append(contract(ops) / jnp.where(z > 0, z, 1.0))
+    under = ~(z >= tau)
+    n_under = jnp.sum(under)
+
+    def exact(_):
+        full = extra.reshape(extra.shape[:2] + (1,) * n + extra.shape[2:])
+        for i, t in enumerate(tabs):
+            full = full + _expand(t, i, n)
+        lz = lse(full, axis=-1)
+        w = jnp.exp(full - lz[..., None])
+        outs = []
+        for cam, f in feats:
+            fb = jnp.broadcast_to(f, tabs[cam].shape)
+            outs.append(jnp.sum(w * _expand(fb, cam, n), axis=-1))
+        return (jnp.where(under, lz, logz), [jnp.where(under, o, mu) for o, mu in zip(outs, means)])
+
+    def fast(_):
+        return (logz, means)
+
+    logz, means = jax.lax.cond(n_under > 0, exact, fast, None)
+    return logz, means, n_under
+
+
+__all__ = ["grid_mixture", "lse"]

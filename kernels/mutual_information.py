@@ -1,0 +1,276 @@
+"""Mutual Information planner: I(s; g | a) for all configurations in one call
+(thesis eq. 5.3-5.13).
+
+    I(s; g | a) = sum_s P(s) E_{g ~ p(g|s,a)} [log p(g|s,a) - log p(g|a)]   (eq. 5.5, 5.10)
+    p(g | a)    = sum_s P(s) p(g|s,a)                                       (eq. 5.7)
+
+p(g|a) is exact over the discrete states; the expectation over g is Monte
+Carlo, *stratified*: every state stratum (c, k_0, k_1, ...) gets J samples, so
+the outer expectation over the discrete state is exact (weights
+P(c) prod_i P_i(k_i|c) / J).  Noise is shared across positions (common random
+numbers): camera i's sample j of stratum (c, k) at position v is
+
+    g_i(v, c, k, j) = mu_i[v, c, k] + sqrt(var_i[v, c, k]) * z_i[c, k, j].
+
+Offline (:func:`mi_tables`, once per model and key) each camera gets the
+component log-density table
+
+    LD_i[v, c, k, j, c', k'] = log N(g_i(v, c, k, j); mu_i[v, c', k'], Sigma_i[v, c', k']).
+
+Online (:func:`mutual_information`) with the belief:
+
+    T_i[v, c, k, j, c'] = logsumexp_k' (LD_i + log P_i(k'|c'))
+    log p(g | a)        = logsumexp_c' (log P(c') + sum_i T_i[v_i, c, k_i, j, c'])
+
+evaluated on the whole (v_0, v_1, ...) grid with a shifted batched matrix
+product (see :mod:`._grid`).  Targets: ``"state"`` (thesis, I(s; g)) uses
+log p(g|s) = sum_i LD_i[v_i, c, k_i, j, c, k_i]; ``"class"`` (I(c; g), levels
+marginalised) uses log p(g|c) = sum_i T_i[v_i, c, k_i, j, c].
+
+Under the uniform transition (eq. 3.9, P_i(k'|c') = 1/L) T_i does not depend
+on the belief: ``mi_tables(..., store="uniform")`` precomputes it (the exact
+form of the thesis's offline trick, eq. 5.12-5.13) and
+``mutual_information(..., levels="uniform")`` uses it.
+
+Samples per configuration: C * prod_i L_i * J (see :func:`samples_per_configuration`).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import jax.random as jr
+from jax.scipy.linalg import solve_triangular
+from jaxtyping import Array, Float, PRNGKeyArray
+
+from ._grid import grid_mixture, lse
+from .belief import Belief
+
+_LOG_2PI = math.log(2.0 * math.pi)
+
+
+class MITables(NamedTuple):
+    """Per-camera sample tables for the planners (fixed shapes per model and J).
+
+    Attributes:
+        ld: per camera ``[V_i, C, L_i, J, C, L_i]`` component log-densities
+            LD_i (``None`` when built with ``store="uniform"``).
+        ld_self: per camera ``[V_i, C, L_i, J]``, log p(g_i | c, k, v) of each
+            sample under its own component (the diagonal of LD_i).
+        t_uniform: per camera ``[V_i, C, L_i, J, C]``,
+            logsumexp_k' LD_i - log L_i (``None`` with ``store="full"``).
+        z: per camera ``[C, L_i, J, K_i]`` the standard-normal draws.
+    """
+
+    ld: tuple[Float[Array, "V C L J C L"], ...] | None
+    ld_self: tuple[Float[Array, "V C L J"], ...]
+    t_uniform: tuple[Float[Array, "V C L J C"], ...] | None
+    z: tuple[Float[Array, "C L J K"], ...]
+
+
+def samples_per_configuration(tables: MITables) -> int:
+    """C * prod_i L_i * J: the Monte Carlo samples behind each configuration's value."""
+    c, j = tables.ld_self[0].shape[1], tables.ld_self[0].shape[3]
+    return c * j * math.prod(t.shape[2] for t in tables.ld_self)
+
+
+def _check_model(mus, vars, chols):
+    if (vars is None) == (chols is None):
+        raise ValueError("mi_tables: give exactly one of `vars` (diagonal) or `chols` (full)")
+    other = vars if vars is not None else chols
+    if len(other) != len(mus) or len(mus) == 0:
+        raise ValueError(f"mi_tables: {len(mus)} mean arrays but {len(other)} covariance arrays")
+    c = mus[0].shape[1]
+    for i, mu in enumerate(mus):
+        if mu.ndim != 4 or mu.shape[1] != c:
+            raise ValueError(f"mi_tables: mus[{i}] must be [V, C={c}, L, K], got {mu.shape}")
+        want = mu.shape if vars is not None else mu.shape + mu.shape[-1:]
+        if other[i].shape != want:
+            raise ValueError(f"mi_tables: covariance of camera {i} has shape {other[i].shape}, want {want}")
+
+
+def _camera_ld(mu, var, chol, z):
+    """LD [V, C, L, J, C', L'] for one camera (lax.map over positions)."""
+    def one(args):
+        if chol is None:
+            mu_v, var_v = args
+            g = mu_v[:, :, None, :] + jnp.sqrt(var_v)[:, :, None, :] * z  # [C,L,J,K]
+            d = g[:, :, :, None, None, :] - mu_v[None, None, None]
+            return -0.5 * jnp.sum(
+                d * d / var_v[None, None, None] + jnp.log(var_v)[None, None, None] + _LOG_2PI, -1
+            )
+        mu_v, chol_v = args
+        g = mu_v[:, :, None, :] + jnp.einsum("clkm,cljm->cljk", chol_v, z)
+        c, l, j, k = g.shape
+        d = g.reshape(1, 1, c * l * j, k) - mu_v[:, :, None, :]  # [C',L',N,K]
+        w = solve_triangular(chol_v, jnp.swapaxes(d, -1, -2), lower=True)  # [C',L',K,N]
+        logdet = jnp.sum(jnp.log(jnp.diagonal(chol_v, axis1=-2, axis2=-1)), -1)
+        ld = -0.5 * jnp.sum(w * w, -2) - logdet[..., None] - 0.5 * k * _LOG_2PI  # [C',L',N]
+        return jnp.moveaxis(ld.reshape(ld.shape[:2] + (c, l, j)), (0, 1), (3, 4))
+
+    return jax.lax.map(one, (mu, var if chol is None else chol))
+
+
+def mi_tables(
+    mus: tuple[Float[Array, "V C L K"], ...],
+    vars: tuple[Float[Array, "V C L K"], ...] | None = None,
+    *,
+    key: PRNGKeyArray,
+    samples_per_stratum: int,
+    chols: tuple[Float[Array, "V C L K K"], ...] | None = None,
+    store: str = "both",
+) -> MITables:
+    """Offline sample tables (per model and key) for :func:`mutual_information`
+    and :func:`jaxrecog.kernels.fisher_information`.
+
+    Args:
+        mus: per camera ``[V_i, C, L_i, K_i]`` means.
+        vars: per camera diagonal variances (same shapes), or give ``chols``.
+        key: PRNG key; camera i uses ``fold_in(key, i)``.
+        samples_per_stratum: J (static; fixes the shapes).
+        chols: per camera ``[V_i, C, L_i, K_i, K_i]`` lower Cholesky factors.
+        store: ``"full"`` (LD tables, any belief), ``"uniform"`` (only the
+            belief-free uniform-level tables T_i), or ``"both"``.
+    """
+    _check_model(mus, vars, chols)
+    if store not in ("full", "uniform", "both"):
+        raise ValueError(f"mi_tables: store must be 'full', 'uniform' or 'both', got {store!r}")
+    j = int(samples_per_stratum)
+    if j < 1:
+        raise ValueError(f"mi_tables: samples_per_stratum must be >= 1, got {samples_per_stratum}")
+    lds, selfs, tus, zs = [], [], [], []
+    for i, mu in enumerate(mus):
+        _, c, l, k = mu.shape
+        z = jr.normal(jr.fold_in(key, i), (c, l, j, k), mu.dtype)
+        ld = _camera_ld(mu, None if vars is None else vars[i], None if chols is None else chols[i], z)
+        # diagonal LD[v, c, k, j, c, k]
+        d1 = jnp.diagonal(ld, axis1=1, axis2=4)  # [V, L, J, L', C]
+        d2 = jnp.diagonal(d1, axis1=1, axis2=3)  # [V, J, C, L]
+        selfs.append(jnp.transpose(d2, (0, 2, 3, 1)))
+        if store != "uniform":
+            lds.append(ld)
+        if store != "full":
+            tus.append(lse(ld, axis=-1) - math.log(l))
+        zs.append(z)
+    return MITables(
+        tuple(lds) if store != "uniform" else None,
+        tuple(selfs),
+        tuple(tus) if store != "full" else None,
+        tuple(zs),
+    )
+
+
+def per_position_levels(belief: Belief, positions: tuple[int, ...]):
+    """Belief level rows as ``[V_i, C, L_i]`` (broadcast when given as ``[C, L_i]``)."""
+    out = []
+    for lp, v in zip(belief.log_pk, positions):
+        if lp.ndim == 2:
+            lp = jnp.broadcast_to(lp[None], (v,) + lp.shape)
+        elif lp.ndim != 3 or lp.shape[0] != v:
+            raise ValueError(f"belief levels of shape {lp.shape} do not match {v} positions")
+        out.append(lp)
+    return out
+
+
+def _check_belief(tables, belief):
+    n = len(tables.ld_self)
+    if len(belief.log_pk) != n:
+        raise ValueError(f"belief over {len(belief.log_pk)} cameras, tables for {n}")
+    c = tables.ld_self[0].shape[1]
+    if belief.log_pc.shape != (c,):
+        raise ValueError(f"belief.log_pc has shape {belief.log_pc.shape}, tables have C = {c}")
+
+
+def _to_grid(t):
+    """[V, C, L, J, ...] -> [C, J, V*L, ...]."""
+    v, c, l, j = t.shape[:4]
+    t = jnp.moveaxis(t, 3, 1)  # [V, J, C, L, ...]
+    t = jnp.moveaxis(t, 2, 0)  # [C, V, J, L, ...]
+    t = jnp.moveaxis(t, 2, 1)  # [C, J, V, L, ...]
+    return t.reshape((c, j, v * l) + t.shape[4:])
+
+
+def mutual_information(
+    tables: MITables,
+    belief: Belief,
+    target: str = "state",
+    levels: str = "belief",
+    with_stderr: bool = False,
+):
+    """I(s; g | a) (``target="state"``, eq. 5.5/5.10) or I(c; g | a)
+    (``target="class"``) for every configuration a, in nats.
+
+    Args:
+        tables: from :func:`mi_tables` (same model, fixed J).
+        belief: the predicted prior; level rows ``[C, L_i]`` or per position
+            ``[V_i, C, L_i]`` (:func:`jaxrecog.kernels.transition_per_position`).
+        target: ``"state"`` or ``"class"`` (static).
+        levels: ``"belief"`` uses the belief's P_i(k|c) (needs ``tables.ld``);
+            ``"uniform"`` uses P_i(k|c) = 1/L_i and the precomputed
+            ``tables.t_uniform`` (the exact offline-table variant; the belief's
+            level rows are ignored).  Static.
+        with_stderr: also return the Monte Carlo standard error, from the J
+            independent replicates (needs J >= 2).  Static.
+
+    Returns:
+        ``[A]`` values, A = prod_i V_i, row-major over (v_0, v_1, ...)
+        (a = 7 v_0 + v_1 on the thesis grid); with ``with_stderr`` a pair
+        ``(mi [A], stderr [A])``.  Estimates are not clipped at 0.
+    """
+    if target not in ("state", "class"):
+        raise ValueError(f"mutual_information: target must be 'state' or 'class', got {target!r}")
+    if levels not in ("belief", "uniform"):
+        raise ValueError(f"mutual_information: levels must be 'belief' or 'uniform', got {levels!r}")
+    _check_belief(tables, belief)
+    n = len(tables.ld_self)
+    positions = tuple(t.shape[0] for t in tables.ld_self)
+    n_c, j = tables.ld_self[0].shape[1], tables.ld_self[0].shape[3]
+    if with_stderr and j < 2:
+        raise ValueError("mutual_information: with_stderr needs samples_per_stratum >= 2")
+    dtype = tables.ld_self[0].dtype
+    log_pc = belief.log_pc.astype(dtype)
+    if levels == "uniform":
+        if tables.t_uniform is None:
+            raise ValueError("mutual_information: levels='uniform' needs tables built with store='uniform' or 'both'")
+        log_pk = [
+            jnp.full((v, n_c, t.shape[2]), -math.log(t.shape[2]), dtype)
+            for v, t in zip(positions, tables.ld_self)
+        ]
+        ts = list(tables.t_uniform)
+    else:
+        if tables.ld is None:
+            raise ValueError("mutual_information: levels='belief' needs tables built with store='full' or 'both'")
+        log_pk = [lp.astype(dtype) for lp in per_position_levels(belief, positions)]
+        ts = [lse(ld + lp[:, None, None, None], axis=-1) for ld, lp in zip(tables.ld, log_pk)]
+
+    # E_s E_g log p(g|a): mixture over c' on the (v_0, v_1, ...) grid.
+    grid_tabs = [_to_grid(t) for t in ts]  # [C, J, X_i, C']
+    extra = jnp.broadcast_to(log_pc[None, None, :], (n_c, j, n_c))
+    logp, _, _ = grid_mixture(grid_tabs, extra)  # [C, J, X_0, ..., X_{n-1}]
+    pc = jnp.exp(log_pc)
+    pk = [jnp.exp(lp) for lp in log_pk]  # [V_i, C, L_i]
+    letters = "pqrstuvwxy"[:n]
+    caps = "PQRSTUVWXY"[:n]
+    shaped = logp.reshape((n_c, j) + sum(((v, t.shape[2]) for v, t in zip(positions, ts)), ()))
+    grid_in = "cj" + "".join(a + b for a, b in zip(letters, caps))
+    spec = "c," + grid_in + "," + ",".join(f"{a}c{b}" for a, b in zip(letters, caps)) + "->j" + letters
+    e_logp = jnp.einsum(spec, pc, shaped, *pk)  # [J, V_0, ..., V_{n-1}], sum over j = J * E
+
+    # E_s E_g log p(g|s,a): separable per camera.
+    e_self = jnp.zeros((j,) + positions, dtype)
+    for i in range(n):
+        if target == "state":
+            s = tables.ld_self[i]  # [V, C, L, J]
+        else:
+            s = jnp.transpose(jnp.diagonal(ts[i], axis1=1, axis2=4), (0, 3, 1, 2))  # [V, C, L, J]
+        e_i = jnp.einsum("c,vcl,vclj->jv", pc, pk[i], s)
+        e_self = e_self + e_i.reshape((j,) + (1,) * i + (positions[i],) + (1,) * (n - 1 - i))
+    reps = (e_self - e_logp).reshape(j, -1)  # per-replicate MI estimates [J, A]
+    mi = jnp.mean(reps, axis=0)
+    if not with_stderr:
+        return mi
+    se = jnp.std(reps, axis=0, ddof=1) / math.sqrt(j)
+    return mi, se

@@ -1,0 +1,263 @@
+"""Plain NumPy references for the kernels, written for clarity (loops allowed).
+
+Used by the tests (as oracles) and by the benchmarks (as the baseline).  The
+belief reference works on the *full joint state* (C * prod_i L_i states), not
+the factorised form, and the MI / Fisher references enumerate every joint
+state and configuration explicitly.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+import numpy as np
+from scipy.linalg import solve_triangular
+from scipy.special import logsumexp
+
+_LOG_2PI = math.log(2.0 * math.pi)
+
+
+# --- likelihood (eq. 4.17-4.22) ---------------------------------------------------------------
+
+
+def log_likelihood_ref(g, mu, var):
+    """log N(g; mu[c, l], diag var[c, l]) -> [C, L], one Gaussian at a time."""
+    g, mu, var = np.asarray(g, float), np.asarray(mu, float), np.asarray(var, float)
+    out = np.empty(mu.shape[:2])
+    for c in range(mu.shape[0]):
+        for l in range(mu.shape[1]):
+            d = g - mu[c, l]
+            out[c, l] = -0.5 * np.sum(d * d / var[c, l] + np.log(2 * np.pi * var[c, l]))
+    return out
+
+
+def log_likelihood_full_ref(g, mu, chol):
+    """log N(g; mu[c, l], chol chol^T) -> [C, L] via scipy's triangular solve."""
+    g, mu, chol = np.asarray(g, float), np.asarray(mu, float), np.asarray(chol, float)
+    k = g.shape[0]
+    out = np.empty(mu.shape[:2])
+    for c in range(mu.shape[0]):
+        for l in range(mu.shape[1]):
+            z = solve_triangular(chol[c, l], g - mu[c, l], lower=True)
+            out[c, l] = -0.5 * z @ z - np.sum(np.log(np.diag(chol[c, l]))) - 0.5 * k * _LOG_2PI
+    return out
+
+
+# --- full joint-state belief (eq. 3.1, 3.7-3.9) ------------------------------------------------
+
+
+def joint_uniform_ref(n_classes, levels_per_camera):
+    """Uniform log P over all C * prod L_i joint states, shape [C, L_0, L_1, ...]."""
+    shape = (n_classes,) + tuple(levels_per_camera)
+    return np.full(shape, -math.log(math.prod(shape)))
+
+
+def joint_update_ref(log_p, logliks):
+    """Bayes rule (eq. 3.1) over every joint state (c, k_0, k_1, ...), one state at a time."""
+    out = np.empty_like(log_p)
+    for idx in np.ndindex(*log_p.shape):
+        c, ks = idx[0], idx[1:]
+        out[idx] = log_p[idx] + sum(ll[c, k] for ll, k in zip(logliks, ks))
+    return out - logsumexp(out)
+
+
+def level_transition_matrix_ref(n_levels, moved, kind, rho):
+    """T[k_new, k_old] for one camera (eq. 3.9 uniform; sticky mixes rho * identity)."""
+    uniform = np.full((n_levels, n_levels), 1.0 / n_levels)
+    if moved:
+        return uniform
+    if kind == "uniform":
+        return np.eye(n_levels)
+    return rho * np.eye(n_levels) + (1 - rho) * uniform
+
+
+def joint_transition_ref(log_p, moved, kind="uniform", rho=0.9):
+    """Eq. 3.7-3.8 with the full state-to-state matrix (class never changes)."""
+    shape = log_p.shape
+    mats = [level_transition_matrix_ref(l, bool(m), kind, rho) for l, m in zip(shape[1:], moved)]
+    states = list(np.ndindex(*shape))
+    p_old = np.exp(log_p)
+    p_new = np.zeros(shape)
+    for new in states:
+        acc = 0.0
+        for old in states:
+            if old[0] != new[0]:
+                continue
+            t = 1.0
+            for m, kn, ko in zip(mats, new[1:], old[1:]):
+                t *= m[kn, ko]
+            acc += t * p_old[old]
+        p_new[new] = acc
+    with np.errstate(divide="ignore"):
+        return np.log(p_new)
+
+
+# --- Mutual Information (eq. 5.5-5.13) -------------------------------------------------------
+
+
+def _joint_logliks(gs, cfg, mus, vars):
+    """log p(g | s', a) for every joint state s' -> [C, L_0, L_1, ...]."""
+    lls = [log_likelihood_ref(g, mu[v], var[v]) for g, mu, var, v in zip(gs, mus, vars, cfg)]
+    c = lls[0].shape[0]
+    out = np.zeros((c,) + tuple(ll.shape[1] for ll in lls))
+    for idx in np.ndindex(*out.shape):
+        out[idx] = sum(ll[idx[0], k] for ll, k in zip(lls, idx[1:]))
+    return out
+
+
+def mutual_information_ref(mus, vars, zs, log_joint, target="state"):
+    """MI for every configuration from the *same* stratified samples as the kernel.
+
+    Args:
+        mus, vars: per camera ``[V_i, C, L_i, K_i]``.
+        zs: per camera ``[C, L_i, J, K_i]`` standard-normal draws
+            (``MITables.z``); sample j of state (c, k_0, ...) at configuration
+            (v_0, ...) is g_i = mu_i[v_i, c, k_i] + sqrt(var_i) * z_i[c, k_i, j].
+        log_joint: ``[C, L_0, ...]`` log P(s) (the full joint belief).
+        target: ``"state"`` (I(s; g)) or ``"class"`` (I(c; g)).
+
+    Returns:
+        ``(mi [A], per-replicate estimates [J, A])``.
+    """
+    mus = [np.asarray(m, float) for m in mus]
+    vars = [np.asarray(v, float) for v in vars]
+    zs = [np.asarray(z, float) for z in zs]
+    log_joint = np.asarray(log_joint, float)
+    positions = [m.shape[0] for m in mus]
+    j_count = zs[0].shape[2]
+    log_pc = logsumexp(log_joint, axis=tuple(range(1, log_joint.ndim)))
+    configs = list(itertools.product(*[range(v) for v in positions]))
+    reps = np.zeros((j_count, len(configs)))
+    for a, cfg in enumerate(configs):
+        for s in np.ndindex(*log_joint.shape):
+            p_s = math.exp(log_joint[s])
+            if p_s == 0.0:
+                continue
+            c, ks = s[0], s[1:]
+            for j in range(j_count):
+                gs = [mus[i][cfg[i], c, ks[i]] + np.sqrt(vars[i][cfg[i], c, ks[i]]) * zs[i][c, ks[i], j]
+                      for i in range(len(mus))]
+                ll = _joint_logliks(gs, cfg, mus, vars)
+                log_pg = logsumexp(log_joint + ll)
+                if target == "state":
+                    log_self = ll[s]
+                else:
+                    log_self = logsumexp(log_joint[c] + ll[c]) - log_pc[c]
+                reps[j, a] += p_s * (log_self - log_pg)
+    return reps.mean(axis=0), reps
+
+
+def mutual_information_quadrature(mus, vars, log_joint, cfg, target="state", n_grid=2001, width=10.0):
+    """I(s; g | a) by exhaustive quadrature on a fine grid, for 1-D or 2-D g.
+
+    Feature dimensions in total (sum_i K_i) must be 1 or 2.  The grid spans
+    every component mean +- ``width`` standard deviations (trapezoid rule).
+    """
+    mus = [np.asarray(m, float)[v] for m, v in zip(mus, cfg)]
+    vars = [np.asarray(x, float)[v] for x, v in zip(vars, cfg)]
+    dims = [(i, d) for i, m in enumerate(mus) for d in range(m.shape[-1])]
+    if len(dims) not in (1, 2):
+        raise ValueError("quadrature needs 1 or 2 feature dimensions in total")
+    axes = []
+    for i, d in dims:
+        lo = np.min(mus[i][..., d] - width * np.sqrt(vars[i][..., d]))
+        hi = np.max(mus[i][..., d] + width * np.sqrt(vars[i][..., d]))
+        axes.append(np.linspace(lo, hi, n_grid))
+    mesh = np.meshgrid(*axes, indexing="ij")
+    pts = np.stack([m.ravel() for m in mesh], axis=-1)  # [P, dims]
+    log_joint = np.asarray(log_joint, float)
+    # log p(g | s) for every grid point and state
+    ll = np.zeros((pts.shape[0],) + log_joint.shape)
+    for s in np.ndindex(*log_joint.shape):
+        c, ks = s[0], s[1:]
+        tot = np.zeros(pts.shape[0])
+        col = 0
+        for i in range(len(mus)):
+            kdim = mus[i].shape[-1]
+            x = pts[:, col:col + kdim]
+            m, v = mus[i][c, ks[i]], vars[i][c, ks[i]]
+            tot += -0.5 * np.sum((x - m) ** 2 / v + np.log(2 * np.pi * v), axis=-1)
+            col += kdim
+        ll[(slice(None),) + s] = tot
+    axes_sum = tuple(range(1, ll.ndim))
+    log_pg = logsumexp(ll + log_joint[None], axis=axes_sum)  # [P]
+    if target == "state":
+        log_self = ll
+    else:
+        log_pc = logsumexp(log_joint, axis=tuple(range(1, log_joint.ndim)))
+        lvl_axes = tuple(range(2, ll.ndim))
+        lc = logsumexp(ll + log_joint[None], axis=lvl_axes) - log_pc[None]  # [P, C]
+        log_self = lc.reshape(lc.shape + (1,) * (ll.ndim - 2))
+    p_joint = np.exp(ll + log_joint[None])
+    integrand = np.sum(p_joint * (log_self - log_pg.reshape((-1,) + (1,) * (ll.ndim - 1))), axis=axes_sum)
+    integrand = integrand.reshape([n_grid] * len(dims))
+    for ax in reversed(axes):
+        integrand = np.trapezoid(integrand, ax, axis=-1)
+    return float(integrand)
+
+
+# --- Fisher information (eq. 5.22-5.28) ------------------------------------------------------
+
+
+def fisher_score_difference_ref(s_c, gs, cfg, mus, vars, log_joint, n_poses, sigma_s):
+    """(grad log p(g, s_c) - grad log p(s_c)) = (E[d|s_c,g] - E[d|s_c]) / sigma_s^2,
+    enumerating every joint state d = (object, pose, k_0, ...)."""
+    log_joint = np.asarray(log_joint, float)
+    ll = _joint_logliks(gs, cfg, mus, vars)
+    states = list(np.ndindex(*log_joint.shape))
+    d = np.array([[c // n_poses, c % n_poses] + list(ks) for c, *ks in states], float)
+    logw0 = np.array([log_joint[s] for s in states]) - 0.5 * np.sum((s_c[None] - d) ** 2, -1) / sigma_s**2
+    logwg = logw0 + np.array([ll[s] for s in states])
+    w0 = np.exp(logw0 - logsumexp(logw0))
+    wg = np.exp(logwg - logsumexp(logwg))
+    return (wg @ d - w0 @ d) / sigma_s**2
+
+
+def fisher_information_ref(mus, vars, zs, draws, log_joint, n_poses, sigma_s):
+    """J_g(a) for every configuration from the same samples as the kernel.
+
+    Args:
+        zs: ``MITables.z``; draws: ``(eps_obj [C, J], eps_pose [C, J], eps_occ per camera
+            [C, L_i, J])`` (``FisherDraws``).
+
+    Returns:
+        ``(J [A, D, D], per-replicate [J_samples, A, D, D])``.
+    """
+    mus = [np.asarray(m, float) for m in mus]
+    vars = [np.asarray(v, float) for v in vars]
+    zs = [np.asarray(z, float) for z in zs]
+    eps_obj, eps_pose = np.asarray(draws[0], float), np.asarray(draws[1], float)
+    eps_occ = [np.asarray(e, float) for e in draws[2]]
+    log_joint = np.asarray(log_joint, float)
+    positions = [m.shape[0] for m in mus]
+    n = len(mus)
+    j_count = zs[0].shape[2]
+    configs = list(itertools.product(*[range(v) for v in positions]))
+    reps = np.zeros((j_count, len(configs), n + 2, n + 2))
+    for a, cfg in enumerate(configs):
+        for s in np.ndindex(*log_joint.shape):
+            p_s = math.exp(log_joint[s])
+            if p_s == 0.0:
+                continue
+            c, ks = s[0], s[1:]
+            for j in range(j_count):
+                gs = [mus[i][cfg[i], c, ks[i]] + np.sqrt(vars[i][cfg[i], c, ks[i]]) * zs[i][c, ks[i], j]
+                      for i in range(n)]
+                s_c = np.array(
+                    [c // n_poses + sigma_s * eps_obj[c, j], c % n_poses + sigma_s * eps_pose[c, j]]
+                    + [ks[i] + sigma_s * eps_occ[i][c, ks[i], j] for i in range(n)]
+                )
+                delta = fisher_score_difference_ref(s_c, gs, cfg, mus, vars, log_joint, n_poses, sigma_s)
+                reps[j, a] += p_s * np.outer(delta, delta)
+    return reps.mean(axis=0), reps
+
+
+def crlb_criterion_ref(fisher, kind="trace"):
+    """trace / logdet / max eigenvalue of J^{-1} by eigen-decomposition (no jitter)."""
+    ev = np.linalg.eigvalsh(np.asarray(fisher, float))
+    if kind == "trace":
+        return np.sum(1.0 / ev, axis=-1)
+    if kind == "logdet":
+        return -np.sum(np.log(ev), axis=-1)
+    return 1.0 / ev[..., 0]
