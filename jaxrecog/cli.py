@@ -572,8 +572,8 @@ def cmd_recognize(args) -> int:
         from . import plots
 
         for p in plots.belief_lines(np.stack(probs), args.plot, true_object=args.object,
-                                    title=f"Belief over objects, object {args.object} pose {args.pose} "
-                                          f"({args.planner})"):
+                                    title=f"Belief per step: object {args.object + 1} (index {args.object}), "
+                                          f"pose {args.pose}, {args.planner.upper()}"):
             print(f"wrote {p}")
     return 0
 
@@ -620,12 +620,12 @@ def _write_report(report, name: str, out: Path, thesis_key: str | None) -> list[
     rows = dict(report.rows)
     ref = {p: TABLES[(thesis_key, p)] for p in rows if (thesis_key, p) in TABLES} if thesis_key else {}
     written += plots.campaign_bars(rows, out / f"campaign_{name}", thesis=ref,
-                                   title=f"Case ({name}): recognition per object"
-                                         + (" (markers: thesis)" if ref else ""))
+                                   title=f"Case ({name}): {report.settings.trials_per_object} trials per object"
+                                         + (", markers: thesis" if ref else ""))
     return written
 
 
-def _trace_plot(ex, settings, out: Path, planner: str = "mi", obj: int = 5) -> list[Path]:
+def _trace_plot(ex, settings, out: Path, planner: str = "mi", obj: int = 5, prepared=None) -> list[Path]:
     import numpy as np
 
     from . import plots
@@ -633,14 +633,14 @@ def _trace_plot(ex, settings, out: Path, planner: str = "mi", obj: int = 5) -> l
 
     if not hasattr(ex, "run_trace"):
         raise CLIError("jaxrecog.experiments has no run_trace (this build is incomplete)")
-    res = ex.run_trace(settings, object=obj, planner=planner)
+    res = ex.run_trace(settings, object=obj, planner=planner, prepared=prepared)
     probs = np.asarray(res.object_probs, dtype=float)
     M = probs.shape[1]
     probs = np.vstack([np.full((1, M), 1.0 / M), probs])
     ref = np.asarray(TABLE_7_8) if M == len(TABLE_7_8[0]) and obj == 5 else None
     return list(plots.belief_lines(probs, out / "belief_trace", true_object=res.object, reference=ref,
-                                   title=f"Belief per step: object {res.object}, pose {res.pose} "
-                                         f"({planner.upper()}, occluded)"))
+                                   title=f"Belief per step: object {res.object + 1} (index {res.object}), "
+                                         f"pose {res.pose}, {planner.upper()}, occluded"))
 
 
 def cmd_experiment(args, file_settings: dict[str, Any] | None = None) -> int:
@@ -668,13 +668,14 @@ def cmd_experiment(args, file_settings: dict[str, Any] | None = None) -> int:
     over = {"trials_per_object": args.trials, "samples": args.samples, "batch": args.batch, "seed": args.seed}
     values.update({k: v for k, v in over.items() if v is not None})
     if args.quick:
-        values["quick"] = True
+        for k, v in _quick_settings(ex).items():
+            values.setdefault(k, v)
     values.setdefault("workdir", args.workdir or str(out / "work"))
     if args.workdir:
         values["workdir"] = args.workdir
     settings = _make_settings(ex, values, args.case)
     t0 = time.perf_counter()
-    report = ex.run_case(name, settings, planners=planners)
+    report = ex.run_case(name, settings, planners=planners, progress=_bars())
     print(report.markdown())
     thesis_key = name if name in ("i", "ii", "iii") else None
     written = _write_report(report, name, out, thesis_key)
@@ -684,6 +685,24 @@ def cmd_experiment(args, file_settings: dict[str, Any] | None = None) -> int:
     for p in written:
         print(f"  {p}")
     return 0
+
+
+def _bars() -> bool:
+    from .progress import enabled
+
+    return enabled()
+
+
+#: "Quick" runs (demo, ``experiment --quick``): fewer Monte Carlo and training
+#: samples and a smaller eigenspace; the database is still the thesis's 32 x 7.
+QUICK = {"samples": 256, "samples_per_image": 30, "n_components": 12}
+
+
+def _quick_settings(ex) -> dict[str, Any]:
+    known = _settings_fields(ex.Settings)
+    if "quick" in known:
+        return {"quick": True}
+    return {k: v for k, v in QUICK.items() if k in known}
 
 
 def load_settings_flat(path: str) -> dict[str, Any]:
@@ -774,39 +793,29 @@ def _headline(d: Any, limit: int = 4) -> str:
 
 
 def cmd_demo(args) -> int:
-    import numpy as np
-
-    from . import plots
-
     ex = _experiments()
     out = Path(args.out)
     t0 = time.perf_counter()
-    settings = _make_settings(ex, {"workdir": str(out / "work"), "trials_per_object": args.trials,
-                                   "seed": args.seed, "quick": True}, "demo")
-    prepared = ex.prepare(settings) if hasattr(ex, "prepare") else None
-    print(f"database and models ready in {time.perf_counter() - t0:.0f} s ({settings.workdir})")
-    report = ex.run_case("iii", settings, planners=list(args.planners))
+    values = {"workdir": str(out / "work"), "trials_per_object": args.trials, "seed": args.seed}
+    values.update(_quick_settings(ex))
+    settings = _make_settings(ex, values, "demo")
+    prepared = ex.prepare(settings, progress=_bars(), databases=("DB1", "DB2"))
+    print(f"database and DB1/DB2 models ready in {time.perf_counter() - t0:.0f} s ({settings.workdir})")
+    report = ex.run_case("iii", settings, planners=list(args.planners), progress=_bars(), prepared=prepared)
     print(report.markdown())
     written = _write_report(report, "iii", out, "iii")
-    written += _trace_plot(ex, settings, out, planner=args.planners[0])
+    written += _trace_plot(ex, settings, out, planner=args.planners[0], prepared=prepared)
     written += _demo_model_plots(prepared, settings, out, args.seed)
-    print(f"demo finished in {time.perf_counter() - t0:.0f} s; plots and tables:")
+    print(f"demo finished in {time.perf_counter() - t0:.0f} s; tables and plots:")
     for p in written:
         print(f"  {p}")
     return 0
 
 
-def _find_model(prepared, workdir: Path, kind: str = "db2"):
-    """The DB2 model of :func:`experiments.prepare` (attribute or file)."""
-    for attr in (kind, f"model_{kind}", f"{kind}_model", kind.upper()):
-        m = getattr(prepared, attr, None)
-        if m is not None and hasattr(m, "cameras"):
-            return m
-        if isinstance(m, (str, os.PathLike)) and Path(m).is_file():
-            return _load_model(str(m))
-    for cand in sorted(workdir.rglob(f"*{kind}*.npz")) + sorted(workdir.rglob(f"*{kind.upper()}*.npz")):
-        return _load_model(str(cand))
-    return None
+def _find_model(prepared, kind: str = "DB2"):
+    """The model of :func:`experiments.prepare` (``Prepared.models[kind]``)."""
+    path = (getattr(prepared, "models", None) or {}).get(kind)
+    return _load_model(str(path)) if path is not None else None
 
 
 def _demo_model_plots(prepared, settings, out: Path, seed: int) -> list[Path]:
@@ -815,7 +824,7 @@ def _demo_model_plots(prepared, settings, out: Path, seed: int) -> list[Path]:
     from . import plots
 
     written: list[Path] = []
-    model = _find_model(prepared, Path(settings.workdir))
+    model = _find_model(prepared)
     if model is None:
         print("(no DB2 model found in the work folder: skipping the heat map and eigenimages)")
         return written

@@ -118,7 +118,8 @@ def belief_lines(
 
     Args:
         object_probs: ``[S, M]``; row 0 is usually the uniform prior.
-        true_object: 0-based; its line is drawn thick.
+        true_object: 0-based index; its line is drawn thick.  Legends number
+            objects from 1, as the thesis tables do.
         reference: optional ``[S', M]`` (e.g. Table 7.8) drawn dotted for
             the true object only.
     """
@@ -139,7 +140,7 @@ def belief_lines(
         ax.plot(np.arange(R.shape[0]), R[:, true_object], ls=":", color="k", lw=1.5,
                 label=f"thesis Table 7.8, object {true_object + 1}")
     ax.set_xlabel("step (0 = prior, n = after the n-th image set)")
-    ax.set_ylabel("P(object | images)")
+    ax.set_ylabel("P(object | images so far)")
     ax.set_ylim(-0.02, 1.02)
     ax.set_xticks(steps)
     ax.grid(alpha=0.3)
@@ -172,7 +173,7 @@ def eigenimages(
     n = max(1, min(n, basis.shape[1]))
     cols = min(4, n + 1)
     rows = int(np.ceil((n + 1) / cols))
-    fig, axes = plt.subplots(rows, cols, figsize=(2.4 * cols, 2.2 * rows + 0.5), squeeze=False)
+    fig, axes = plt.subplots(rows, cols, figsize=(2.4 * cols, 2.2 * rows + 0.8), squeeze=False)
     tiles = [("mean image", np.asarray(mean_image, float).reshape(H, W), "gray")]
     for k in range(n):
         e = basis[:, k].reshape(H, W)
@@ -192,9 +193,9 @@ def eigenimages(
         ax.set_yticks([])
     for ax in list(axes.flat)[len(tiles):]:
         ax.axis("off")
-    fig.suptitle(title + "  (red +, blue −)")
-    fig.subplots_adjust(left=0.02, right=0.98, top=0.86 if rows == 1 else 0.9, bottom=0.02,
-                        hspace=0.4, wspace=0.08)
+    fig.suptitle(title + ": mean and eigenimages (red > 0, blue < 0, λ = eigenvalue)", fontsize=11)
+    fig.subplots_adjust(left=0.02, right=0.98, top=1.0 - 0.95 / (2.2 * rows + 0.8), bottom=0.02,
+                        hspace=0.45, wspace=0.08)
     return save(fig, path)
 
 
@@ -241,8 +242,9 @@ def occlusion_examples(
                 ax.set_title(f"level {100 * lev:g} %", fontsize=9)
             if c == 0:
                 ax.set_ylabel(shape, fontsize=9)
-    fig.suptitle(title + "  (yellow: covered fraction)", fontsize=10)
-    fig.subplots_adjust(left=0.08, right=0.99, top=0.88, bottom=0.02, hspace=0.15, wspace=0.05)
+    fig.suptitle(title + "  (yellow: fraction of the image covered)", fontsize=10)
+    fig.subplots_adjust(left=0.06, right=0.99, top=1.0 - 0.6 / (1.55 * len(shapes) + 0.7), bottom=0.02,
+                        hspace=0.15, wspace=0.05)
     return save(fig, path)
 
 
