@@ -173,7 +173,8 @@ def eigenimages(
     n = max(1, min(n, basis.shape[1]))
     cols = min(4, n + 1)
     rows = int(np.ceil((n + 1) / cols))
-    fig, axes = plt.subplots(rows, cols, figsize=(2.4 * cols, 2.2 * rows + 0.8), squeeze=False)
+    fig_h = rows * (2.3 * H / W + 0.6) + 0.5
+    fig, axes = plt.subplots(rows, cols, figsize=(2.4 * cols, fig_h), squeeze=False)
     tiles = [("mean image", np.asarray(mean_image, float).reshape(H, W), "gray")]
     for k in range(n):
         e = basis[:, k].reshape(H, W)
@@ -194,7 +195,7 @@ def eigenimages(
     for ax in list(axes.flat)[len(tiles):]:
         ax.axis("off")
     fig.suptitle(title + ": mean and eigenimages (red > 0, blue < 0, λ = eigenvalue)", fontsize=11)
-    fig.subplots_adjust(left=0.02, right=0.98, top=1.0 - 0.95 / (2.2 * rows + 0.8), bottom=0.02,
+    fig.subplots_adjust(left=0.02, right=0.98, top=1.0 - 0.62 / fig_h, bottom=0.02,
                         hspace=0.45, wspace=0.08)
     return save(fig, path)
 

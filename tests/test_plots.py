@@ -71,7 +71,7 @@ def test_eigenimages(tmp_path):
     rng = np.random.default_rng(0)
     basis = np.linalg.qr(rng.normal(size=(H * W, K)))[0]
     paths = plots.eigenimages(rng.random(H * W), basis, (H, W), tmp_path / "e", eigenvalues=np.arange(K, 0, -1.0), n=3)
-    _check_pair(paths, (960, 300))  # 4 tiles in one row: 4 x 2.4 in, 2.2 + 0.8 in
+    _check_pair(paths, (960, 282))  # 4 tiles in one row: 4 x 2.4 in by (2.3 * 3/4 + 0.6 + 0.5) in
 
 
 def test_occlusion_examples_cover_the_levels(tmp_path):
