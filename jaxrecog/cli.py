@@ -182,7 +182,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--threshold", type=_probability, default=0.95, help="stop probability P_th")
     p.add_argument("--max-steps", type=_positive, default=7, help="largest number of image sets")
     p.add_argument("--samples", type=_positive, default=1024, help="Monte Carlo samples of the planner")
-    p.add_argument("--occluders", action="store_true", help="synthetic rig: random cardboard occluders")
+    p.add_argument("--occluders", action="store_true", help="synthetic rig: cardboard boards in front of the first views (as thesis case ii/iii)")
     p.add_argument("--noise", type=float, default=2.0, help="synthetic rig: per-pixel noise (gray levels)")
     p.add_argument("--plot", metavar="PNG", help="also plot the belief over objects per step")
     p.add_argument("--seed", type=int, default=0, help="PRNG seed (start, planner, rig noise)")
@@ -533,14 +533,15 @@ def cmd_recognize(args) -> int:
             raise CLIError(f"rig {args.rig} has positions {tuple(rig.positions)} but model {args.model} has "
                            f"{positions} (for the synthetic rig use the --cameras/--stride the database "
                            "was rendered with)")
+        state = rec.init(key=None if args.start is not None else k_init, config=args.start)
         occl = None
         if args.occluders:
             if args.rig != "synthetic":
                 raise UsageError("--occluders works with --rig synthetic only")
-            from .hardware import random_occluders
+            from .experiments import _occluder_factory  # the thesis-case boards (first views occluded)
 
-            occl = random_occluders(np.random.default_rng(args.seed), rig.table, radius=rig.radius)
-        state = rec.init(key=None if args.start is not None else k_init, config=args.start)
+            start = tuple(int(v) for v in np.asarray(state.config))
+            occl = _occluder_factory(rig)(np.random.default_rng(args.seed), start)
         rig.reset(args.object, args.pose, occl)
         probs = [np.full(model.n_objects, 1.0 / model.n_objects)]
         rows = []
