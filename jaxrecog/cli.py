@@ -38,8 +38,16 @@ class UsageError(Exception):
 # parser
 # --------------------------------------------------------------------------
 
-class _Formatter(argparse.ArgumentDefaultsHelpFormatter, argparse.RawDescriptionHelpFormatter):
-    pass
+class _Formatter(argparse.RawDescriptionHelpFormatter):
+    """Raw descriptions; ``(default: X)`` after each help where a default means something."""
+
+    def _get_help_string(self, action):
+        text = action.help or ""
+        d = action.default
+        if "%(default)" in text or d is None or d is False or d is argparse.SUPPRESS or not action.option_strings:
+            return text
+        shown = " ".join(map(str, d)) if isinstance(d, (list, tuple)) else d
+        return f"{text} (default: {shown})"
 
 
 def _config_tuple(text: str) -> tuple[int, ...]:
@@ -197,7 +205,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="out/experiment", metavar="FOLDER", help="where tables and plots go")
     p.add_argument("--workdir", metavar="FOLDER", help="cache of the rendered database and models "
                    "(default: OUT/work)")
-    p.add_argument("--planners", nargs="+", choices=PLANNERS, help="planners to compare (default: the case's)")
+    p.add_argument("--planners", nargs="+", choices=PLANNERS, metavar="PLANNER",
+                   help=f"planners to compare, from {', '.join(PLANNERS)} (default: the case's)")
     p.add_argument("--trials", type=_positive, help="trials per object (default: the case's)")
     p.add_argument("--samples", type=_positive, help="Monte Carlo samples of the planners")
     p.add_argument("--batch", type=_positive, help="trials run in lockstep")
@@ -222,7 +231,8 @@ def build_parser() -> argparse.ArgumentParser:
             "the plots.")
     p.add_argument("--out", default="out/demo", metavar="FOLDER", help="output folder")
     p.add_argument("--trials", type=_positive, default=10, help="trials per object")
-    p.add_argument("--planners", nargs="+", choices=PLANNERS, default=["mi"], help="planners to run")
+    p.add_argument("--planners", nargs="+", choices=PLANNERS, default=["mi"], metavar="PLANNER",
+                   help=f"planners to run, from {', '.join(PLANNERS)}")
     p.add_argument("--seed", type=int, default=0, help="campaign seed")
     return parser
 

@@ -380,3 +380,27 @@ def test_method_doc_names_exist():
                     assert part in defs, f"{tok} not defined in {current.name}"
                 checked += 1
     assert checked > 30
+
+
+@pytest.mark.slow
+def test_recognize_on_a_rig_from_toml(tiny, tmp_path):
+    """examples/simulated_rig.toml: PTU and controller simulators + rendered images
+    (32 x 7 positions); a wrong-sized model is refused with one line."""
+    toml = ROOT / "examples/simulated_rig.toml"
+    p = run("recognize", tiny["model"], "--rig", toml, "--samples", 32)
+    assert p.returncode == 1
+    one_error_line(p, "positions (32, 7)", "model.npz")
+    db = write_synthetic_database(tmp_path / "db", positions=(32, 7), n_objects=2, n_poses=4,
+                                  image_shape=(120, 160))
+    db = db if db.is_dir() else db.parent
+    model = train_model(db, kind="DB1", n_components=3, samples_per_image=4)
+    save_model(tmp_path / "m.npz", model)
+    p = run("recognize", tmp_path / "m.npz", "--rig", toml, "--object", 1, "--pose", 2, "--samples", 32,
+            "--max-steps", 2)
+    assert p.returncode == 0, p.stderr
+    steps = [l.split() for l in p.stdout.splitlines() if l.strip()[:1].isdigit()]
+    assert [int(s[0]) for s in steps] == list(range(1, len(steps) + 1)) and 1 <= len(steps) <= 2
+    assert steps[-1][-1] == "stop" and "result: object" in p.stdout
+    p = run("recognize", tmp_path / "m.npz", "--rig", tmp_path / "none.toml")
+    assert p.returncode == 1
+    one_error_line(p, "none.toml")
