@@ -83,15 +83,21 @@ def project_batch(mean_image: Float[Array, " D"], basis: Float[Array, "D K"],
 
     Rows that are non-finite, all zero or constant are invalid: their ``g`` is 0.
     """
-    y = jnp.asarray(images, dtype=basis.dtype)
+    y_hat, valid = _unit_energy(jnp.asarray(images, dtype=basis.dtype))
+    g = (y_hat - mean_image[None, :]) @ basis
+    return jnp.where(valid[:, None], g, 0.0), valid
+
+
+def _unit_energy(y: Float[Array, "B D"]) -> tuple[Float[Array, "B D"], Bool[Array, " B"]]:
+    """``y / ||y||`` per row (eq. 4.1-4.2) and its validity: rows that are
+    non-finite, all zero or constant are invalid (and returned as 0)."""
     finite = jnp.all(jnp.isfinite(y), axis=1)
     y = jnp.where(finite[:, None], y, 0.0)
     norm = jnp.linalg.norm(y, axis=1)
     varies = jnp.max(y, axis=1) > jnp.min(y, axis=1)
     valid = finite & (norm > 0) & varies
     safe = jnp.where(valid, norm, 1.0)
-    g = (y / safe[:, None] - mean_image[None, :]) @ basis
-    return jnp.where(valid[:, None], g, 0.0), valid
+    return jnp.where(valid[:, None], y / safe[:, None], 0.0), valid
 
 
 def project_camera(camera: CameraModel, positions: Int[Array, " B"],
@@ -102,11 +108,6 @@ def project_camera(camera: CameraModel, positions: Int[Array, " B"],
     y = jnp.asarray(images, dtype=camera.basis.dtype).reshape(B, -1)
     mean = camera.mean_image[positions]           # [B, D]
     basis = camera.basis[positions]               # [B, D, K]
-    finite = jnp.all(jnp.isfinite(y), axis=1)
-    y = jnp.where(finite[:, None], y, 0.0)
-    norm = jnp.linalg.norm(y, axis=1)
-    varies = jnp.max(y, axis=1) > jnp.min(y, axis=1)
-    valid = finite & (norm > 0) & varies
-    safe = jnp.where(valid, norm, 1.0)
-    g = jnp.einsum("bd,bdk->bk", y / safe[:, None] - mean, basis)
+    y_hat, valid = _unit_energy(y)
+    g = jnp.einsum("bd,bdk->bk", y_hat - mean, basis)
     return jnp.where(valid[:, None], g, 0.0), valid

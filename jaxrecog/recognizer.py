@@ -30,6 +30,7 @@ import numpy as np
 from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 
 from . import kernels as K
+from .features import project_camera
 from .planners import Planner, model_arrays
 
 __all__ = ["Recognizer", "RecognizerState", "Decision", "restrict_cameras", "image_features"]
@@ -91,19 +92,15 @@ def image_features(model, config: Int[Array, " n"], images: Float[Array, "n H W"
     """Eigenspace features per camera (eq. 4.1-4.11) and a validity flag.
 
     Returns ``(gs, ok)``: a tuple of ``[K]`` vectors and a scalar bool that is
-    ``False`` when some image has no energy or is not finite.
+    ``False`` when some image is black, constant or not finite
+    (:func:`~jaxrecog.features.project_camera`).
     """
     gs = []
     ok = jnp.asarray(True)
     for i, cam in enumerate(model.cameras):
-        y = images[i].reshape(-1).astype(cam.mean_image.dtype)
-        energy = jnp.sqrt(jnp.sum(y * y))
-        good = (energy > 0) & jnp.isfinite(energy)
-        y_hat = y / jnp.where(good, energy, 1.0)
-        g = cam.basis[config[i]].T @ (y_hat - cam.mean_image[config[i]])
-        good = good & jnp.all(jnp.isfinite(g))
-        gs.append(jnp.where(good, g, 0.0))
-        ok = ok & good
+        g, valid = project_camera(cam, config[i : i + 1], images[i : i + 1])
+        gs.append(g[0])
+        ok = ok & valid[0]
     return tuple(gs), ok
 
 

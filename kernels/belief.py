@@ -22,6 +22,8 @@ from typing import NamedTuple
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
+from ._grid import lse as _lse
+
 
 class Belief(NamedTuple):
     """Factorised belief P(c) * prod_i P_i(k_i | c), in log space.
@@ -142,13 +144,6 @@ def update(belief: Belief, logliks: tuple[Float[Array, "C L_i"], ...]) -> Belief
     belief unchanged; use :func:`update_with_info` to see that flag.
     """
     return update_with_info(belief, logliks)[0]
-
-
-def _lse(x, axis):
-    m = jnp.max(x, axis=axis, keepdims=True)
-    m = jnp.where(jnp.isfinite(m), m, 0.0)
-    s = jnp.sum(jnp.exp(x - m), axis=axis)
-    return jnp.log(s) + jnp.squeeze(m, axis)
 
 
 def _sticky(lp, rho, stay):

@@ -1,0 +1,131 @@
+"""Benchmark the recognizer: step latency and campaign throughput.
+
+* Step latency: median of ``Recognizer.step`` (features -> belief update ->
+  stop test -> planner over all 224 configurations -> transition) on the
+  trained DB2 model, per planner, one trial at a time (what a control loop
+  sees) and per trial inside a batch of 16 (what a campaign sees).
+* Campaign throughput: wall time of N trials of case (iii) (occluded scene,
+  DB2, MI) *including rendering*, and of the rendering alone.
+
+Targets (issue 6, 2-core CPU): step ≤ 5 ms for MI with 1024 samples; 800
+trials of case (iii) ≤ 60 s.  Writes JSON (default out/bench/recognizer.json).
+Uses (and if needed creates) the models of ``jaxrecog.experiments.prepare``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import platform
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import jax.random as jr
+import numpy as np
+
+from jaxrecog.campaign import batched_step, run_campaign
+from jaxrecog.experiments import CASES, Settings, _load, _recognizer, _specs, make_rig, prepare
+
+
+def step_latency(model, planner: str, settings: Settings, images, repeat: int) -> dict:
+    rec = _recognizer(model, planner, settings)
+    state = rec.init(config=(3, 2))
+    t0 = time.perf_counter()
+    s, d = rec.step(state, images, jr.PRNGKey(0))
+    jax.block_until_ready(d)
+    compile_s = time.perf_counter() - t0
+    times = []
+    for i in range(repeat):
+        t0 = time.perf_counter()
+        s, d = rec.step(state, images, jr.PRNGKey(i))
+        jax.block_until_ready(d)
+        times.append(time.perf_counter() - t0)
+    batch = 16
+    step = batched_step(rec)
+    states = jax.tree.map(lambda x: jnp.stack([x] * batch), state)
+    ims = jnp.asarray(np.stack([images] * batch))
+    keys = jr.split(jr.PRNGKey(1), batch)
+    jax.block_until_ready(step(states, ims, keys))
+    btimes = []
+    for _ in range(max(3, repeat // 10)):
+        t0 = time.perf_counter()
+        jax.block_until_ready(step(states, ims, keys))
+        btimes.append(time.perf_counter() - t0)
+    return {
+        "planner": planner,
+        "compile_s": compile_s,
+        "median_ms": 1e3 * float(np.median(times)),
+        "min_ms": 1e3 * float(np.min(times)),
+        "batched_per_trial_ms": 1e3 * float(np.median(btimes)) / batch,
+    }
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__)
+    p.add_argument("--out", default="out/bench/recognizer.json")
+    p.add_argument("--workdir", default="out/thesis", help="where the trained models are (or are made)")
+    p.add_argument("--trials", type=int, default=800, help="case (iii) trials for the throughput run (default 800)")
+    p.add_argument("--repeat", type=int, default=50)
+    p.add_argument("--planners", default="mi,mi-class,crlb,random")
+    args = p.parse_args(argv)
+
+    settings = Settings(workdir=Path(args.workdir), trials_per_object=max(1, args.trials // 8))
+    prepared = prepare(settings, databases=("DB2",))
+    case = CASES["iii"]
+    model = _load(prepared, case)
+    rig = make_rig(settings, seed=settings.seed)
+    rig.reset(5, 2)
+    rig.move((3, 2))
+    images = np.stack(rig.capture())
+
+    latency = [step_latency(model, name, settings, images, args.repeat) for name in args.planners.split(",")]
+    for r in latency:
+        print(f"step {r['planner']:9s}: median {r['median_ms']:7.2f} ms (min {r['min_ms']:.2f}), "
+              f"in a batch of 16: {r['batched_per_trial_ms']:.2f} ms/trial, compile {r['compile_s']:.1f} s")
+
+    specs = _specs(case, settings, rig, model.n_objects, model.n_poses)[: args.trials]
+    # rendering alone, the same scenes and first views
+    t0 = time.perf_counter()
+    for s in specs:
+        rig.reset(s.object, s.pose, s.occluders)
+        rig.move(s.initial)
+        rig.capture()
+    render_first_s = time.perf_counter() - t0
+    rec = _recognizer(model, "mi", settings)
+    run_campaign(rec, rig, specs[: settings.batch], key=jr.PRNGKey(0), batch=settings.batch)  # warm-up compile
+    t0 = time.perf_counter()
+    results = run_campaign(rec, rig, specs, key=jr.PRNGKey(0), batch=settings.batch)
+    campaign_s = time.perf_counter() - t0
+    views = float(np.mean([r.steps for r in results]))
+    print(f"campaign: {len(results)} trials of case (iii) with MI in {campaign_s:.1f} s "
+          f"({len(results) / campaign_s:.1f} trials/s, {views:.2f} views/trial); "
+          f"rendering the first views alone: {render_first_s:.1f} s")
+
+    out = {
+        "machine": {"platform": platform.platform(), "cpus": os.cpu_count(), "jax": jax.__version__, "backend": jax.default_backend()},
+        "settings": {k: str(v) for k, v in dataclasses.asdict(settings).items()},
+        "step_latency": latency,
+        "campaign": {
+            "case": "iii", "planner": "mi", "trials": len(results), "seconds": campaign_s,
+            "trials_per_s": len(results) / campaign_s, "mean_views": views,
+            "render_first_views_s": render_first_s,
+        },
+        "targets": {"step_mi_ms": 5.0, "campaign_800_s": 60.0},
+        "ratios": {
+            "step_mi_vs_target": next((r["median_ms"] for r in latency if r["planner"] == "mi"), float("nan")) / 5.0,
+            "campaign_vs_target": campaign_s * (800 / max(len(results), 1)) / 60.0,
+        },
+    }
+    path = Path(args.out)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(out, indent=1))
+    print(f"wrote {path}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
