@@ -13,8 +13,6 @@ import argparse
 import dataclasses
 import importlib
 import json
-import math
-import os
 import subprocess
 import sys
 import time
@@ -451,18 +449,14 @@ def _scores_report(scores, positions, top: int) -> tuple[int, list]:
 
 
 def cmd_plan(args) -> int:
+    import jax.random as jr
     import numpy as np
 
     P, R = _recognizer_modules()
     model = _load_model(args.model)
     positions = _model_positions(model)
-    key = _key(args.seed)
-    import jax.random as jr
-
-    k_plan, k_score = jr.split(key)
-    planner = P.make_planner(args.planner, model, key=k_plan, samples=args.samples)
-    rec = R.Recognizer(model, planner)
-    if args.images:
+    imgs = None
+    if args.images:  # check everything before the (costly) planner tables
         if args.at is None:
             raise UsageError("--images needs --at V1,V2 (where they were taken)")
         if len(args.images) != len(positions) or len(args.at) != len(positions):
@@ -470,6 +464,12 @@ def cmd_plan(args) -> int:
         if any(v >= n for v, n in zip(args.at, positions)):
             raise UsageError(f"--at {_fmt_cfg(args.at)} is outside the model's positions {positions}")
         imgs = np.stack([_read_gray(p, model.image_shape) for p in args.images])
+    elif args.at is not None:
+        raise UsageError("--at is only used with --images")
+    k_plan, k_score = jr.split(_key(args.seed))
+    planner = P.make_planner(args.planner, model, key=k_plan, samples=args.samples)
+    rec = R.Recognizer(model, planner)
+    if imgs is not None:
         state = rec.init(config=args.at)
         _, dec = rec.step(state, imgs, k_score)
         scores = np.asarray(dec.scores)
@@ -477,8 +477,6 @@ def cmd_plan(args) -> int:
               f"P = {float(dec.probability):.3f}")
         what = f"belief after images at ({_fmt_cfg(args.at)})"
     else:
-        if args.at is not None:
-            raise UsageError("--at is only used with --images")
         state = rec.init(config=(0,) * len(positions))
         scores = np.asarray(planner.scores(state.prior, k_score))
         what = "uniform belief"
@@ -534,20 +532,20 @@ def cmd_recognize(args) -> int:
     if args.start is not None and (len(args.start) != len(positions)
                                    or any(v >= n for v, n in zip(args.start, positions))):
         raise UsageError(f"--start {_fmt_cfg(args.start)} does not fit the model's positions {positions}")
+    if args.occluders and args.rig != "synthetic":
+        raise UsageError("--occluders works with --rig synthetic only")
     k_plan, k_init, k_run = jr.split(_key(args.seed), 3)
-    planner = P.make_planner(args.planner, model, key=k_plan, samples=args.samples)
-    rec = R.Recognizer(model, planner, p_threshold=args.threshold, max_steps=args.max_steps)
     rig = _make_rig(args, model)
     try:
         if tuple(rig.positions) != positions:
             raise CLIError(f"rig {args.rig} has positions {tuple(rig.positions)} but model {args.model} has "
                            f"{positions} (for the synthetic rig use the --cameras/--stride the database "
                            "was rendered with)")
+        planner = P.make_planner(args.planner, model, key=k_plan, samples=args.samples)
+        rec = R.Recognizer(model, planner, p_threshold=args.threshold, max_steps=args.max_steps)
         state = rec.init(key=None if args.start is not None else k_init, config=args.start)
         occl = None
         if args.occluders:
-            if args.rig != "synthetic":
-                raise UsageError("--occluders works with --rig synthetic only")
             from .experiments import _occluder_factory  # the thesis-case boards (first views occluded)
 
             start = tuple(int(v) for v in np.asarray(state.config))
@@ -629,7 +627,9 @@ def _write_report(report, name: str, out: Path, thesis_key: str | None) -> list[
     js_path.write_text(js if isinstance(js, str) else json.dumps(js, indent=2))
     written.append(js_path)
     rows = dict(report.rows)
-    ref = {p: TABLES[(thesis_key, p)] for p in rows if (thesis_key, p) in TABLES} if thesis_key else {}
+    # "mi-class" and "crlb-det" are variants of the thesis's "mi" / "crlb" planners
+    ref = {p: TABLES[(thesis_key, p.split("-")[0])] for p in rows
+           if (thesis_key, p.split("-")[0]) in TABLES} if thesis_key else {}
     written += plots.campaign_bars(rows, out / f"campaign_{name}", thesis=ref,
                                    title=f"Case ({name}): {report.settings.trials_per_object} trials per object"
                                          + (", markers: thesis" if ref else ""))
