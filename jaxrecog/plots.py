@@ -133,8 +133,8 @@ def belief_lines(
     steps = np.arange(S)
     for m in range(M):
         thick = true_object is not None and m == true_object
-        ax.plot(steps, P[:, m], marker="o", lw=3 if thick else 1.3, color=cmap(m % 10),
-                label=f"object {m + 1}" + (" (true)" if thick else ""), zorder=3 if thick else 2)
+        ax.plot(steps, P[:, m], marker="o", lw=5 if thick else 1.3, ms=9 if thick else 5, color=cmap(m % 10),
+                label=f"object {m + 1}" + (" (true)" if thick else ""), zorder=2 if thick else 3)  # true line underneath, so ties stay visible
     if reference is not None and true_object is not None:
         R = np.asarray(reference, dtype=float)
         ax.plot(np.arange(R.shape[0]), R[:, true_object], ls=":", color="k", lw=1.5,
