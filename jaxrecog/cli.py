@@ -13,9 +13,11 @@ import argparse
 import dataclasses
 import importlib
 import json
+import math
 import subprocess
 import sys
 import time
+import types
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -615,7 +617,7 @@ def _make_settings(ex, values: dict[str, Any], where: str):
 
 def _write_report(report, name: str, out: Path, thesis_key: str | None) -> list[Path]:
     from . import plots
-    from .thesis import TABLES
+    from .thesis import SINGLE_CAMERA, TABLES
 
     out.mkdir(parents=True, exist_ok=True)
     written = []
@@ -630,13 +632,21 @@ def _write_report(report, name: str, out: Path, thesis_key: str | None) -> list[
     # "mi-class" and "crlb-det" are variants of the thesis's "mi" / "crlb" planners
     ref = {p: TABLES[(thesis_key, p.split("-")[0])] for p in rows
            if (thesis_key, p.split("-")[0]) in TABLES} if thesis_key else {}
+    if name.startswith("single-") and name.split("-", 1)[1] in SINGLE_CAMERA:
+        # the thesis gives only the average for the single camera (§7.3), MI planner
+        rate, views, exitp = SINGLE_CAMERA[name.split("-", 1)[1]]
+        n_obj = sum(r.label != "Average" for r in next(iter(rows.values())))
+        avg = types.SimpleNamespace(rate=(math.nan,) * n_obj, views=(math.nan,) * n_obj,
+                                    average=(rate, exitp, views))
+        ref = {p: avg for p in rows if p.startswith("mi")}
     written += plots.campaign_bars(rows, out / f"campaign_{name}", thesis=ref,
                                    title=f"Case ({name}): {report.settings.trials_per_object} trials per object"
                                          + (", markers: thesis" if ref else ""))
     return written
 
 
-def _trace_plot(ex, settings, out: Path, planner: str = "mi", obj: int = 5, prepared=None) -> list[Path]:
+def _trace_plot(ex, settings, out: Path, planner: str = "mi", obj: int = 5, prepared=None,
+                case: str = "iii") -> list[Path]:
     import numpy as np
 
     from . import plots
@@ -644,14 +654,15 @@ def _trace_plot(ex, settings, out: Path, planner: str = "mi", obj: int = 5, prep
 
     if not hasattr(ex, "run_trace"):
         raise CLIError("jaxrecog.experiments has no run_trace (this build is incomplete)")
-    res = ex.run_trace(settings, object=obj, planner=planner, prepared=prepared)
+    res = ex.run_trace(settings, object=obj, planner=planner, prepared=prepared, case=case)
     probs = np.asarray(res.object_probs, dtype=float)
     M = probs.shape[1]
     probs = np.vstack([np.full((1, M), 1.0 / M), probs])
-    ref = np.asarray(TABLE_7_8) if M == len(TABLE_7_8[0]) and obj == 5 else None
+    ref = np.asarray(TABLE_7_8) if M == len(TABLE_7_8[0]) and obj == 5 and case == "iii" else None
+    scene = "occluded" if ex.CASES[case].occluded else "clean"
     return list(plots.belief_lines(probs, out / "belief_trace", true_object=res.object, reference=ref,
                                    title=f"Belief per step: object {res.object + 1} (index {res.object}), "
-                                         f"pose {res.pose}, {planner.upper()}, occluded"))
+                                         f"pose {res.pose}, {planner.upper()}, case {case} ({scene})"))
 
 
 def cmd_experiment(args, file_settings: dict[str, Any] | None = None) -> int:
@@ -688,10 +699,9 @@ def cmd_experiment(args, file_settings: dict[str, Any] | None = None) -> int:
     t0 = time.perf_counter()
     report = ex.run_case(name, settings, planners=planners, progress=_bars())
     print(report.markdown())
-    thesis_key = name if name in ("i", "ii", "iii") else None
-    written = _write_report(report, name, out, thesis_key)
+    written = _write_report(report, name, out, name if name in ("i", "ii", "iii") else None)
     if args.trace:
-        written += _trace_plot(ex, settings, out, planner=(planners or ["mi"])[0])
+        written += _trace_plot(ex, settings, out, planner=(planners or ["mi"])[0], case=name)
     print(f"case {name} in {time.perf_counter() - t0:.0f} s; wrote:")
     for p in written:
         print(f"  {p}")

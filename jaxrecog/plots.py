@@ -284,13 +284,15 @@ def campaign_bars(
         nice = PLANNER_LABELS.get(name, name)
         ax1.bar(xs, rate, width, color=color, label=nice)
         ax2.bar(xs, views, width, color=color, label=nice)
+        for xz in xs[rate == 0]:  # a zero rate is a result, not a missing bar
+            ax1.text(xz, 1.0, "0", ha="center", va="bottom", fontsize=8, color=color)
         ref = (thesis or {}).get(name)
         if ref is not None:
             t_rate = list(ref.rate) + [ref.average[0]]
             t_views = list(ref.views) + [ref.average[2]]
             n = min(len(labels), len(t_rate))
             kw = dict(marker="D", ms=5, ls="none", mfc="white", mec="black", mew=1.2, zorder=4)
-            ax1.plot(xs[:n], t_rate[:n], label="thesis (same planner)" if not marked else None, **kw)
+            ax1.plot(xs[:n], t_rate[:n], label="thesis (published)" if not marked else None, **kw)
             ax2.plot(xs[:n], t_views[:n], **kw)
             marked = True
     ax1.set_ylabel("recognition rate (%)")
