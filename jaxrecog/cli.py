@@ -797,14 +797,21 @@ def cmd_bench(args) -> int:
     return 0
 
 
+_NOT_HEADLINES = {"cpus", "seed", "repeats", "version", "format_version"}
+
+
 def _headline(d: Any, limit: int = 4) -> str:
-    """A few top-level numbers of a benchmark's JSON."""
+    """A few top-level numbers of a benchmark's JSON (a nested ``median`` counts)."""
     if not isinstance(d, dict):
         return ""
     if "error" in d:
         return str(d["error"])[:60]
     parts = []
     for k, v in d.items():
+        if k in _NOT_HEADLINES:
+            continue
+        if isinstance(v, dict) and isinstance(v.get("median"), (int, float)):
+            k, v = f"{k}.median", v["median"]
         if isinstance(v, bool) or not isinstance(v, (int, float)):
             continue
         parts.append(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}")

@@ -305,12 +305,12 @@ def test_bench_merges_json_and_reports_failures(tmp_path):
     bench.mkdir()
     (bench / "bench_fast.py").write_text(
         "import argparse, json\nap = argparse.ArgumentParser(); ap.add_argument('--out')\n"
-        "a = ap.parse_args(); open(a.out, 'w').write(json.dumps({'median_s': 0.25, 'n': 3}))\n")
+        "a = ap.parse_args(); open(a.out, 'w').write(json.dumps({'median_s': 0.25, 'n': 3, 'cpus': 2, 'step_ms': {'median': 0.5}}))\n")
     p = run("bench", "--benchmarks", bench, "--out", tmp_path / "out")
     assert p.returncode == 0, p.stderr
     merged = json.loads((tmp_path / "out/bench.json").read_text())
-    assert merged == {"fast": {"median_s": 0.25, "n": 3}}
-    assert "median_s=0.25" in p.stdout
+    assert merged == {"fast": {"median_s": 0.25, "n": 3, "cpus": 2, "step_ms": {"median": 0.5}}}
+    assert "median_s=0.25, n=3, step_ms.median=0.5" in p.stdout and "cpus" not in p.stdout
     (bench / "bench_broken.py").write_text("raise SystemExit('boom')\n")
     p = run("bench", "--benchmarks", bench, "--out", tmp_path / "out")
     assert p.returncode == 1
