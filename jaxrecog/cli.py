@@ -404,6 +404,8 @@ def cmd_inspect(args) -> int:
 
     path = Path(args.path)
     written = []
+    if not path.exists() and path.suffix != ".npz":
+        raise CLIError(f"{path}: no such model file or database folder")
     if path.is_dir():
         from .database import load_database
 
