@@ -227,12 +227,14 @@ def build_parser() -> argparse.ArgumentParser:
     # demo -----------------------------------------------------------------
     p = add("demo", "what `make demo` runs: render, train, a short campaign, plots",
             "Render a small synthetic database, train DB1 and DB2, run a short case (iii)\n"
-            "campaign (occluded scenes, DB2 model) with the MI planner, print the table and write\n"
+            "campaign (occluded scenes, DB2 model) with the MI planners (class and state targets),\n"
+            "print the table and write"
             "the plots.")
     p.add_argument("--out", default="out/demo", metavar="FOLDER", help="output folder")
     p.add_argument("--trials", type=_positive, default=10, help="trials per object")
-    p.add_argument("--planners", nargs="+", choices=PLANNERS, default=["mi"], metavar="PLANNER",
-                   help=f"planners to run, from {', '.join(PLANNERS)}")
+    p.add_argument("--planners", nargs="+", choices=PLANNERS, default=["mi-class", "mi"], metavar="PLANNER",
+                   help=f"planners to run, from {', '.join(PLANNERS)}; the first also draws the trace "
+                        "(default: mi-class mi, the class and the thesis's state target)")
     p.add_argument("--seed", type=int, default=0, help="campaign seed")
     return parser
 
