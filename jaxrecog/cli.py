@@ -228,7 +228,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = add("demo", "what `make demo` runs: render, train, a short campaign, plots",
             "Render a small synthetic database, train DB1 and DB2, run a short case (iii)\n"
             "campaign (occluded scenes, DB2 model) with the MI planners (class and state targets),\n"
-            "print the table and write"
+            "print the table and write "
             "the plots.")
     p.add_argument("--out", default="out/demo", metavar="FOLDER", help="output folder")
     p.add_argument("--trials", type=_positive, default=10, help="trials per object")
