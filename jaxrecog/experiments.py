@@ -113,7 +113,8 @@ class Prepared:
 def _progress_bar(total: int, desc: str, enabled: bool):
     from tqdm.auto import tqdm
 
-    return tqdm(total=total, desc=desc, unit="img" if "render" in desc else "trial", disable=not enabled, dynamic_ncols=True)
+    unit = "img" if desc.startswith("render") else "position" if desc.startswith("train") else "trial"
+    return tqdm(total=total, desc=desc, unit=unit, disable=not enabled, dynamic_ncols=True)
 
 
 def prepare(settings: Settings, *, progress: bool = False, databases: Sequence[str] = ("DB1", "DB2")) -> Prepared:

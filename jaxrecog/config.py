@@ -1,0 +1,63 @@
+"""CLI settings from a TOML file; command-line options override them.
+
+The file holds one table per subcommand, with the long option names (dashes
+or underscores) as keys, plus an optional ``[global]`` table::
+
+    [global]
+    quiet = true
+
+    [train]
+    kind = "DB2"
+    components = 20
+
+    [experiment]
+    trials = 24
+    planners = ["mi", "crlb", "random"]
+
+Keys the subcommand does not know are an error naming the file and the key.
+"""
+
+from __future__ import annotations
+
+import os
+import tomllib
+from pathlib import Path
+from typing import Any
+
+__all__ = ["ConfigFileError", "load_settings", "section"]
+
+
+class ConfigFileError(ValueError):
+    """The settings file is missing, is not TOML, or names an unknown option."""
+
+
+def load_settings(path: str | os.PathLike) -> dict[str, Any]:
+    """Read the whole settings file (tables by subcommand name)."""
+    p = Path(path)
+    try:
+        with open(p, "rb") as f:
+            data = tomllib.load(f)
+    except FileNotFoundError:
+        raise ConfigFileError(f"settings file {p} not found") from None
+    except tomllib.TOMLDecodeError as e:
+        raise ConfigFileError(f"settings file {p} is not valid TOML: {e}") from None
+    except OSError as e:
+        raise ConfigFileError(f"settings file {p} cannot be read: {e.strerror}") from None
+    for k, v in data.items():
+        if not isinstance(v, dict):
+            raise ConfigFileError(f"settings file {p}: top-level key {k!r} must be a table "
+                                  f"like [train] or [global]")
+    return data
+
+
+def section(data: dict[str, Any], name: str, known: set[str], where: str) -> dict[str, Any]:
+    """The table ``name`` with keys normalised to argparse ``dest`` names
+    (dashes to underscores); unknown keys raise :class:`ConfigFileError`."""
+    out = {}
+    for k, v in data.get(name, {}).items():
+        dest = k.replace("-", "_")
+        if dest not in known:
+            raise ConfigFileError(f"settings file {where}: [{name}] has no option {k!r} "
+                                  f"(known: {', '.join(sorted(x.replace('_', '-') for x in known))})")
+        out[dest] = v
+    return out

@@ -1,0 +1,310 @@
+"""Figures of the method and of campaign results (matplotlib, headless Agg).
+
+Each function takes plain data and an output path *stem or file name*, writes
+a PNG and an SVG next to each other and returns both paths ``(png, svg)``.
+The PNG size is ``figsize * dpi`` pixels exactly (``bbox_inches`` is not
+``"tight"``), so callers and tests can rely on it.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Mapping, Sequence
+
+import numpy as np
+
+__all__ = [
+    "DPI",
+    "save",
+    "score_heatmap",
+    "belief_lines",
+    "eigenimages",
+    "occlusion_examples",
+    "campaign_bars",
+]
+
+DPI = 100
+PLANNER_LABELS = {"mi": "MI", "mi-class": "MI (class)", "crlb": "CRLB (trace)",
+                  "crlb-det": "CRLB (det)", "crlb-eig": "CRLB (max eig.)", "random": "random",
+                  "fixed": "fixed"}
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg", force=True)
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def save(fig, path: str | os.PathLike) -> tuple[Path, Path]:
+    """Write ``fig`` as ``<stem>.png`` and ``<stem>.svg`` and close it."""
+    plt = _plt()
+    p = Path(path)
+    if p.suffix.lower() in (".png", ".svg"):
+        p = p.with_suffix("")
+    p.parent.mkdir(parents=True, exist_ok=True)
+    png, svg = p.with_suffix(".png"), p.with_suffix(".svg")
+    fig.savefig(png, dpi=DPI)
+    fig.savefig(svg)
+    plt.close(fig)
+    return png, svg
+
+
+def score_heatmap(
+    scores: np.ndarray,
+    positions: Sequence[int],
+    path: str | os.PathLike,
+    *,
+    chosen: Sequence[int] | None = None,
+    title: str = "Planner scores",
+    label: str = "score (higher = better)",
+) -> tuple[Path, Path]:
+    """Scores of all configurations as a ``V1 x V2`` heat map (32 x 7 for the
+    thesis rig), the chosen configuration boxed.
+
+    Args:
+        scores: ``[A]`` flat scores, ``a = ravel_multi_index(cfg, positions)``.
+        positions: positions per camera (1 or 2 cameras; one camera gives a
+            ``V1 x 1`` column).
+        chosen: the configuration to mark (default: the arg-max).
+    """
+    plt = _plt()
+    scores = np.asarray(scores, dtype=float)
+    positions = tuple(int(v) for v in positions)
+    if len(positions) not in (1, 2) or scores.shape != (int(np.prod(positions)),):
+        raise ValueError(f"scores of shape {scores.shape} do not match positions {positions} "
+                         "(1 or 2 cameras)")
+    grid = scores.reshape(positions[0], positions[1] if len(positions) == 2 else 1)
+    finite = np.isfinite(grid)
+    if chosen is None:
+        flat = np.where(np.isfinite(scores), scores, -np.inf)
+        chosen = np.unravel_index(int(np.argmax(flat)), positions)
+    chosen = tuple(int(c) for c in chosen) + (0,) * (2 - len(chosen))
+    V1, V2 = grid.shape
+    fig, ax = plt.subplots(figsize=(5.0, 8.0))
+    masked = np.ma.masked_where(~finite, grid)
+    im = ax.imshow(masked, aspect="auto", cmap="viridis", interpolation="nearest", origin="upper")
+    ax.set_xlabel("camera 2 position v2" if len(positions) == 2 else "(one camera)")
+    ax.set_ylabel("camera 1 position v1")
+    ax.set_xticks(range(V2))
+    ax.set_xticklabels([str(v) for v in range(V2)] if len(positions) == 2 else [""])
+    step = 1 if V1 <= 16 else 4
+    ax.set_yticks(range(0, V1, step))
+    r, c = chosen
+    ax.add_patch(plt.Rectangle((c - 0.5, r - 0.5), 1, 1, fill=False, edgecolor="red", linewidth=2.5))
+    ax.plot([], [], "s", mfc="none", mec="red", mew=2, label=f"chosen (v1={r}, v2={c})"
+            if len(positions) == 2 else f"chosen (v1={r})")
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.07), frameon=False)
+    ax.set_title(title)
+    cb = fig.colorbar(im, ax=ax)
+    cb.set_label(label)
+    fig.subplots_adjust(left=0.14, right=0.92, top=0.94, bottom=0.12)
+    return save(fig, path)
+
+
+def belief_lines(
+    object_probs: np.ndarray,
+    path: str | os.PathLike,
+    *,
+    true_object: int | None = None,
+    title: str = "Belief over objects per step",
+    reference: np.ndarray | None = None,
+) -> tuple[Path, Path]:
+    """Object probabilities (summed over poses) after each step, one line per
+    object, like thesis Table 7.8.
+
+    Args:
+        object_probs: ``[S, M]``; row 0 is usually the uniform prior.
+        true_object: 0-based index; its line is drawn thick.  Legends number
+            objects from 1, as the thesis tables do.
+        reference: optional ``[S', M]`` (e.g. Table 7.8) drawn dotted for
+            the true object only.
+    """
+    plt = _plt()
+    P = np.asarray(object_probs, dtype=float)
+    if P.ndim != 2 or P.shape[0] < 1:
+        raise ValueError(f"object_probs must be [steps, objects], got shape {P.shape}")
+    S, M = P.shape
+    fig, ax = plt.subplots(figsize=(7.0, 4.5))
+    cmap = plt.get_cmap("tab10")
+    steps = np.arange(S)
+    for m in range(M):
+        thick = true_object is not None and m == true_object
+        ax.plot(steps, P[:, m], marker="o", lw=5 if thick else 1.3, ms=9 if thick else 5, color=cmap(m % 10),
+                label=f"object {m + 1}" + (" (true)" if thick else ""), zorder=2 if thick else 3)  # true line underneath, so ties stay visible
+    if reference is not None and true_object is not None:
+        R = np.asarray(reference, dtype=float)
+        ax.plot(np.arange(R.shape[0]), R[:, true_object], ls=":", color="k", lw=1.5,
+                label=f"thesis Table 7.8, object {true_object + 1}")
+    ax.set_xlabel("step (0 = prior, n = after the n-th image set)")
+    ax.set_ylabel("P(object | images so far)")
+    ax.set_ylim(-0.02, 1.02)
+    ax.set_xticks(steps)
+    ax.grid(alpha=0.3)
+    ax.set_title(title)
+    ax.legend(loc="center left", bbox_to_anchor=(1.01, 0.5), fontsize=8, frameon=False)
+    fig.subplots_adjust(left=0.1, right=0.72, top=0.9, bottom=0.13)
+    return save(fig, path)
+
+
+def eigenimages(
+    mean_image: np.ndarray,
+    basis: np.ndarray,
+    image_shape: tuple[int, int],
+    path: str | os.PathLike,
+    *,
+    eigenvalues: np.ndarray | None = None,
+    n: int = 7,
+    title: str = "Eigenimages",
+) -> tuple[Path, Path]:
+    """The mean image and the first ``n`` eigenimages of one position.
+
+    Args:
+        mean_image: ``[D]`` (unit-energy mean, eq. 4.4).
+        basis: ``[D, K]`` orthonormal eigenvectors (eq. 4.10).
+        eigenvalues: ``[K]``, printed under each eigenimage.
+    """
+    plt = _plt()
+    H, W = image_shape
+    basis = np.asarray(basis, dtype=float)
+    n = max(1, min(n, basis.shape[1]))
+    cols = min(4, n + 1)
+    rows = int(np.ceil((n + 1) / cols))
+    fig_h = rows * (2.3 * H / W + 0.6) + 0.5
+    fig, axes = plt.subplots(rows, cols, figsize=(2.4 * cols, fig_h), squeeze=False)
+    tiles = [("mean image", np.asarray(mean_image, float).reshape(H, W), "gray")]
+    for k in range(n):
+        e = basis[:, k].reshape(H, W)
+        sub = f"eigenimage {k + 1}"
+        if eigenvalues is not None:
+            sub += f"\nλ = {float(np.asarray(eigenvalues)[k]):.3g}"
+        tiles.append((sub, e, "RdBu_r"))
+    for ax, (name, img, cmap) in zip(axes.flat, tiles):
+        if cmap == "RdBu_r":
+            s = float(np.abs(img).max()) or 1.0
+            ax.imshow(img, cmap=cmap, vmin=-s, vmax=s)
+        else:
+            ax.imshow(img, cmap=cmap)
+        ax.set_title(name, fontsize=9)
+    for ax in axes.flat:
+        ax.set_xticks([])
+        ax.set_yticks([])
+    for ax in list(axes.flat)[len(tiles):]:
+        ax.axis("off")
+    fig.suptitle(title + ": mean and eigenimages (red > 0, blue < 0, λ = eigenvalue)", fontsize=11)
+    fig.subplots_adjust(left=0.02, right=0.98, top=1.0 - 0.62 / fig_h, bottom=0.02,
+                        hspace=0.45, wspace=0.08)
+    return save(fig, path)
+
+
+def occlusion_examples(
+    image: np.ndarray,
+    path: str | os.PathLike,
+    *,
+    levels: Sequence[float] = (0.05, 0.10, 0.15, 0.20, 0.25),
+    shapes: Sequence[str] | None = None,
+    seed: int = 0,
+    title: str = "DB2 occluders: shape x level",
+) -> tuple[Path, Path]:
+    """One training image with an occluder of each shape (rows) and level
+    (columns), drawn from the calibrated template bank of
+    :mod:`jaxrecog.augment`; the true covered fraction is printed on each."""
+    from .augment import SHAPES, make_occluder
+
+    plt = _plt()
+    img = np.asarray(image)
+    if img.ndim != 2:
+        raise ValueError(f"image must be a gray [H, W] array, got shape {img.shape}")
+    H, W = img.shape
+    shapes = tuple(SHAPES if shapes is None else shapes)
+    levels = tuple(float(x) for x in levels)
+    rng = np.random.default_rng(seed)
+    fig, axes = plt.subplots(len(shapes), len(levels),
+                             figsize=(1.9 * len(levels) + 0.9, 1.55 * len(shapes) + 0.7), squeeze=False)
+    for r, shape in enumerate(shapes):
+        for c, lev in enumerate(levels):
+            t = make_occluder(shape, lev, (H, W), rng)
+            h, w = t.shape
+            y0 = int(rng.integers(0, H - h + 1))
+            x0 = int(rng.integers(0, W - w + 1))
+            out = img.copy()
+            region = out[y0:y0 + h, x0:x0 + w]
+            region[t > 0] = 0
+            ax = axes[r, c]
+            ax.imshow(out, cmap="gray", vmin=0, vmax=255)
+            ax.set_xticks([])
+            ax.set_yticks([])
+            ax.text(0.03, 0.05, f"{100 * t.sum() / (H * W):.1f} %", transform=ax.transAxes,
+                    color="yellow", fontsize=7)
+            if r == 0:
+                ax.set_title(f"level {100 * lev:g} %", fontsize=9)
+            if c == 0:
+                ax.set_ylabel(shape, fontsize=9)
+    fig.suptitle(title + "  (yellow: fraction of the image covered)", fontsize=10)
+    fig.subplots_adjust(left=0.06, right=0.99, top=1.0 - 0.6 / (1.55 * len(shapes) + 0.7), bottom=0.02,
+                        hspace=0.15, wspace=0.05)
+    return save(fig, path)
+
+
+def campaign_bars(
+    rows: Mapping[str, Sequence],
+    path: str | os.PathLike,
+    *,
+    thesis: Mapping[str, object] | None = None,
+    title: str = "Recognition campaign",
+) -> tuple[Path, Path]:
+    """Recognition rate and mean number of views per object, one bar per
+    planner, the thesis's published values as markers.
+
+    Args:
+        rows: planner name -> :class:`~jaxrecog.results.ObjectRow` list from
+            :func:`~jaxrecog.results.summarize` (per object, then "Average").
+        thesis: planner name -> :class:`~jaxrecog.thesis.ThesisTable` (or
+            anything with ``rate``, ``views`` per object and ``average``).
+    """
+    plt = _plt()
+    planners = list(rows)
+    if not planners:
+        raise ValueError("no campaign results to plot")
+    labels = [r.label for r in rows[planners[0]]]
+    x = np.arange(len(labels))
+    width = 0.8 / len(planners)
+    cmap = plt.get_cmap("tab10")
+    fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(9.0, 6.5), sharex=True)
+    marked = False
+    for j, name in enumerate(planners):
+        rs = {r.label: r for r in rows[name]}
+        rate = np.array([rs[l].rate if l in rs else np.nan for l in labels], float)
+        views = np.array([rs[l].views if l in rs else np.nan for l in labels], float)
+        xs = x - 0.4 + width * (j + 0.5)
+        color = cmap(j % 10)
+        nice = PLANNER_LABELS.get(name, name)
+        ax1.bar(xs, rate, width, color=color, label=nice)
+        ax2.bar(xs, views, width, color=color, label=nice)
+        for xz in xs[rate == 0]:  # a zero rate is a result, not a missing bar
+            ax1.text(xz, 1.0, "0", ha="center", va="bottom", fontsize=8, color=color)
+        ref = (thesis or {}).get(name)
+        if ref is not None:
+            t_rate = list(ref.rate) + [ref.average[0]]
+            t_views = list(ref.views) + [ref.average[2]]
+            n = min(len(labels), len(t_rate))
+            kw = dict(marker="D", ms=5, ls="none", mfc="white", mec="black", mew=1.2, zorder=4)
+            ax1.plot(xs[:n], t_rate[:n], label="thesis (published)" if not marked else None, **kw)
+            ax2.plot(xs[:n], t_views[:n], **kw)
+            marked = True
+    ax1.set_ylabel("recognition rate (%)")
+    ax1.set_ylim(0, 105)
+    ax2.set_ylabel("mean number of views")
+    ax2.set_xlabel("object")
+    ax2.set_xticks(x)
+    ax2.set_xticklabels(labels)
+    for ax in (ax1, ax2):
+        ax.grid(axis="y", alpha=0.3)
+        ax.set_axisbelow(True)
+    ax1.legend(loc="center left", bbox_to_anchor=(1.01, 0.5), frameon=False, fontsize=9)
+    ax1.set_title(title)
+    fig.subplots_adjust(left=0.08, right=0.78, top=0.93, bottom=0.09, hspace=0.12)
+    return save(fig, path)

@@ -1,0 +1,405 @@
+"""The ``jaxrecog`` command: every subcommand on a tiny database and model,
+exit codes (0 / 1 runtime / 2 usage), files written, PNG sizes, TOML settings,
+and docs/cli.md in step with --help."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from PIL import Image
+
+from jaxrecog import cli
+from jaxrecog.modelfile import save_model
+from jaxrecog.testing import write_synthetic_database
+from jaxrecog.train import train_model
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def run(*args, cwd=None, timeout=120):
+    env = dict(os.environ, JAX_PLATFORMS="cpu", COLUMNS="100")
+    return subprocess.run([sys.executable, "-m", "jaxrecog.cli", *map(str, args)], capture_output=True,
+                          text=True, timeout=timeout, cwd=cwd, env=env)
+
+
+def png_size(path) -> tuple[int, int]:
+    assert Path(path).stat().st_size > 1000
+    with Image.open(path) as im:
+        return im.size
+
+
+def one_error_line(proc, *needles):
+    lines = [l for l in proc.stderr.splitlines() if l.startswith("jaxrecog: error:")]
+    assert len(lines) == 1, proc.stderr
+    assert "Traceback" not in proc.stderr
+    for n in needles:
+        assert n in lines[0], lines[0]
+    return lines[0]
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    """A 2-object, 2-pose, (3, 2)-position database with a test split, and its DB2 model."""
+    root = tmp_path_factory.mktemp("tiny")
+    db = write_synthetic_database(root / "db", positions=(3, 2), n_objects=2, n_poses=2,
+                                  image_shape=(30, 40), n_test=1)
+    db = db if db.is_dir() else db.parent
+    model, info = train_model(db, kind="DB2", n_components=3, samples_per_image=6, return_info=True)
+    path = save_model(root / "model.npz", model, training=info.params, manifest_sha256=info.manifest_sha256)
+    return {"root": root, "db": db, "model": Path(path)}
+
+
+# -- usage errors -----------------------------------------------------------
+
+@pytest.mark.parametrize("argv,needle", [
+    ([], "required"),
+    (["train"], "DATABASE"),
+    (["plan", "m.npz", "--planner", "best"], "invalid choice"),
+    (["recognize", "m.npz", "--threshold", "2"], "probability"),
+    (["recognize", "m.npz", "--start", "a,b"], "positions like"),
+    (["render", "--out", "x", "--stride", "0"], "positive"),
+    (["nosuchcommand"], "invalid choice"),
+])
+def test_bad_arguments_exit_2(argv, needle, capsys):
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err
+    assert needle in err and "usage:" in err
+
+
+def test_help_of_every_subcommand(capsys):
+    for name in cli.COMMANDS:
+        assert cli.main([name, "--help"]) == 0
+        out = capsys.readouterr().out
+        assert out.startswith(f"usage: jaxrecog {name}")
+        # every option has a help text
+        parser = cli._subparsers(cli.build_parser())[name]
+        for a in parser._actions:
+            assert a.help, (name, a.dest)
+
+
+def test_missing_model_exit_1_one_line(tmp_path):
+    p = run("inspect", tmp_path / "nope.npz")
+    assert p.returncode == 1
+    one_error_line(p, "nope.npz")
+    p = run("plan", tmp_path / "nope.npz")
+    assert p.returncode == 1
+    one_error_line(p, "nope.npz")
+
+
+def test_corrupt_model_exit_1_and_debug_traceback(tmp_path):
+    bad = tmp_path / "bad.npz"
+    bad.write_bytes(b"PK\x03\x04 this is not a model" * 10)
+    p = run("inspect", bad)
+    assert p.returncode == 1
+    one_error_line(p, "bad.npz")
+    p = run("--debug", "inspect", bad)
+    assert p.returncode == 1 and "Traceback" in p.stderr
+
+
+# -- subcommands on the tiny model ---------------------------------------------
+
+@pytest.mark.slow
+def test_inspect_model_and_database(tiny, tmp_path):
+    p = run("inspect", tiny["model"], "--plot-dir", tmp_path, "--camera", 1, "--position", 1)
+    assert p.returncode == 0, p.stderr
+    assert "2 objects x 2 poses" in p.stdout and "kind DB2" in p.stdout
+    assert png_size(tmp_path / "eigenimages.png") == (960, 282)  # mean + K=3 eigenimages in one row
+    assert (tmp_path / "eigenimages.svg").is_file()
+    p = run("inspect", tiny["db"], "--plot-dir", tmp_path)
+    assert p.returncode == 0, p.stderr
+    assert "splits: train 20, test 20, calib 0" in p.stdout and "positions (3, 2)" in p.stdout
+    assert png_size(tmp_path / "occlusion_examples.png") == (1040, 845)
+    p = run("inspect", tiny["model"], "--plot-dir", tmp_path, "--camera", 2)
+    assert p.returncode == 2 and "no camera 2" in p.stderr
+
+
+def test_train_writes_a_loadable_model_and_config_file(tiny, tmp_path):
+    cfg = tmp_path / "settings.toml"
+    cfg.write_text('[global]\nquiet = true\n\n[train]\nkind = "DB1"\ncomponents = 2\nsamples = 4\n')
+    out = tmp_path / "m1.npz"
+    p = run("--config", cfg, "train", tiny["db"], "--out", out, "--components", 3)
+    assert p.returncode == 0, p.stderr
+    from jaxrecog.modelfile import load_model, load_model_meta
+
+    m = load_model(out)
+    meta = load_model_meta(out)["training"]
+    assert meta["kind"] == "DB1" and meta["samples_per_image"] == 4  # from the file
+    assert m.cameras[0].basis.shape[-1] == 3  # the command line wins over the file
+    assert len(m.levels) == 1
+    cfg.write_text("[train]\nkindd = 'DB1'\n")
+    p = run("--config", cfg, "train", tiny["db"], "--out", out)
+    assert p.returncode == 2 and "kindd" in p.stderr
+    p = run("--config", tmp_path / "absent.toml", "train", tiny["db"], "--out", out)
+    assert p.returncode == 2 and "absent.toml" in p.stderr
+
+
+def test_train_bad_database_and_calibrate(tiny, tmp_path):
+    p = run("train", tmp_path / "nodb", "--out", tmp_path / "m.npz")
+    assert p.returncode == 1
+    one_error_line(p, "nodb")
+    p = run("train", tiny["db"], "--out", tmp_path / "c.npz", "--samples", 4, "--components", 2, "--calibrate")
+    try:
+        import jaxrecog.calibration as cal  # noqa: F401
+        has = hasattr(cal, "calibrate_model")
+    except ImportError:
+        has = False
+    if has:
+        assert p.returncode in (0, 1)
+    else:
+        assert p.returncode == 1
+        one_error_line(p, "calibrat")
+
+
+@pytest.mark.slow
+def test_plan_uniform_and_after_images(tiny, tmp_path):
+    p = run("plan", tiny["model"], "--planner", "mi", "--samples", 64, "--plot", tmp_path / "h.png", "--top", 4)
+    assert p.returncode == 0, p.stderr
+    lines = p.stdout.splitlines()
+    assert "6 configurations (uniform belief)" in lines[0]
+    ranks = [l.split() for l in lines if l.strip()[:1].isdigit()]
+    assert [int(r[0]) for r in ranks] == [1, 2, 3, 4]
+    scores = [float(r[3]) for r in ranks]
+    assert scores == sorted(scores, reverse=True)
+    best = lines[0].split("best: (")[1].split(")")[0]
+    assert ranks[0][1] == best
+    assert png_size(tmp_path / "h.png") == (500, 800)
+    # images at a configuration: one per camera, the model's size
+    db = tiny["db"]
+    imgs = [db / "train/c0/v01/m1_p0.png", db / "train/c1/v00/m1_p0.png"]
+    rows = [l.split(",") for l in (db / "manifest.csv").read_text().splitlines()[1:]]
+    paths = {(int(r[1]), int(r[2]), int(r[3]), int(r[4]), r[5]): r[0] for r in rows}
+    imgs = [db / paths[(0, 1, 1, 0, "test")], db / paths[(1, 0, 1, 0, "test")]]
+    p = run("plan", tiny["model"], "--samples", 64, "--images", *imgs, "--at", "1,0")
+    assert p.returncode == 0, p.stderr
+    assert "best (object, pose) = (1, 0)" in p.stdout
+    p = run("plan", tiny["model"], "--images", imgs[0], "--at", "1")
+    assert p.returncode == 2 and "2 camera(s)" in p.stderr
+    p = run("plan", tiny["model"], "--images", imgs[0], tmp_path / "no.png", "--at", "1,0")
+    assert p.returncode == 1
+    one_error_line(p, "no.png")
+
+
+@pytest.mark.slow
+def test_recognize_dataset_rig(tiny, tmp_path):
+    p = run("recognize", tiny["model"], "--rig", f"dataset:{tiny['db']}", "--object", 1, "--pose", 1,
+            "--samples", 64, "--start", "0,0", "--plot", tmp_path / "b.png")
+    assert p.returncode == 0, p.stderr
+    assert "step" in p.stdout and "result: object 1, pose 1" in p.stdout and "correct" in p.stdout
+    assert png_size(tmp_path / "b.png") == (700, 450)
+    p = run("recognize", tiny["model"], "--rig", "dataset:", "--samples", 64)
+    assert p.returncode == 2
+    p = run("recognize", tiny["model"], "--rig", "nonsense", "--samples", 64)
+    assert p.returncode == 2 and "synthetic" in p.stderr
+    p = run("recognize", tiny["model"], "--object", 7)
+    assert p.returncode == 2 and "2 objects" in p.stderr
+
+
+@pytest.mark.slow
+def test_render_train_recognize_synthetic(tmp_path):
+    """The synthetic rig with camera 1 only, every 8th position (4 positions)."""
+    layout = ["--cameras", 1, "--stride", 8, "--objects", 2, "--poses", 2]
+    p = run("render", "--out", tmp_path / "db", *layout)
+    assert p.returncode == 0, p.stderr
+    assert json.loads((tmp_path / "db/rig.json").read_text())["positions"] == [4]
+    assert len((tmp_path / "db/manifest.csv").read_text().splitlines()) == 1 + 4 * 2 * 2
+    p = run("train", tmp_path / "db", "--out", tmp_path / "m.npz", "--kind", "DB1", "--components", 3,
+            "--samples", 8)
+    assert p.returncode == 0, p.stderr
+    p = run("recognize", tmp_path / "m.npz", *layout, "--object", 1, "--pose", 0, "--samples", 64)
+    assert p.returncode == 0, p.stderr
+    assert "result: object" in p.stdout
+    p = run("recognize", tmp_path / "m.npz", "--samples", 64)  # full table vs a 4-position model
+    assert p.returncode == 1
+    one_error_line(p, "positions")
+
+
+# -- experiment and demo, with the campaign replaced by a stub ---------------------
+
+def _fake_results(M=2, n=3):
+    from jaxrecog.results import TrialResult
+
+    out = []
+    for m in range(M):
+        for t in range(n):
+            out.append(TrialResult(m * n + t, m, 0, m if t else 1 - m, 0, 0.97, 2 + t, True,
+                                   object_probs=((0.5, 0.5), (0.9, 0.1))))
+    return out
+
+
+@pytest.fixture
+def fake_experiments(monkeypatch, tiny):
+    """Stub ``experiments.prepare/run_case/run_trace`` (the real ones render the
+    1248-image thesis database); the CLI's wiring, files and plots are real."""
+    from jaxrecog import experiments as ex
+    from jaxrecog.results import summarize
+
+    calls = {}
+
+    def prepare(settings, **kw):
+        calls["prepare"] = settings
+        return ex.Prepared(tiny["db"], {"DB2": tiny["model"], "DB1": tiny["model"]})
+
+    def run_case(name, settings, planners=None, **kw):
+        calls["run_case"] = (name, settings, planners)
+        planners = list(planners or ex.CASES[name].planners)
+        res = {p: _fake_results() for p in planners}
+        return ex.CaseReport(ex.CASES[name], settings, {p: summarize(r, 2) for p, r in res.items()}, res,
+                             {p: 1.0 for p in planners})
+
+    def run_trace(settings, *, object=5, planner="mi", prepared=None, **kw):
+        return _fake_results()[1]
+
+    monkeypatch.setattr(ex, "prepare", prepare)
+    monkeypatch.setattr(ex, "run_case", run_case)
+    monkeypatch.setattr(ex, "run_trace", run_trace)
+    return calls
+
+
+def test_experiment_case_and_toml(fake_experiments, tmp_path, capsys):
+    out = tmp_path / "exp"
+    assert cli.main(["--quiet", "experiment", "i", "--out", str(out), "--trials", "3", "--planners", "mi",
+                     "random", "--trace"]) == 0
+    name, settings, planners = fake_experiments["run_case"]
+    assert name == "i" and planners == ["mi", "random"] and settings.trials_per_object == 3
+    assert settings.workdir == out / "work"
+    text = capsys.readouterr().out
+    assert "Case (i)" in text and str(out / "campaign_i.png") in text
+    assert png_size(out / "campaign_i.png") == (900, 650)
+    assert png_size(out / "belief_trace.png") == (700, 450)
+    assert json.loads((out / "case_i.json").read_text())["tables"]["mi"][0]["trials"] == 3
+    toml = tmp_path / "e.toml"
+    toml.write_text('case = "iii"\nplanners = ["crlb"]\n[settings]\nsamples = 99\nseed = 4\n')
+    assert cli.main(["experiment", str(toml), "--out", str(out), "--seed", "5"]) == 0
+    name, settings, planners = fake_experiments["run_case"]
+    assert (name, planners, settings.samples, settings.seed) == ("iii", ["crlb"], 99, 5)
+    toml.write_text('case = "iii"\nbogus = 1\n')
+    assert cli.main(["experiment", str(toml), "--out", str(out)]) == 2
+    assert "bogus" in capsys.readouterr().err
+    assert cli.main(["experiment", "iv", "--out", str(out)]) == 2
+
+
+@pytest.mark.slow
+def test_demo_writes_every_plot(fake_experiments, tmp_path, capsys):
+    out = tmp_path / "demo"
+    assert cli.main(["demo", "--out", str(out), "--trials", "3"]) == 0
+    text = capsys.readouterr().out
+    sizes = {"campaign_iii": (900, 650), "belief_trace": (700, 450), "mi_scores": (500, 800),
+             "eigenimages": (960, 282), "occlusion_examples": (1040, 845)}
+    for stem, size in sizes.items():
+        assert str(out / f"{stem}.png") in text
+        assert png_size(out / f"{stem}.png") == size
+        assert (out / f"{stem}.svg").is_file()
+    assert "| Average |" in text
+    assert fake_experiments["run_case"][0] == "iii"
+
+
+# -- bench -------------------------------------------------------------------
+
+def test_bench_merges_json_and_reports_failures(tmp_path):
+    bench = tmp_path / "benchmarks"
+    bench.mkdir()
+    (bench / "bench_fast.py").write_text(
+        "import argparse, json\nap = argparse.ArgumentParser(); ap.add_argument('--out')\n"
+        "a = ap.parse_args(); open(a.out, 'w').write(json.dumps({'median_s': 0.25, 'n': 3, 'cpus': 2, 'step_ms': {'median': 0.5}}))\n")
+    p = run("bench", "--benchmarks", bench, "--out", tmp_path / "out")
+    assert p.returncode == 0, p.stderr
+    merged = json.loads((tmp_path / "out/bench.json").read_text())
+    assert merged == {"fast": {"median_s": 0.25, "n": 3, "cpus": 2, "step_ms": {"median": 0.5}}}
+    assert "median_s=0.25, n=3, step_ms.median=0.5" in p.stdout and "cpus" not in p.stdout
+    (bench / "bench_broken.py").write_text("raise SystemExit('boom')\n")
+    p = run("bench", "--benchmarks", bench, "--out", tmp_path / "out")
+    assert p.returncode == 1
+    one_error_line(p, "broken")
+    assert json.loads((tmp_path / "out/bench.json").read_text())["broken"]["error"] == "boom"
+    p = run("bench", "--benchmarks", tmp_path / "empty", "--out", tmp_path / "out")
+    assert p.returncode == 1
+    one_error_line(p, "no benchmark scripts")
+
+
+# -- progress and docs -----------------------------------------------------------
+
+def test_progress_quiet_off_a_terminal():
+    import io
+
+    from jaxrecog import progress
+
+    class TTY(io.StringIO):
+        def isatty(self):
+            return True
+
+    progress.set_quiet(False)
+    assert not progress.enabled(io.StringIO())
+    assert progress.enabled(TTY())
+    s = TTY()
+    with progress.bar(10, "work", "img", stream=s) as b:
+        b.update(4)
+        b.set(10, 10)
+    assert "work" in s.getvalue() and "10/10" in s.getvalue()
+    progress.set_quiet(True)
+    try:
+        assert not progress.enabled(TTY())
+    finally:
+        progress.set_quiet(False)
+
+
+def test_cli_docs_up_to_date():
+    p = subprocess.run([sys.executable, str(ROOT / "scripts/gen_cli_docs.py"), "--check"], capture_output=True,
+                       text=True)
+    assert p.returncode == 0, p.stderr
+
+
+def test_method_doc_names_exist():
+    """Every ``file`` + ``function`` pair in docs/method.md names real code."""
+    import ast
+    import re
+
+    text = (ROOT / "docs/method.md").read_text()
+    checked = 0
+    for line in text.splitlines():
+        if not line.startswith("|"):
+            continue
+        code = line.rstrip("|").split("|")[-1]
+        current = None
+        for tok in re.findall(r"`([^`]+)`", code):
+            if tok.endswith(".py"):
+                current = ROOT / tok
+                assert current.is_file(), tok
+                tree = ast.parse(current.read_text())
+                defs = {n.name for n in ast.walk(tree) if isinstance(n, (ast.FunctionDef, ast.ClassDef))}
+                defs |= {t.id for n in tree.body if isinstance(n, (ast.Assign, ast.AnnAssign))
+                         for t in (n.targets if isinstance(n, ast.Assign) else [n.target])
+                         if isinstance(t, ast.Name)}
+            elif current is not None and re.fullmatch(r"[A-Za-z_][\w.]*", tok):
+                for part in tok.split("."):
+                    assert part in defs, f"{tok} not defined in {current.name}"
+                checked += 1
+    assert checked > 30
+
+
+@pytest.mark.slow
+def test_recognize_on_a_rig_from_toml(tiny, tmp_path):
+    """examples/simulated_rig.toml: PTU and controller simulators + rendered images
+    (32 x 7 positions); a wrong-sized model is refused with one line."""
+    toml = ROOT / "examples/simulated_rig.toml"
+    p = run("recognize", tiny["model"], "--rig", toml, "--samples", 32)
+    assert p.returncode == 1
+    one_error_line(p, "positions (32, 7)", "model.npz")
+    db = write_synthetic_database(tmp_path / "db", positions=(32, 7), n_objects=2, n_poses=4,
+                                  image_shape=(120, 160))
+    db = db if db.is_dir() else db.parent
+    model = train_model(db, kind="DB1", n_components=3, samples_per_image=4)
+    save_model(tmp_path / "m.npz", model)
+    p = run("recognize", tmp_path / "m.npz", "--rig", toml, "--object", 1, "--pose", 2, "--samples", 32,
+            "--max-steps", 2)
+    assert p.returncode == 0, p.stderr
+    steps = [l.split() for l in p.stdout.splitlines() if l.strip()[:1].isdigit()]
+    assert [int(s[0]) for s in steps] == list(range(1, len(steps) + 1)) and 1 <= len(steps) <= 2
+    assert steps[-1][-1] == "stop" and "result: object" in p.stdout
+    p = run("recognize", tmp_path / "m.npz", "--rig", tmp_path / "none.toml")
+    assert p.returncode == 1
+    one_error_line(p, "none.toml")

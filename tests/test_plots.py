@@ -1,0 +1,98 @@
+"""Figures: files written (PNG + SVG), PNG pixel size = figsize x DPI, content
+that depends on the data (the marked cell, the drawn occluders), bad input."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from jaxrecog import plots
+from jaxrecog.augment import SHAPES
+from jaxrecog.results import ObjectRow
+from jaxrecog.thesis import TABLE_7_8, TABLES
+
+pytest.importorskip("matplotlib")
+
+
+def _png(path):
+    with Image.open(path) as im:
+        return np.asarray(im.convert("RGB")), im.size
+
+
+def _check_pair(paths, size):
+    png, svg = paths
+    assert png.suffix == ".png" and svg.suffix == ".svg"
+    assert png.stat().st_size > 1000 and svg.stat().st_size > 1000
+    assert svg.read_text().lstrip().startswith("<?xml")
+    arr, wh = _png(png)
+    assert wh == size
+    assert arr.std() > 5  # not a blank canvas
+    return arr
+
+
+def test_heatmap_size_and_marked_cell(tmp_path):
+    positions = (32, 7)
+    scores = np.linspace(0.0, 1.0, 224)
+    scores[7 * 12 + 3] = 5.0  # the best cell: v1 = 12, v2 = 3
+    arr = _check_pair(plots.score_heatmap(scores, positions, tmp_path / "h.png"), (500, 800))
+    red = (arr[..., 0] > 200) & (arr[..., 1] < 60) & (arr[..., 2] < 60)
+    assert red.sum() > 50  # the box around the chosen configuration
+    # a different best cell moves the box
+    scores2 = scores.copy()
+    scores2[7 * 12 + 3] = 0.0
+    scores2[0] = 5.0
+    arr2, _ = _png(plots.score_heatmap(scores2, positions, tmp_path / "h2")[0])
+    red2 = (arr2[..., 0] > 200) & (arr2[..., 1] < 60) & (arr2[..., 2] < 60)
+    ys, ys2 = np.nonzero(red)[0], np.nonzero(red2)[0]
+    assert np.median(ys2) < np.median(ys)  # row 0 is above row 12
+
+
+def test_heatmap_single_camera_and_nonfinite(tmp_path):
+    s = np.array([0.1, np.nan, 0.3, -np.inf])
+    _check_pair(plots.score_heatmap(s, (4,), tmp_path / "one"), (500, 800))
+
+
+def test_heatmap_rejects_mismatch(tmp_path):
+    with pytest.raises(ValueError, match="positions"):
+        plots.score_heatmap(np.zeros(10), (32, 7), tmp_path / "x")
+
+
+def test_belief_lines(tmp_path):
+    arr = _check_pair(plots.belief_lines(np.asarray(TABLE_7_8), tmp_path / "b", true_object=5,
+                                         reference=np.asarray(TABLE_7_8)), (700, 450))
+    assert arr.shape == (450, 700, 3)
+    with pytest.raises(ValueError, match="steps, objects"):
+        plots.belief_lines(np.zeros(8), tmp_path / "bad")
+
+
+def test_eigenimages(tmp_path):
+    H, W, K = 12, 16, 5
+    rng = np.random.default_rng(0)
+    basis = np.linalg.qr(rng.normal(size=(H * W, K)))[0]
+    paths = plots.eigenimages(rng.random(H * W), basis, (H, W), tmp_path / "e", eigenvalues=np.arange(K, 0, -1.0), n=3)
+    _check_pair(paths, (960, 282))  # 4 tiles in one row: 4 x 2.4 in by (2.3 * 3/4 + 0.6 + 0.5) in
+
+
+def test_occlusion_examples_cover_the_levels(tmp_path):
+    img = np.full((60, 80), 200, np.uint8)
+    levels = (0.05, 0.25)
+    arr = _check_pair(plots.occlusion_examples(img, tmp_path / "o", levels=levels),
+                      (int(round(100 * (1.9 * 2 + 0.9))), int(round(100 * (1.55 * len(SHAPES) + 0.7)))))
+    assert arr.shape[0] == 845
+    with pytest.raises(ValueError, match="gray"):
+        plots.occlusion_examples(np.zeros((4, 4, 3), np.uint8), tmp_path / "bad")
+
+
+def _rows(rate, views):
+    rows = [ObjectRow(str(m + 1), 10, rate[m], 0.9, views[m]) for m in range(len(rate))]
+    return rows + [ObjectRow("Average", 10 * len(rate), float(np.mean(rate)), 0.9, float(np.mean(views)))]
+
+
+def test_campaign_bars(tmp_path):
+    rows = {"mi": _rows([100.0] * 8, [2.0] * 8), "crlb": _rows([90.0] * 8, [3.0] * 8),
+            "random": _rows([50.0] * 8, [6.0] * 8)}
+    thesis = {p: TABLES[("i", p)] for p in rows}
+    _check_pair(plots.campaign_bars(rows, tmp_path / "c.svg", thesis=thesis), (900, 650))
+    with pytest.raises(ValueError, match="no campaign"):
+        plots.campaign_bars({}, tmp_path / "none")
