@@ -131,7 +131,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="also render this many perturbed 'test' images per view (for --rig dataset:)")
     p.add_argument("--test-occluders", action="store_true",
                    help="give each test (object, pose) a random cardboard occluder layout")
-    p.add_argument("--seed", type=int, default=0, help="seed of the test perturbations")
+    p.add_argument("--calib-per-view", type=_nonneg, default=0,
+                   help="held-out 'calib' images per view (small object yaw, camera offset, lighting and "
+                        "noise perturbations), for `train --calibrate`")
+    p.add_argument("--seed", type=int, default=0, help="seed of the test and calib perturbations")
 
     # train ----------------------------------------------------------------
     p = add("train", "train a sensor model (DB1/DB2) from an image database",
@@ -340,12 +343,12 @@ def cmd_render(args) -> int:
     t0 = time.perf_counter()
     with _synthetic_rig(args, seed=args.seed) as rig:
         n_train = sum(rig.positions) * rig.n_objects * rig.n_poses
-        total = n_train * (1 + args.test_per_view)
+        total = n_train * (1 + args.test_per_view + args.calib_per_view)
         with bar(total, "render", "img") as b:
             manifest = render_database(args.out, rig=rig, test_per_view=args.test_per_view,
                                        test_noise=Noise(brightness=0.05, pixel=2.0, max_shift=2),
                                        test_occluders=args.test_occluders, seed=args.seed,
-                                       progress=b.update)
+                                       calib_per_view=args.calib_per_view, progress=b.update)
         layout = {"cameras": args.cameras, "stride": args.stride, "objects": args.objects,
                   "poses": args.poses, "positions": list(rig.positions)}
     (Path(args.out) / "rig.json").write_text(json.dumps(layout, indent=2) + "\n")
@@ -378,10 +381,14 @@ def cmd_train(args) -> int:
                                   covariance=args.covariance, seed=args.seed, progress=b.set,
                                   return_info=True)
     params = dict(info.params)
+    calibration = None
     if calibrate is not None:
-        model = calibrate(model, db)
+        model, cal = calibrate(model, db)
         params["calibrated"] = True
-    path = save_model(args.out, model, training=params, manifest_sha256=info.manifest_sha256)
+        calibration = cal.to_dict()
+        print(cal.summary())
+    path = save_model(args.out, model, training=params, manifest_sha256=info.manifest_sha256,
+                      calibration=calibration)
     print(f"trained {args.kind} (K={params['K']}) in {info.seconds:.1f} s -> {path}")
     print(model.summary())
     return 0
