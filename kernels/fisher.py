@@ -44,7 +44,7 @@ import jax.random as jr
 from jax.scipy.linalg import solve_triangular
 from jaxtyping import Array, Float, PRNGKeyArray
 
-from ._grid import grid_mixture, lse
+from ._grid import floor_log_probs, grid_mixture, lse, weights
 from .belief import Belief
 from .mutual_information import MITables, _check_belief, _to_grid, per_position_levels
 
@@ -114,7 +114,7 @@ def fisher_information(
         raise ValueError(f"fisher_information: sigma_s must be > 0, got {sigma_s}")
     dtype = tables.ld[0].dtype
     s2 = float(sigma_s) ** 2
-    log_pc = belief.log_pc.astype(dtype)
+    log_pc = floor_log_probs(belief.log_pc.astype(dtype))  # no subnormals (see _grid)
     if levels == "uniform":
         log_pk = [jnp.full((v, n_c, t.shape[2]), -math.log(t.shape[2]), dtype) for v, t in zip(positions, tables.ld)]
     elif levels == "belief":
@@ -159,8 +159,8 @@ def fisher_information(
     _, means_0, _ = grid_mixture(tabs_0, extra, [(0, fo), (0, fp)] + [(i, b) for i, b in enumerate(b_0)])
     delta = jnp.stack([mg - m0 for mg, m0 in zip(means_g, means_0)], axis=-1) / s2  # [C, J, X.., D]
 
-    pc = jnp.exp(log_pc)
-    pk = [jnp.exp(lp) for lp in log_pk]
+    pc = weights(log_pc, n + 1)
+    pk = [weights(lp, n + 1) for lp in log_pk]
     letters = "pqrstuvwxy"[:n]
     caps = "PQRSTUVWXY"[:n]
     shaped = delta.reshape((n_c, j) + sum(((v, t.shape[2]) for v, t in zip(positions, tables.ld)), ()) + (n + 2,))

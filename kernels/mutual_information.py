@@ -46,7 +46,7 @@ import jax.random as jr
 from jax.scipy.linalg import solve_triangular
 from jaxtyping import Array, Float, PRNGKeyArray
 
-from ._grid import grid_mixture, lse
+from ._grid import floor_log_probs, grid_mixture, lse, weights
 from .belief import Belief
 
 _LOG_2PI = math.log(2.0 * math.pi)
@@ -231,7 +231,7 @@ def mutual_information(
     if with_stderr and j < 2:
         raise ValueError("mutual_information: with_stderr needs samples_per_stratum >= 2")
     dtype = tables.ld_self[0].dtype
-    log_pc = belief.log_pc.astype(dtype)
+    log_pc = floor_log_probs(belief.log_pc.astype(dtype))  # no subnormals (see _grid)
     if levels == "uniform":
         if tables.t_uniform is None:
             raise ValueError("mutual_information: levels='uniform' needs tables built with store='uniform' or 'both'")
@@ -250,8 +250,8 @@ def mutual_information(
     grid_tabs = [_to_grid(t) for t in ts]  # [C, J, X_i, C']
     extra = jnp.broadcast_to(log_pc[None, None, :], (n_c, j, n_c))
     logp, _, _ = grid_mixture(grid_tabs, extra)  # [C, J, X_0, ..., X_{n-1}]
-    pc = jnp.exp(log_pc)
-    pk = [jnp.exp(lp) for lp in log_pk]  # [V_i, C, L_i]
+    pc = weights(log_pc, n + 1)
+    pk = [weights(lp, n + 1) for lp in log_pk]  # [V_i, C, L_i]
     letters = "pqrstuvwxy"[:n]
     caps = "PQRSTUVWXY"[:n]
     shaped = logp.reshape((n_c, j) + sum(((v, t.shape[2]) for v, t in zip(positions, ts)), ()))
