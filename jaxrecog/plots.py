@@ -9,6 +9,7 @@ The PNG size is ``figsize * dpi`` pixels exactly (``bbox_inches`` is not
 from __future__ import annotations
 
 import os
+import textwrap
 from pathlib import Path
 from typing import Mapping, Sequence
 
@@ -144,9 +145,9 @@ def belief_lines(
     ax.set_ylim(-0.02, 1.02)
     ax.set_xticks(steps)
     ax.grid(alpha=0.3)
-    ax.set_title(title)
+    ax.set_title(textwrap.fill(title, 62), fontsize=10)  # wrapped: the axes are narrower than the figure
     ax.legend(loc="center left", bbox_to_anchor=(1.01, 0.5), fontsize=8, frameon=False)
-    fig.subplots_adjust(left=0.1, right=0.72, top=0.9, bottom=0.13)
+    fig.subplots_adjust(left=0.1, right=0.72, top=0.86, bottom=0.13)
     return save(fig, path)
 
 
