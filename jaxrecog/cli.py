@@ -812,23 +812,33 @@ _NOT_HEADLINES = {"cpus", "seed", "repeats", "version", "format_version"}
 
 
 def _headline(d: Any, limit: int = 4) -> str:
-    """A few top-level numbers of a benchmark's JSON (a nested ``median`` counts)."""
+    """A few timing numbers of a benchmark's JSON: leaves named like a median,
+    a rate or a wall time, at any depth (``mi.J=1.uniform/state.median_ms``);
+    other top-level numbers when there are none."""
     if not isinstance(d, dict):
         return ""
     if "error" in d:
         return str(d["error"])[:60]
-    parts = []
-    for k, v in d.items():
-        if k in _NOT_HEADLINES:
-            continue
-        if isinstance(v, dict) and isinstance(v.get("median"), (int, float)):
-            k, v = f"{k}.median", v["median"]
-        if isinstance(v, bool) or not isinstance(v, (int, float)):
-            continue
-        parts.append(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}")
-        if len(parts) == limit:
-            break
-    return ", ".join(parts)
+    timing = ("median_ms", "median", "wall_s", "seconds", "fps_clean", "trials_per_s", "peak_rss_mb")
+    found: list[tuple[str, float]] = []
+
+    def walk(node: Any, path: str) -> None:
+        for k, v in node.items():
+            key = f"{path}.{k}" if path else str(k)
+            if isinstance(v, dict):
+                walk(v, key)
+            elif isinstance(v, list):
+                for i, item in enumerate(v):
+                    if isinstance(item, dict):
+                        walk(item, f"{key}[{item.get('planner', i)}]")
+            elif k in timing and isinstance(v, (int, float)) and not isinstance(v, bool):
+                found.append((key, float(v)))
+
+    walk(d, "")
+    if not found:
+        found = [(k, v) for k, v in d.items()
+                 if k not in _NOT_HEADLINES and isinstance(v, (int, float)) and not isinstance(v, bool)]
+    return ", ".join(f"{k}={v:.4g}" for k, v in found[:limit])
 
 
 def cmd_demo(args) -> int:
