@@ -831,7 +831,7 @@ def _headline(d: Any, limit: int = 4) -> str:
                 for i, item in enumerate(v):
                     if isinstance(item, dict):
                         walk(item, f"{key}[{item.get('planner', i)}]")
-            elif k in timing and isinstance(v, (int, float)) and not isinstance(v, bool):
+            elif (k in timing or str(k).startswith("median")) and isinstance(v, (int, float)) and not isinstance(v, bool):
                 found.append((key, float(v)))
 
     walk(d, "")
