@@ -106,6 +106,20 @@ def _joint_logliks(gs, cfg, mus, vars):
     return out
 
 
+
+def _stratified_samples(cfg, mus, vars, zs, log_joint):
+    """Every (state s, P(s), replicate j, features g) of the stratified Monte Carlo
+    at configuration ``cfg``: g_i = mu_i[v_i, c, k_i] + sqrt(var_i) * z_i[c, k_i, j]
+    (the kernels' common random numbers); states with P(s) = 0 are skipped."""
+    for s in np.ndindex(*log_joint.shape):
+        p_s = math.exp(log_joint[s])
+        if p_s == 0.0:
+            continue
+        c, ks = s[0], s[1:]
+        for j in range(zs[0].shape[2]):
+            gs = [mus[i][cfg[i], c, ks[i]] + np.sqrt(vars[i][cfg[i], c, ks[i]]) * zs[i][c, ks[i], j] for i in range(len(mus))]
+            yield s, p_s, j, gs
+
 def mutual_information_ref(mus, vars, zs, log_joint, target="state"):
     """MI for every configuration from the *same* stratified samples as the kernel.
 
@@ -130,21 +144,15 @@ def mutual_information_ref(mus, vars, zs, log_joint, target="state"):
     configs = list(itertools.product(*[range(v) for v in positions]))
     reps = np.zeros((j_count, len(configs)))
     for a, cfg in enumerate(configs):
-        for s in np.ndindex(*log_joint.shape):
-            p_s = math.exp(log_joint[s])
-            if p_s == 0.0:
-                continue
-            c, ks = s[0], s[1:]
-            for j in range(j_count):
-                gs = [mus[i][cfg[i], c, ks[i]] + np.sqrt(vars[i][cfg[i], c, ks[i]]) * zs[i][c, ks[i], j]
-                      for i in range(len(mus))]
-                ll = _joint_logliks(gs, cfg, mus, vars)
-                log_pg = logsumexp(log_joint + ll)
-                if target == "state":
-                    log_self = ll[s]
-                else:
-                    log_self = logsumexp(log_joint[c] + ll[c]) - log_pc[c]
-                reps[j, a] += p_s * (log_self - log_pg)
+        for s, p_s, j, gs in _stratified_samples(cfg, mus, vars, zs, log_joint):
+            c = s[0]
+            ll = _joint_logliks(gs, cfg, mus, vars)
+            log_pg = logsumexp(log_joint + ll)
+            if target == "state":
+                log_self = ll[s]
+            else:
+                log_self = logsumexp(log_joint[c] + ll[c]) - log_pc[c]
+            reps[j, a] += p_s * (log_self - log_pg)
     return reps.mean(axis=0), reps
 
 
@@ -236,20 +244,14 @@ def fisher_information_ref(mus, vars, zs, draws, log_joint, n_poses, sigma_s):
     configs = list(itertools.product(*[range(v) for v in positions]))
     reps = np.zeros((j_count, len(configs), n + 2, n + 2))
     for a, cfg in enumerate(configs):
-        for s in np.ndindex(*log_joint.shape):
-            p_s = math.exp(log_joint[s])
-            if p_s == 0.0:
-                continue
+        for s, p_s, j, gs in _stratified_samples(cfg, mus, vars, zs, log_joint):
             c, ks = s[0], s[1:]
-            for j in range(j_count):
-                gs = [mus[i][cfg[i], c, ks[i]] + np.sqrt(vars[i][cfg[i], c, ks[i]]) * zs[i][c, ks[i], j]
-                      for i in range(n)]
-                s_c = np.array(
-                    [c // n_poses + sigma_s * eps_obj[c, j], c % n_poses + sigma_s * eps_pose[c, j]]
-                    + [ks[i] + sigma_s * eps_occ[i][c, ks[i], j] for i in range(n)]
-                )
-                delta = fisher_score_difference_ref(s_c, gs, cfg, mus, vars, log_joint, n_poses, sigma_s)
-                reps[j, a] += p_s * np.outer(delta, delta)
+            s_c = np.array(
+                [c // n_poses + sigma_s * eps_obj[c, j], c % n_poses + sigma_s * eps_pose[c, j]]
+                + [ks[i] + sigma_s * eps_occ[i][c, ks[i], j] for i in range(n)]
+            )
+            delta = fisher_score_difference_ref(s_c, gs, cfg, mus, vars, log_joint, n_poses, sigma_s)
+            reps[j, a] += p_s * np.outer(delta, delta)
     return reps.mean(axis=0), reps
 
 
