@@ -141,6 +141,13 @@ class SyntheticRig:
     def n_poses(self) -> int:
         return self.scene.n_poses
 
+    def reseed(self, seed) -> None:
+        """Restart the random stream of the captures (noise, shifts, image choice)
+        from ``seed`` (an int or a sequence of ints): campaigns reseed per
+        (trial, step) so a trial's images do not depend on which trials ran
+        before it or beside it."""
+        self._rng = np.random.default_rng(seed)
+
     def reset(self, object: int, pose: int, occluders: OccluderLayout | None = None) -> None:
         """Put ``object`` in ``pose`` on the turn-table; ``occluders`` is an
         :class:`~.occluders.OccluderLayout` or ``None`` (clean scene)."""

@@ -98,12 +98,14 @@ def run_campaign(
     *,
     key,
     batch: int = 16,
+    seed: int = 0,
     store: TrialStore | None = None,
     progress: Callable[[int], None] | None = None,
     trace: bool = False,
 ) -> list[TrialResult]:
-    """Run the trials (skipping those already in ``store``) and return every
-    result, old and new, ordered by trial number.
+    """Run the trials (skipping those already in ``store`` with the same object,
+    pose and initial configuration) and return every result, old and new,
+    ordered by trial number.
 
     Args:
         recognizer: the recognizer (its model fixes the cameras).
@@ -111,14 +113,27 @@ def run_campaign(
         specs: from :func:`plan_trials`.
         key: PRNG key; trial ``t`` uses ``fold_in(key, t)``.
         batch: trials run in lockstep (fixed, so the step compiles once).
+        seed: the rig's capture noise is reseeded with ``(seed, trial, step)``
+            before every capture (rigs with a ``reseed`` method), so a
+            trial's images do not depend on the batch it ran in.
         store: where finished trials are appended (and read back on resume).
         progress: called with the number of trials finished at each finish.
         trace: keep per-step object probabilities in each result.
     """
     if tuple(rig.positions) != tuple(recognizer.positions):
         raise ValueError(f"rig positions {tuple(rig.positions)} differ from the model's {recognizer.positions}")
+    ids = [s.trial for s in specs]
+    if len(set(ids)) != len(ids):
+        raise ValueError("trial ids in `specs` must be unique")
     done: dict[int, TrialResult] = store.load() if store is not None else {}
+    by_id = {s.trial: s for s in specs}
+    for t, r in list(done.items()):
+        s = by_id.get(t)
+        # a stored trial is reused only if it is the same scene and start
+        if s is not None and (r.object, r.pose, r.configurations[:1]) != (s.object, s.pose, (s.initial,)):
+            del done[t]
     todo = [s for s in specs if s.trial not in done]
+    reseed = getattr(rig, "reseed", None)
     step = batched_step(recognizer)
     n_cams = len(recognizer.positions)
     h, w = rig.image_shape
@@ -133,6 +148,7 @@ def run_campaign(
         occl: list[list[tuple[float, ...]]] = [[] for _ in chunk]
         cfgs: list[list[tuple[int, ...]]] = [[] for _ in chunk]
         probs: list[list[tuple[float, ...]]] = [[] for _ in chunk]
+        invalid = np.zeros(batch, int)
         last_images = np.zeros((batch, n_cams, h, w), np.uint8)
         for n in range(recognizer.max_steps):
             configs = np.asarray(states.config)
@@ -140,6 +156,8 @@ def run_campaign(
                 if not active[b]:
                     continue
                 rig.reset(s.object, s.pose, s.occluders)
+                if reseed is not None:
+                    reseed((seed, s.trial, n))
                 rig.move(tuple(int(v) for v in configs[b]))
                 imgs = rig.capture()
                 last_images[b] = np.stack(imgs)
@@ -153,6 +171,7 @@ def run_campaign(
                     continue
                 if trace:
                     probs[b].append(tuple(float(p) for p in dec.object_probs[b]))
+                invalid[b] += int(not bool(dec.valid[b]))
                 if bool(dec.stop[b]):
                     active[b] = False
                     res = TrialResult(
@@ -163,7 +182,8 @@ def run_campaign(
                         predicted_pose=int(dec.pose[b]),
                         exit_prob=float(dec.probability[b]),
                         steps=n + 1,
-                        stopped=bool(dec.probability[b] >= recognizer.p_threshold),
+                        stopped=bool(dec.reached[b]),
+                        invalid_steps=int(invalid[b]),
                         occluded_fraction=tuple(occl[b]),
                         configurations=tuple(cfgs[b]),
                         object_probs=tuple(probs[b]),

@@ -117,6 +117,24 @@ def _progress_bar(total: int, desc: str, enabled: bool):
     return tqdm(total=total, desc=desc, unit=unit, disable=not enabled, dynamic_ncols=True)
 
 
+def _training_params(settings: Settings, kind: str) -> dict:
+    """The training parameters a cached model file must match to be reused."""
+    return {"kind": kind, "K": settings.n_components, "samples_per_image": settings.samples_per_image, "seed": settings.seed}
+
+
+def _run_id(settings: Settings, model_path: Path) -> str:
+    """A short digest of everything that changes a campaign's results besides
+    the planner: the settings (but the work folder and batch size) and the
+    model file's bytes.  Trial stores are named by it, so a resumed campaign
+    never mixes trials run under other settings or another model."""
+    import hashlib
+
+    fields = {k: v for k, v in dataclasses.asdict(settings).items() if k not in ("workdir", "batch")}
+    h = hashlib.sha256(json.dumps(fields, sort_keys=True, default=str).encode())
+    h.update(hashlib.sha256(Path(model_path).read_bytes()).digest())
+    return h.hexdigest()[:10]
+
+
 def prepare(settings: Settings, *, progress: bool = False, databases: Sequence[str] = ("DB1", "DB2")) -> Prepared:
     """Render the training database (once) and train the requested models
     (cached by their training parameters and the manifest's hash)."""
@@ -145,7 +163,10 @@ def prepare(settings: Settings, *, progress: bool = False, databases: Sequence[s
                 fresh = True
                 if db is None:
                     db = load_database(db_dir)
-                fresh = meta.get("manifest_sha256") in (None, db.manifest_sha256)
+                params = (meta.get("training") or {}).get("params") or {}
+                fresh = meta.get("manifest_sha256") == db.manifest_sha256 and all(
+                    params.get(k) == v for k, v in _training_params(settings, kind).items()
+                )
             except ModelFileError:
                 fresh = False
         if not fresh:
@@ -247,7 +268,8 @@ class CaseReport:
             return [(r, e, v) for r, e, v in zip(t.rate, t.exit_prob, t.views)] + [t.average]
         if self.case.name.startswith("single-"):
             rate, views, exitp = SINGLE_CAMERA[self.case.name.split("-")[1]]
-            return [None] * 8 + [(rate, exitp if exitp is not None else float("nan"), views)]
+            n_objects = len(next(iter(self.rows.values()))) - 1
+            return [None] * n_objects + [(rate, exitp if exitp is not None else float("nan"), views)]
         return None
 
     def markdown(self) -> str:
@@ -297,12 +319,13 @@ def run_case(
     rows, results, seconds = {}, {}, {}
     for planner in planners or case.planners:
         rec = _recognizer(model, planner, settings)
-        store = TrialStore(settings.workdir / "trials" / f"case-{name}-{planner}-n{settings.trials_per_object}-seed{settings.seed}.jsonl")
+        run_id = _run_id(settings, prepared.models[case.database])
+        store = TrialStore(settings.workdir / "trials" / f"case-{name}-{planner}-{run_id}.jsonl")
         t0 = time.perf_counter()
         with _progress_bar(len(specs), f"case {name} {planner}", progress) as bar:
             already = len(store.load())
             bar.update(min(already, len(specs)))
-            res = run_campaign(rec, rig, specs, key=jr.PRNGKey(settings.seed + 1), batch=settings.batch, store=store, progress=bar.update)
+            res = run_campaign(rec, rig, specs, key=jr.PRNGKey(settings.seed + 1), batch=settings.batch, seed=settings.seed, store=store, progress=bar.update)
         seconds[planner] = time.perf_counter() - t0
         results[planner] = res
         rows[planner] = summarize(res, model.n_objects)
@@ -313,14 +336,18 @@ def run_case(
 
 
 def run_trace(settings: Settings, *, object: int = 5, planner: str = "mi", case: str = "iii", trial: int = 0, prepared: Prepared | None = None) -> TrialResult:
-    """One traced trial (object probabilities per step), like thesis Table 7.8
-    (object 6 = index 5, occluded, case iii)."""
+    """Replay one trial of a case's campaign with its per-step object
+    probabilities, like thesis Table 7.8 (default: object 6 = index 5, its
+    first trial, occluded, case iii).  Same scene, start, noise and keys as in
+    :func:`run_case` with the same settings."""
     c = CASES[case]
     prepared = prepared or prepare(settings, databases=(c.database,))
     model = _load(prepared, c)
     rig = make_rig(settings, c.cameras, seed=settings.seed)
-    one = dataclasses.replace(settings, trials_per_object=trial + 1)
-    spec = [s for s in _specs(c, one, rig, model.n_objects, model.n_poses, objects=[object])][trial]
+    if not 0 <= trial < settings.trials_per_object:
+        raise ValueError(f"trial must be in [0, {settings.trials_per_object}), got {trial}")
+    (spec,) = [s for s in _specs(c, settings, rig, model.n_objects, model.n_poses, objects=[object])
+               if s.trial == object * settings.trials_per_object + trial]
     rec = _recognizer(model, planner, settings)
-    (res,) = run_campaign(rec, rig, [spec], key=jr.PRNGKey(settings.seed + 2), batch=1, trace=True)
+    (res,) = run_campaign(rec, rig, [spec], key=jr.PRNGKey(settings.seed + 1), batch=1, seed=settings.seed, trace=True)
     return res

@@ -31,7 +31,7 @@ from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 
 from . import kernels as K
 from .features import project_camera
-from .planners import Planner, model_arrays
+from .planners import FixedPlanner, Planner, model_arrays
 
 __all__ = ["Recognizer", "RecognizerState", "Decision", "restrict_cameras", "image_features"]
 
@@ -59,6 +59,7 @@ class Decision(NamedTuple):
         object, pose: the best (object, pose) after this step's images.
         probability: its posterior probability.
         stop: whether to stop (threshold reached or step limit).
+        reached: whether the threshold was reached.
         next_config: ``[n_cameras]`` positions to move to (if not stopping).
         next_index: the flat configuration index of ``next_config``.
         scores: ``[A]`` planner scores of all configurations (higher = better).
@@ -72,6 +73,7 @@ class Decision(NamedTuple):
     pose: Int[Array, ""]
     probability: Float[Array, ""]
     stop: Bool[Array, ""]
+    reached: Bool[Array, ""]
     next_config: Int[Array, " n"]
     next_index: Int[Array, ""]
     scores: Float[Array, " A"]
@@ -115,7 +117,8 @@ class Recognizer(eqx.Module):
         max_steps: stop after this many image sets (thesis: 7).
         transition: ``"uniform"`` (thesis, eq. 3.9) or ``"sticky"``.
         rho: stay probability of the sticky transition.
-        revisit: allow choosing a configuration already used.
+        revisit: allow choosing a configuration already used (always true
+            for a :class:`~jaxrecog.planners.FixedPlanner`, which never moves).
     """
 
     model: object
@@ -167,18 +170,22 @@ class Recognizer(eqx.Module):
         best = jnp.argmax(pc)
         prob = pc[best]
         steps = state.steps + 1
-        stop = (prob >= self.p_threshold) | (steps >= self.max_steps)
+        reached = prob >= self.p_threshold
+        stop = reached | (steps >= self.max_steps)
 
         here = jnp.ravel_multi_index(tuple(state.config), positions, mode="clip")
         visited = state.visited.at[here].set(True)
         predicted = K.transition_per_position(posterior, state.config, positions, kind=self.transition, rho=self.rho)
         scores = self.planner.scores(predicted, key)
-        scores = jnp.where(jnp.isnan(scores), -jnp.inf, scores)
-        if not self.revisit:
-            masked = jnp.where(visited, -jnp.inf, scores)
-            scores_for_choice = jnp.where(jnp.all(visited), scores, masked)
+        # a non-finite score (a failed estimate) ranks below every finite one,
+        # but above a configuration excluded as visited
+        usable = jnp.where(jnp.isfinite(scores), scores, jnp.finfo(scores.dtype).min)
+        if self.revisit or isinstance(self.planner, FixedPlanner):
+            scores_for_choice = usable
         else:
-            scores_for_choice = scores
+            masked = jnp.where(visited, -jnp.inf, usable)
+            scores_for_choice = jnp.where(jnp.all(visited), usable, masked)
+        scores = jnp.where(jnp.isnan(scores), -jnp.inf, scores)
         nxt = jnp.argmax(scores_for_choice)
         next_config = jnp.stack(jnp.unravel_index(nxt, positions)).astype(jnp.int32)
 
@@ -190,6 +197,7 @@ class Recognizer(eqx.Module):
             pose=(best % model.n_poses).astype(jnp.int32),
             probability=prob,
             stop=stop,
+            reached=reached,
             next_config=next_config,
             next_index=nxt.astype(jnp.int32),
             scores=scores,

@@ -29,6 +29,7 @@ class TrialResult:
     occluded_fraction: tuple[tuple[float, ...], ...] = ()  # per step, per camera
     configurations: tuple[tuple[int, ...], ...] = ()  # per step
     object_probs: tuple[tuple[float, ...], ...] = ()  # per step (optional trace)
+    invalid_steps: int = 0  # image sets the recognizer could not use (belief left unchanged)
 
     @property
     def correct(self) -> bool:
@@ -68,15 +69,16 @@ class TrialStore:
             return out
         good_bytes = 0
         with open(self.path, "rb") as f:
-            for raw in f:
-                if not raw.endswith(b"\n"):
-                    break  # torn write
-                try:
-                    rec = TrialResult.from_dict(json.loads(raw))
-                except (ValueError, TypeError):
-                    break
-                out[rec.trial] = rec
-                good_bytes += len(raw)
+            lines = f.readlines()
+        for number, raw in enumerate(lines, 1):
+            if not raw.endswith(b"\n") and number == len(lines):
+                break  # a torn final write: dropped below
+            try:
+                rec = TrialResult.from_dict(json.loads(raw))
+            except (ValueError, TypeError) as e:
+                raise ValueError(f"{self.path}: line {number} is not a trial record ({e}); move the file away to start afresh") from None
+            out[rec.trial] = rec
+            good_bytes += len(raw)
         if good_bytes != self.path.stat().st_size:
             with open(self.path, "r+b") as f:
                 f.truncate(good_bytes)
@@ -86,7 +88,9 @@ class TrialStore:
         line = (result.to_json() + "\n").encode()
         fd = os.open(self.path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
         try:
-            os.write(fd, line)
+            view = memoryview(line)
+            while view:
+                view = view[os.write(fd, view):]
             os.fsync(fd)
         finally:
             os.close(fd)

@@ -123,10 +123,10 @@ def main(argv=None) -> int:
         specs = _specs(case, settings, rig, model.n_objects, model.n_poses)
         rec = _recognizer(model, args.planner, settings)
         store = TrialStore(args.workdir / "trials" / (
-            f"calib-{label}-case-{case.name}-{args.planner}-n{args.trials}-seed{args.seed}"
+            f"calib-{label}-case-{case.name}-{args.planner}-n{args.trials}-seed{args.seed}-v2"
             f"{tag if label == 'calibrated' else ''}.jsonl"))
         t1 = time.perf_counter()
-        res = run_campaign(rec, rig, specs, key=jr.PRNGKey(settings.seed + 1), batch=settings.batch, store=store)
+        res = run_campaign(rec, rig, specs, key=jr.PRNGKey(settings.seed + 1), batch=settings.batch, seed=settings.seed, store=store)
         rig.close()
         results[label] = res
         metrics[label] = {**campaign_metrics(res, settings.p_threshold, args.bins),

@@ -152,3 +152,81 @@ def test_dataset_rig_campaign_must_move_to_tell_objects_apart():
     assert all(r.steps >= 2 for r in results)
     # and MI sends it straight to the one informative position
     assert all(r.configurations[1] == (2,) for r in results)
+
+
+def test_fixed_planner_never_moves_and_nan_scores_do_not_pick_visited(getkey):
+    model = random_model()
+    rec = Recognizer(model, FixedPlanner(12, 5))
+    state = rec.init(config=(1, 2))
+    for _ in range(4):
+        state, dec = rec.step(state, jr.randint(getkey(), (2, 6, 8), 1, 255).astype(jnp.uint8), getkey())
+        assert int(dec.next_index) == 5
+
+    class NanPlanner(RandomPlanner):
+        def scores(self, prior, key):
+            return jnp.full((self.n_configs,), jnp.nan)
+
+    rec = Recognizer(model, NanPlanner(12))
+    state = rec.init(config=(0, 0))
+    seen = {0}
+    for _ in range(5):
+        state, dec = rec.step(state, jr.randint(getkey(), (2, 6, 8), 1, 255).astype(jnp.uint8), getkey())
+        assert int(dec.next_index) not in seen  # never back to a visited configuration
+        seen.add(int(dec.next_index))
+
+
+def test_resume_reruns_a_stored_trial_whose_scene_changed(tmp_path):
+    from jaxrecog.campaign import TrialSpec
+    from jaxrecog.results import TrialResult, TrialStore
+
+    db = _moving_database()
+    model = train_model(db, kind="DB1", n_components=2, samples_per_image=10)
+    rig = DatasetRig(db, split="test")
+    rec = Recognizer(model, RandomPlanner(3))
+    store = TrialStore(tmp_path / "t.jsonl")
+    store.append(TrialResult(0, 0, 0, 0, 0, 1.0, 1, True, ((0.0,),), ((1,),)))  # a stale record of another scene
+    spec = TrialSpec(0, 1, 2, (0,))
+    (res,) = run_campaign(rec, rig, [spec], key=jr.PRNGKey(0), batch=1, store=store)
+    assert (res.object, res.pose, res.configurations[0]) == (1, 2, (0,))
+    with pytest.raises(ValueError, match="unique"):
+        run_campaign(rec, rig, [spec, spec], key=jr.PRNGKey(0), batch=1)
+
+
+def test_trials_are_reproducible_whatever_the_batch(tmp_path):
+    """A trial's images depend on (seed, trial, step) only, not on which
+    trials ran before or beside it."""
+    db = _moving_database()
+    model = train_model(db, kind="DB1", n_components=2, samples_per_image=10)
+    # two different test images per view, so the rig's random choice matters
+    rng = np.random.default_rng(3)
+    test = np.flatnonzero(db.split == "test")
+    extra = np.clip(db.images[test].astype(float) + rng.normal(0, 20, db.images[test].shape), 0, 255).astype(np.uint8)
+    db = ImageDatabase.from_arrays(
+        np.concatenate([db.images, extra]),
+        *(np.concatenate([getattr(db, f), getattr(db, f)[test]]) for f in ("camera", "position", "object", "pose", "split")),
+    )
+
+    class Spy(DatasetRig):
+        def __init__(self, *a, **k):
+            super().__init__(*a, **k)
+            self.seen = {}
+
+        def reseed(self, seed):
+            self.key = tuple(seed)
+            super().reseed(seed)
+
+        def capture(self):
+            images = super().capture()
+            self.seen[self.key] = b"".join(im.tobytes() for im in images)
+            return images
+
+    rec = Recognizer(model, RandomPlanner(3), p_threshold=0.999)
+    specs = plan_trials(2, 3, (3,), 3, seed=5)
+    together, alone, other = Spy(db, seed=1), Spy(db, seed=2), Spy(db, seed=2)
+    a = run_campaign(rec, together, specs, key=jr.PRNGKey(0), batch=4, seed=9)
+    b = run_campaign(rec, alone, specs[2:3], key=jr.PRNGKey(0), batch=1, seed=9)
+    run_campaign(rec, other, specs[2:3], key=jr.PRNGKey(0), batch=1, seed=10)
+    assert a[2] == b[0]
+    mine = {k: v for k, v in together.seen.items() if k[1] == 2}
+    assert mine and mine == alone.seen
+    assert list(other.seen.values()) != list(alone.seen.values())  # the seed does matter

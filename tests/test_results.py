@@ -34,3 +34,15 @@ def test_store_resumes_and_drops_torn_line(tmp_path):
     assert sorted(again) == [0, 1, 2, 3]
     lines = store.path.read_text().splitlines()
     assert all(json.loads(line)["trial"] == k for k, line in enumerate(lines))
+
+
+def test_store_refuses_a_corrupt_middle_line(tmp_path):
+    store = TrialStore(tmp_path / "t.jsonl")
+    store.append(_trial(0, 0))
+    with open(store.path, "ab") as f:
+        f.write(b"not json\n")
+    store.append(_trial(2, 2))
+    before = store.path.read_bytes()
+    with pytest.raises(ValueError, match="line 2"):
+        store.load()
+    assert store.path.read_bytes() == before  # nothing truncated
