@@ -88,5 +88,7 @@ class DatasetRig:
                     f"no stored image for camera {cam}, position {v}, object {self._scene[0]}, pose {self._scene[1]}"
                 )
             out.append(np.array(self._db.images[rows[int(self._rng.integers(len(rows)))]], np.uint8))
+        # a stored image's occluded fraction is unknown; 0.0 keeps records comparable
+        # (NaN != NaN) — do not read it as "not occluded"
         self.last_occlusion = [0.0] * len(out)
         return out

@@ -51,8 +51,17 @@ def model_arrays(model):
     return mus, tuple(c.var for c in model.cameras), None
 
 
-def _strata(model) -> int:
-    return model.n_objects * model.n_poses * math.prod(len(model.levels) for _ in model.cameras)
+def _n_configs(model) -> int:
+    return math.prod(int(c.mu.shape[0]) for c in model.cameras)
+
+
+def _tables(model, key: PRNGKeyArray, samples: int, store: str) -> K.MITables:
+    """The offline sample tables shared by MI and CRLB: ``samples`` per
+    configuration, rounded up to whole samples per state stratum (c, k_0, ...)."""
+    mus, vars, chols = model_arrays(model)
+    strata = model.n_objects * model.n_poses * len(model.levels) ** len(model.cameras)
+    j = max(1, math.ceil(samples / strata))
+    return K.mi_tables(mus, vars, key=key, samples_per_stratum=j, chols=chols, store=store)
 
 
 class Planner(eqx.Module):
@@ -80,11 +89,8 @@ class MIPlanner(Planner):
     def from_model(cls, model, *, key: PRNGKeyArray, samples: int = 1024, target: str = "state", levels: str = "belief") -> "MIPlanner":
         """Build the offline sample tables: ``samples`` ≈ samples per configuration
         (rounded up to a whole number of samples per state stratum)."""
-        mus, vars, chols = model_arrays(model)
-        j = max(1, math.ceil(samples / _strata(model)))
-        store = "uniform" if levels == "uniform" else "full"
-        tables = K.mi_tables(mus, vars, key=key, samples_per_stratum=j, chols=chols, store=store)
-        return cls(math.prod(m.shape[0] for m in mus), tables, target, levels)
+        tables = _tables(model, key, samples, "uniform" if levels == "uniform" else "full")
+        return cls(_n_configs(model), tables, target, levels)
 
     def scores(self, prior, key):
         del key  # common random numbers live in the tables
@@ -102,10 +108,8 @@ class CRLBPlanner(Planner):
 
     @classmethod
     def from_model(cls, model, *, key: PRNGKeyArray, samples: int = 1024, criterion: str = "trace", sigma_s: float = K.DEFAULT_SIGMA_S) -> "CRLBPlanner":
-        mus, vars, chols = model_arrays(model)
-        j = max(1, math.ceil(samples / _strata(model)))
-        tables = K.mi_tables(mus, vars, key=key, samples_per_stratum=j, chols=chols, store="full")
-        return cls(math.prod(m.shape[0] for m in mus), tables, model.n_objects, model.n_poses, criterion, sigma_s)
+        tables = _tables(model, key, samples, "full")
+        return cls(_n_configs(model), tables, model.n_objects, model.n_poses, criterion, sigma_s)
 
     def scores(self, prior, key):
         fisher = K.fisher_information(
@@ -133,7 +137,7 @@ class FixedPlanner(Planner):
 def make_planner(name: str, model, *, key: PRNGKeyArray, samples: int = 1024, **options) -> Planner:
     """Planner by name: ``mi``, ``mi-class``, ``crlb``, ``crlb-det``,
     ``crlb-eig``, ``random``, ``fixed``."""
-    n_configs = math.prod(c.mu.shape[0] for c in model.cameras)
+    n_configs = _n_configs(model)
     if name in ("mi", "mi-state"):
         return MIPlanner.from_model(model, key=key, samples=samples, target="state", **options)
     if name == "mi-class":

@@ -189,8 +189,8 @@ class Recognizer(eqx.Module):
         nxt = jnp.argmax(scores_for_choice)
         next_config = jnp.stack(jnp.unravel_index(nxt, positions)).astype(jnp.int32)
 
-        moved = next_config != state.config
-        next_prior = K.transition(posterior, moved, kind=self.transition, rho=self.rho)
+        # the prior for the next images: the predicted prior at the chosen positions
+        next_prior = K.Belief(predicted.log_pc, tuple(lp[v] for lp, v in zip(predicted.log_pk, next_config)))
         new_state = RecognizerState(next_prior, next_config, steps, visited)
         decision = Decision(
             object=(best // model.n_poses).astype(jnp.int32),

@@ -22,8 +22,9 @@ from jaxrecog.experiments import CASES, Settings, prepare, run_case, run_trace
 from jaxrecog.thesis import TABLE_7_8
 
 
-def trace_markdown(res, n_objects: int = 8) -> str:
+def trace_markdown(res) -> str:
     steps = len(res.object_probs)
+    n_objects = len(res.object_probs[0])
     head = "| Step | Initial | " + " | ".join(f"Step {i + 1}" for i in range(steps)) + " |"
     lines = [head, "|---|" + "---:|" * (steps + 1)]
     for m in range(n_objects):
