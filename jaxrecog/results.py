@@ -139,6 +139,11 @@ def summarize(results: Iterable[TrialResult], n_objects: int) -> list[ObjectRow]
     return rows
 
 
+def _num(x: float, digits: int) -> str:
+    """A thesis value, or an em dash where the thesis does not report it (NaN)."""
+    return "\u2014" if x != x else f"{x:.{digits}f}"
+
+
 def table_markdown(rows: Sequence[ObjectRow], title: str = "", reference: Sequence[tuple[float, float, float]] | None = None) -> str:
     """The thesis-shaped table as Markdown; ``reference`` adds the thesis's
     (rate, exit prob, views) per row for comparison."""
@@ -152,7 +157,7 @@ def table_markdown(rows: Sequence[ObjectRow], title: str = "", reference: Sequen
         line = f"| {r.label} | {r.trials} | {r.rate:.1f} | {r.exit_prob:.2f} | {r.views:.2f} |"
         if reference is not None:
             ref = reference[i] if i < len(reference) else None
-            line += f" {ref[0]:.1f} / {ref[1]:.2f} / {ref[2]:.1f} |" if ref else " |"
+            line += f" {_num(ref[0], 1)} / {_num(ref[1], 2)} / {_num(ref[2], 1)} |" if ref else " |"
         lines.append(line)
     return "\n".join(lines) + "\n"
 

@@ -18,6 +18,13 @@ def test_summary_rows_match_hand_computation():
     assert rows[3].rate == pytest.approx((50 + 100 + 100) / 3)
     md = table_markdown(rows, "demo", reference=[(100, 0.9, 2.0)] * 4)
     assert "| Average | 4 | 83.3 |" in md
+    assert "| 100.0 / 0.90 / 2.0 |" in md
+
+
+def test_unreported_thesis_value_is_a_dash_not_nan():
+    rows = summarize([_trial(0, 0)], 1)
+    md = table_markdown(rows, reference=[(97.8, float("nan"), 5.1)] * 2)
+    assert "97.8 \u2014 5.1" not in md and "| 97.8 / \u2014 / 5.1 |" in md and "nan" not in md
 
 
 def test_store_resumes_and_drops_torn_line(tmp_path):

@@ -169,6 +169,13 @@ def test_same_seed_same_faults():
     assert run(3) == first
 
 
+def _flip_last_byte(raw: bytes) -> bytes:
+    """A datagram whose CRC is wrong for certain.  (Overwriting the last byte
+    with 0 left a valid datagram whenever the CRC already ended in 0x00: one
+    random session in 256 made the hostile reply a right one.)"""
+    return raw[:-1] + bytes([raw[-1] ^ 0xFF])
+
+
 class HostileController:
     """Answers each MOVE with a burst of wrong replies, then (optionally) the right one."""
 
@@ -196,7 +203,7 @@ class HostileController:
             encode(Datagram(MsgType.IN_POSITION, dg.session, dg.seq + 1, right)),  # from the future
             encode(Datagram(MsgType.IN_POSITION, dg.session, dg.seq, wrong)),  # echo of another move
             encode(Datagram(MsgType.PONG, dg.session, dg.seq)),  # wrong type
-            encode(Datagram(MsgType.IN_POSITION, dg.session, dg.seq, right))[:-1] + b"\x00",  # bad CRC
+            _flip_last_byte(encode(Datagram(MsgType.IN_POSITION, dg.session, dg.seq, right))),  # bad CRC
             b"hello",
         ]
         if self.answer:
@@ -222,9 +229,18 @@ def test_only_the_right_reply_is_accepted():
     }
 
 
-def test_wrong_replies_alone_never_complete_a_move():
+def _session_whose_reply_crc_ends_in_zero(m: Move, seq: int) -> int:
+    return next(
+        s for s in range(1, 1 << 16)
+        if encode(Datagram(MsgType.IN_POSITION, s, seq, InPosition(m, *expected(m))))[-1] == 0
+    )
+
+
+@pytest.mark.parametrize("crc_ends_in_zero", [False, True])
+def test_wrong_replies_alone_never_complete_a_move(crc_ends_in_zero):
     srv = HostileController(answer=False)
-    with ControllerLink(srv.address, timeout=0.1, retries=0) as link, pytest.raises(LinkTimeoutError):
+    session = _session_whose_reply_crc_ends_in_zero(move_of(3), 11) if crc_ends_in_zero else None
+    with ControllerLink(srv.address, timeout=0.1, retries=0, session=session) as link, pytest.raises(LinkTimeoutError):
         link._seq = 10
         link.move(*move_of(3).astuple())
     srv.close()
