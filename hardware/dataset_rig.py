@@ -12,12 +12,12 @@ from typing import Sequence
 
 import numpy as np
 
-from .rig import RigError
+from .rig import RigError, SeededCaptures
 
 __all__ = ["DatasetRig"]
 
 
-class DatasetRig:
+class DatasetRig(SeededCaptures):
     """Replay one split of an image database through the ``Rig`` interface.
 
     Args:
@@ -58,13 +58,6 @@ class DatasetRig:
     @property
     def image_shape(self) -> tuple[int, int]:
         return self._shape  # type: ignore[return-value]
-
-    def reseed(self, seed) -> None:
-        """Restart the random stream of the captures (noise, shifts, image choice)
-        from ``seed`` (an int or a sequence of ints): campaigns reseed per
-        (trial, step) so a trial's images do not depend on which trials ran
-        before it or beside it."""
-        self._rng = np.random.default_rng(seed)
 
     def reset(self, object: int, pose: int, occluders: object | None = None) -> None:
         if occluders is not None:

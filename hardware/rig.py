@@ -12,11 +12,24 @@ from typing import Protocol, Sequence, runtime_checkable
 
 import numpy as np
 
-__all__ = ["Rig", "RigError", "config_from_index", "index_from_config"]
+__all__ = ["Rig", "RigError", "SeededCaptures", "config_from_index", "index_from_config"]
 
 
 class RigError(RuntimeError):
     """A rig could not do what was asked (device fault, bad configuration, ...)."""
+
+
+class SeededCaptures:
+    """Mixin for rigs whose captures draw from ``self._rng`` (noise, shifts,
+    the choice among several stored images)."""
+
+    _rng: np.random.Generator
+
+    def reseed(self, seed) -> None:
+        """Restart the random stream of the captures from ``seed`` (an int or a
+        sequence of ints): campaigns reseed per (trial, step) so a trial's
+        images do not depend on which trials ran before it or beside it."""
+        self._rng = np.random.default_rng(seed)
 
 
 @runtime_checkable

@@ -25,7 +25,7 @@ import numpy as np
 
 from .occluders import OccluderLayout
 from .positions import CameraTable, default_table
-from .rig import RigError
+from .rig import RigError, SeededCaptures
 from .scene import Intrinsics, Lighting, ObjectSpec, Scene
 
 __all__ = ["Noise", "Perturb", "SyntheticRig"]
@@ -78,7 +78,7 @@ class Perturb:
             raise ValueError(f"perturbations must be >= 0, got {self}")
 
 
-class SyntheticRig:
+class SyntheticRig(SeededCaptures):
     """A :class:`~.rig.Rig` whose images are renders of the scene.
 
     Args:
@@ -140,13 +140,6 @@ class SyntheticRig:
     @property
     def n_poses(self) -> int:
         return self.scene.n_poses
-
-    def reseed(self, seed) -> None:
-        """Restart the random stream of the captures (noise, shifts, image choice)
-        from ``seed`` (an int or a sequence of ints): campaigns reseed per
-        (trial, step) so a trial's images do not depend on which trials ran
-        before it or beside it."""
-        self._rng = np.random.default_rng(seed)
 
     def reset(self, object: int, pose: int, occluders: OccluderLayout | None = None) -> None:
         """Put ``object`` in ``pose`` on the turn-table; ``occluders`` is an

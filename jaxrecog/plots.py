@@ -31,6 +31,20 @@ PLANNER_LABELS = {"mi": "MI", "mi-class": "MI (class)", "crlb": "CRLB (trace)",
                   "fixed": "fixed"}
 
 
+def wrap_title(title: str, width: int) -> str:
+    """Wrap a title at its commas where it can (so "case iii" stays on one
+    line), at spaces only where one comma-separated part is itself too long."""
+    lines: list[str] = []
+    for part in title.split(", "):
+        if lines and len(lines[-1]) + 2 + len(part) <= width:
+            lines[-1] += ", " + part
+        else:
+            if lines:
+                lines[-1] += ","
+            lines.extend(textwrap.wrap(part, width) or [""])
+    return "\n".join(lines)
+
+
 def _plt():
     import matplotlib
 
@@ -145,7 +159,7 @@ def belief_lines(
     ax.set_ylim(-0.02, 1.02)
     ax.set_xticks(steps)
     ax.grid(alpha=0.3)
-    ax.set_title(textwrap.fill(title, 62), fontsize=10)  # wrapped: the axes are narrower than the figure
+    ax.set_title(wrap_title(title, 62), fontsize=10)  # wrapped: the axes are narrower than the figure
     ax.legend(loc="center left", bbox_to_anchor=(1.01, 0.5), fontsize=8, frameon=False)
     fig.subplots_adjust(left=0.1, right=0.72, top=0.86, bottom=0.13)
     return save(fig, path)

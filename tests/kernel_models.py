@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import jax.numpy as jnp
 import numpy as np
 
 from jaxrecog.kernels import Belief
@@ -43,3 +44,13 @@ def jitted():
         jax.jit(K.mutual_information, static_argnames=("target", "levels", "with_stderr")),
         jax.jit(K.fisher_information, static_argnames=("n_objects", "n_poses", "sigma_s", "levels", "with_stderr")),
     )
+
+
+def as_jax(arrays):
+    """A tuple of NumPy arrays (one per camera) as JAX arrays."""
+    return tuple(jnp.asarray(a) for a in arrays)
+
+
+def as_jax_belief(b: Belief) -> Belief:
+    """A belief of NumPy arrays (as :func:`random_belief` makes) as JAX arrays."""
+    return Belief(jnp.asarray(b.log_pc), as_jax(b.log_pk))

@@ -4,7 +4,7 @@ VEGAS cross-check of the integral (eq. 5.22-5.28)."""
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from kernel_models import jitted, random_belief, random_model
+from kernel_models import as_jax, as_jax_belief, jitted, random_belief, random_model
 from scipy.special import logsumexp
 
 from jaxrecog import kernels as K
@@ -13,21 +13,13 @@ from jaxrecog.kernels.reference import crlb_criterion_ref, fisher_information_re
 MI_TABLES, _, FISHER = jitted()
 
 
-def _j(x):
-    return tuple(jnp.asarray(a) for a in x)
-
-
-def _belief(b):
-    return K.Belief(jnp.asarray(b.log_pc), _j(b.log_pk))
-
-
 @pytest.mark.parametrize(
     "levels,positions,dims,m,n", [((2,), (3,), (2,), 2, 2), ((2, 3), (3, 2), (2, 1), 2, 2), ((2, 2), (2, 2), (1, 2), 4, 1)]
 )
 def test_matches_reference_on_same_samples(rng, getkey, x64, levels, positions, dims, m, n):
     mus, vars = random_model(rng, m * n, levels, positions, dims)
-    b = _belief(random_belief(rng, m * n, levels))
-    tables = MI_TABLES(_j(mus), _j(vars), key=getkey(), samples_per_stratum=2)
+    b = as_jax_belief(random_belief(rng, m * n, levels))
+    tables = MI_TABLES(as_jax(mus), as_jax(vars), key=getkey(), samples_per_stratum=2)
     key = getkey()
     fis = FISHER(tables, b, key=key, n_objects=m, n_poses=n)
     d = 2 + len(levels)
@@ -69,7 +61,7 @@ def test_against_vegas_within_error_bars(rng, getkey, x64):
     sigma = 0.4
     mus, vars = random_model(rng, 2, (2,), (2,), (1,), spread=1.0)
     bn = random_belief(rng, 2, (2,), concentration=4.0)
-    b = _belief(bn)
+    b = as_jax_belief(bn)
     log_p = np.asarray(K.log_joint(b))
     # the vectorised integrand agrees with the brute-force reference score difference
     x = rng.normal(size=(5, 3))
@@ -80,7 +72,7 @@ def test_against_vegas_within_error_bars(rng, getkey, x64):
         )
         np.testing.assert_allclose(dl, want[[0, 2]], rtol=1e-10, atol=1e-12)
 
-    tables = MI_TABLES(_j(mus), _j(vars), key=getkey(), samples_per_stratum=4000)
+    tables = MI_TABLES(as_jax(mus), as_jax(vars), key=getkey(), samples_per_stratum=4000)
     fis, se = FISHER(tables, b, key=getkey(), n_objects=2, n_poses=1, sigma_s=sigma, with_stderr=True)
     for v in range(2):
         mu, var = mus[0][v], vars[0][v]
@@ -105,8 +97,8 @@ def test_against_vegas_within_error_bars(rng, getkey, x64):
 
 def test_symmetric_psd_and_criteria(rng, getkey):
     mus, vars = random_model(rng, 6, (2, 3), (3, 2), (3, 2), spread=2.0)
-    b = _belief(random_belief(rng, 6, (2, 3)))
-    tables = MI_TABLES(_j(mus), _j(vars), key=getkey(), samples_per_stratum=4)
+    b = as_jax_belief(random_belief(rng, 6, (2, 3)))
+    tables = MI_TABLES(as_jax(mus), as_jax(vars), key=getkey(), samples_per_stratum=4)
     fis = FISHER(tables, b, key=getkey(), n_objects=3, n_poses=2)
     assert np.all(np.isfinite(fis))
     np.testing.assert_allclose(fis, np.swapaxes(fis, -1, -2), rtol=1e-6)
@@ -131,7 +123,7 @@ def test_separating_configuration_has_smallest_bound(rng, getkey):
     mu0, mu1 = mus[0].copy(), mus[1].copy()
     mu0[1] = 4.0 * rng.normal(size=(4, 1, 2))  # camera 0 position 1 separates the classes
     mu1[0] = 4.0 * rng.normal(size=(4, 1, 2))
-    tables = MI_TABLES((jnp.asarray(mu0), jnp.asarray(mu1)), _j(vars), key=getkey(), samples_per_stratum=8)
+    tables = MI_TABLES((jnp.asarray(mu0), jnp.asarray(mu1)), as_jax(vars), key=getkey(), samples_per_stratum=8)
     fis = FISHER(tables, K.uniform_belief(4, (2, 2)), key=getkey(), n_objects=2, n_poses=2)
     # object and pose coordinates: the bound is smallest where both cameras separate the classes
     sub = fis[:, :2, :2]
@@ -140,12 +132,12 @@ def test_separating_configuration_has_smallest_bound(rng, getkey):
 
 def test_bad_arguments(rng, getkey):
     mus, vars = random_model(rng)
-    tables = K.mi_tables(_j(mus), _j(vars), key=getkey(), samples_per_stratum=1)
+    tables = K.mi_tables(as_jax(mus), as_jax(vars), key=getkey(), samples_per_stratum=1)
     b = K.uniform_belief(4, (2, 3))
     with pytest.raises(ValueError, match="n_objects"):
         K.fisher_information(tables, b, key=getkey(), n_objects=3, n_poses=2)
     with pytest.raises(ValueError, match="sigma_s"):
         K.fisher_information(tables, b, key=getkey(), n_objects=2, n_poses=2, sigma_s=0.0)
-    only = K.mi_tables(_j(mus), _j(vars), key=getkey(), samples_per_stratum=1, store="uniform")
+    only = K.mi_tables(as_jax(mus), as_jax(vars), key=getkey(), samples_per_stratum=1, store="uniform")
     with pytest.raises(ValueError, match="store"):
         K.fisher_information(only, b, key=getkey(), n_objects=2, n_poses=2)

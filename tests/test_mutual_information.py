@@ -5,20 +5,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from kernel_models import jitted, random_belief, random_chols, random_model
+from kernel_models import as_jax, as_jax_belief, jitted, random_belief, random_chols, random_model
 
 from jaxrecog import kernels as K
 from jaxrecog.kernels.reference import mutual_information_quadrature, mutual_information_ref
 
 MI_TABLES, MI, _ = jitted()
-
-
-def _j(x):
-    return tuple(jnp.asarray(a) for a in x)
-
-
-def _belief(b):
-    return K.Belief(jnp.asarray(b.log_pc), _j(b.log_pk))
 
 
 @pytest.mark.parametrize(
@@ -29,24 +21,24 @@ def _belief(b):
 def test_matches_reference_on_same_samples(rng, getkey, x64, levels, positions, dims, target):
     mus, vars = random_model(rng, 4, levels, positions, dims)
     b = random_belief(rng, 4, levels)
-    tables = MI_TABLES(_j(mus), _j(vars), key=getkey(), samples_per_stratum=3)
+    tables = MI_TABLES(as_jax(mus), as_jax(vars), key=getkey(), samples_per_stratum=3)
     assert K.samples_per_configuration(tables) == 4 * int(np.prod(levels)) * 3
-    mi = MI(tables, _belief(b), target=target)
+    mi = MI(tables, as_jax_belief(b), target=target)
     assert mi.shape == (int(np.prod(positions)),)
-    ref, _ = mutual_information_ref(mus, vars, tables.z, np.asarray(K.log_joint(_belief(b))), target)
+    ref, _ = mutual_information_ref(mus, vars, tables.z, np.asarray(K.log_joint(as_jax_belief(b))), target)
     np.testing.assert_allclose(mi, ref, rtol=1e-10, atol=1e-10)
 
 
 @pytest.mark.parametrize("target", ["state", "class"])
 def test_uniform_offline_tables_equal_belief_path_with_uniform_levels(rng, getkey, x64, target):
     mus, vars = random_model(rng, 5, (2, 3), (3, 2), (2, 2))
-    b = _belief(random_belief(rng, 5, (2, 3)))
-    tables = MI_TABLES(_j(mus), _j(vars), key=getkey(), samples_per_stratum=2)
+    b = as_jax_belief(random_belief(rng, 5, (2, 3)))
+    tables = MI_TABLES(as_jax(mus), as_jax(vars), key=getkey(), samples_per_stratum=2)
     uni = K.Belief(b.log_pc, tuple(jnp.full_like(x, -np.log(x.shape[1])) for x in b.log_pk))
     a = MI(tables, b, target, levels="uniform")
     c = MI(tables, uni, target, levels="belief")
     np.testing.assert_allclose(a, c, rtol=1e-12, atol=1e-12)
-    only = MI_TABLES(_j(mus), _j(vars), key=getkey(), samples_per_stratum=2, store="uniform")
+    only = MI_TABLES(as_jax(mus), as_jax(vars), key=getkey(), samples_per_stratum=2, store="uniform")
     assert only.ld is None
     with pytest.raises(ValueError, match="store"):
         MI(only, b, target, levels="belief")
@@ -55,10 +47,10 @@ def test_uniform_offline_tables_equal_belief_path_with_uniform_levels(rng, getke
 def test_per_position_levels_equal_separate_beliefs(rng, getkey, x64):
     levels, positions = (2, 3), (3, 2)
     mus, vars = random_model(rng, 4, levels, positions, (2, 2))
-    tables = MI_TABLES(_j(mus), _j(vars), key=getkey(), samples_per_stratum=2)
+    tables = MI_TABLES(as_jax(mus), as_jax(vars), key=getkey(), samples_per_stratum=2)
     base = random_belief(rng, 4, levels)
     rows = [np.stack([random_belief(rng, 4, levels).log_pk[i] for _ in range(positions[i])]) for i in range(2)]
-    per_pos = K.Belief(jnp.asarray(base.log_pc), _j(rows))
+    per_pos = K.Belief(jnp.asarray(base.log_pc), as_jax(rows))
     mi = MI(tables, per_pos)
     for a, (v0, v1) in enumerate(np.ndindex(*positions)):
         single = K.Belief(jnp.asarray(base.log_pc), (jnp.asarray(rows[0][v0]), jnp.asarray(rows[1][v1])))
@@ -72,9 +64,9 @@ def test_per_position_levels_equal_separate_beliefs(rng, getkey, x64):
 def test_against_quadrature_within_4_sigma(rng, getkey, x64, target, levels, positions, dims):
     mus, vars = random_model(rng, 3, levels, positions, dims, spread=1.5)
     b = random_belief(rng, 3, levels, concentration=3.0)
-    tables = MI_TABLES(_j(mus), _j(vars), key=getkey(), samples_per_stratum=400)
-    mi, se = MI(tables, _belief(b), target, with_stderr=True)
-    lj = np.asarray(K.log_joint(_belief(b)))
+    tables = MI_TABLES(as_jax(mus), as_jax(vars), key=getkey(), samples_per_stratum=400)
+    mi, se = MI(tables, as_jax_belief(b), target, with_stderr=True)
+    lj = np.asarray(K.log_joint(as_jax_belief(b)))
     for a, cfg in enumerate(np.ndindex(*positions)):
         quad = mutual_information_quadrature(mus, vars, lj, cfg, target, n_grid=801 if sum(dims) == 1 else 301)
         assert abs(float(mi[a]) - quad) < 4 * float(se[a]) + 1e-4, (a, float(mi[a]), quad, float(se[a]))
@@ -83,8 +75,8 @@ def test_against_quadrature_within_4_sigma(rng, getkey, x64, target, levels, pos
 @pytest.mark.slow
 def test_bounds_nonnegative_and_below_entropy(rng, getkey):
     mus, vars = random_model(rng, 6, (2, 3), (3, 2), (3, 2), spread=3.0)
-    b = _belief(random_belief(rng, 6, (2, 3)))
-    tables = MI_TABLES(_j(mus), _j(vars), key=getkey(), samples_per_stratum=16)
+    b = as_jax_belief(random_belief(rng, 6, (2, 3)))
+    tables = MI_TABLES(as_jax(mus), as_jax(vars), key=getkey(), samples_per_stratum=16)
     for target in ("state", "class"):
         mi, se = MI(tables, b, target, with_stderr=True)
         assert np.all(np.isfinite(mi))
@@ -102,7 +94,7 @@ def test_uninformative_camera(rng, getkey, x64):
     # camera 1: the same Gaussian for every class and level at each position
     mu1 = np.broadcast_to(mus[1][:, :1, :1], mus[1].shape).copy()
     var1 = np.broadcast_to(vars[1][:, :1, :1], vars[1].shape).copy()
-    b = _belief(random_belief(rng, 4, (2, 3)))
+    b = as_jax_belief(random_belief(rng, 4, (2, 3)))
     alone = MI_TABLES((jnp.asarray(mu1),), (jnp.asarray(var1),), key=getkey(), samples_per_stratum=4)
     b1 = K.Belief(b.log_pc, (b.log_pk[1],))
     np.testing.assert_allclose(MI(alone, b1), 0.0, atol=1e-10)
@@ -118,7 +110,7 @@ def test_separating_configuration_ranks_first(rng, getkey):
     mu0[2] = 4.0 * rng.normal(size=mu0[2].shape[:1] + (1, mu0.shape[-1]))  # position 2 separates classes
     mu1 = mus[1].copy()
     mu1[1] = 4.0 * rng.normal(size=mu1[1].shape[:1] + (1, mu1.shape[-1]))
-    tables = MI_TABLES((jnp.asarray(mu0), jnp.asarray(mu1)), _j(vars), key=getkey(), samples_per_stratum=4)
+    tables = MI_TABLES((jnp.asarray(mu0), jnp.asarray(mu1)), as_jax(vars), key=getkey(), samples_per_stratum=4)
     b = K.uniform_belief(8, (2, 2))
     for target in ("state", "class"):
         mi = MI(tables, b, target)
@@ -130,9 +122,9 @@ def test_underflow_fallback_stays_exact(rng, getkey, x64):
     mus, vars = random_model(rng, 4, (2, 2), (2, 2), (3, 3), spread=3.0)
     vars = tuple(v * 1e-5 for v in vars)
     b = random_belief(rng, 4, (2, 2))
-    tables = MI_TABLES(_j(mus), _j(vars), key=getkey(), samples_per_stratum=2)
-    mi = MI(tables, _belief(b))
-    ref, _ = mutual_information_ref(mus, vars, tables.z, np.asarray(K.log_joint(_belief(b))))
+    tables = MI_TABLES(as_jax(mus), as_jax(vars), key=getkey(), samples_per_stratum=2)
+    mi = MI(tables, as_jax_belief(b))
+    ref, _ = mutual_information_ref(mus, vars, tables.z, np.asarray(K.log_joint(as_jax_belief(b))))
     assert np.all(np.isfinite(mi))
     np.testing.assert_allclose(mi, ref, rtol=1e-9)
 
@@ -141,7 +133,7 @@ def test_underflow_fallback_float32_finite(rng, getkey):
     mus, vars = random_model(rng, 6, (3, 2), (3, 2), (4, 4), spread=3.0)
     vars = tuple((v * 1e-3).astype(np.float32) for v in vars)
     mus = tuple(m.astype(np.float32) for m in mus)
-    tables = MI_TABLES(_j(mus), _j(vars), key=getkey(), samples_per_stratum=2)
+    tables = MI_TABLES(as_jax(mus), as_jax(vars), key=getkey(), samples_per_stratum=2)
     b = K.uniform_belief(6, (3, 2))
     for target in ("state", "class"):
         mi = MI(tables, b, target)
@@ -153,8 +145,8 @@ def test_zero_probability_classes(rng, getkey, x64):
     mus, vars = random_model(rng, 4, (2, 2), (3, 2), (2, 2))
     b = random_belief(rng, 4, (2, 2))
     log_pc = np.array([np.log(0.5), -np.inf, np.log(0.5), -np.inf])
-    bz = K.Belief(jnp.asarray(log_pc), _j(b.log_pk))
-    tables = MI_TABLES(_j(mus), _j(vars), key=getkey(), samples_per_stratum=2)
+    bz = K.Belief(jnp.asarray(log_pc), as_jax(b.log_pk))
+    tables = MI_TABLES(as_jax(mus), as_jax(vars), key=getkey(), samples_per_stratum=2)
     mi = MI(tables, bz)
     ref, _ = mutual_information_ref(mus, vars, tables.z, np.asarray(K.log_joint(bz)))
     np.testing.assert_allclose(mi, ref, rtol=1e-10)
@@ -165,13 +157,13 @@ def test_full_covariance_tables(rng, getkey, x64):
     mus, vars = random_model(rng, 3, levels, positions, dims)
     diag_chols = tuple(np.sqrt(v)[..., None] * np.eye(v.shape[-1]) for v in vars)
     key = getkey()
-    b = _belief(random_belief(rng, 3, levels))
-    td = MI_TABLES(_j(mus), _j(vars), key=key, samples_per_stratum=2)
-    tf = MI_TABLES(_j(mus), chols=_j(diag_chols), key=key, samples_per_stratum=2)
+    b = as_jax_belief(random_belief(rng, 3, levels))
+    td = MI_TABLES(as_jax(mus), as_jax(vars), key=key, samples_per_stratum=2)
+    tf = MI_TABLES(as_jax(mus), chols=as_jax(diag_chols), key=key, samples_per_stratum=2)
     np.testing.assert_allclose(MI(tf, b), MI(td, b), rtol=1e-10)
     # a genuine full covariance: MI still matches the quadrature-free sanity bounds
     chols = random_chols(rng, 3, levels, positions, dims)
-    tc = MI_TABLES(_j(mus), chols=_j(chols), key=key, samples_per_stratum=8)
+    tc = MI_TABLES(as_jax(mus), chols=as_jax(chols), key=key, samples_per_stratum=8)
     mi, se = MI(tc, b, with_stderr=True)
     assert np.all(mi > -4 * se) and np.all(mi < K.entropy(b) + 4 * se)
 
@@ -179,12 +171,12 @@ def test_full_covariance_tables(rng, getkey, x64):
 def test_bad_arguments(rng, getkey):
     mus, vars = random_model(rng)
     with pytest.raises(ValueError, match="exactly one"):
-        MI_TABLES(_j(mus), key=getkey(), samples_per_stratum=2)
+        MI_TABLES(as_jax(mus), key=getkey(), samples_per_stratum=2)
     with pytest.raises(ValueError, match="shape"):
-        MI_TABLES(_j(mus), (jnp.asarray(vars[0]), jnp.asarray(vars[0])), key=getkey(), samples_per_stratum=2)
+        MI_TABLES(as_jax(mus), (jnp.asarray(vars[0]), jnp.asarray(vars[0])), key=getkey(), samples_per_stratum=2)
     with pytest.raises(ValueError, match="samples_per_stratum"):
-        MI_TABLES(_j(mus), _j(vars), key=getkey(), samples_per_stratum=0)
-    tables = MI_TABLES(_j(mus), _j(vars), key=getkey(), samples_per_stratum=1)
+        MI_TABLES(as_jax(mus), as_jax(vars), key=getkey(), samples_per_stratum=0)
+    tables = MI_TABLES(as_jax(mus), as_jax(vars), key=getkey(), samples_per_stratum=1)
     b = K.uniform_belief(4, (2, 3))
     with pytest.raises(ValueError, match="target"):
         MI(tables, b, "object")

@@ -96,3 +96,12 @@ def test_campaign_bars(tmp_path):
     _check_pair(plots.campaign_bars(rows, tmp_path / "c.svg", thesis=thesis), (900, 650))
     with pytest.raises(ValueError, match="no campaign"):
         plots.campaign_bars({}, tmp_path / "none")
+
+
+def test_titles_wrap_at_commas_and_keep_short_phrases_whole():
+    t = "Belief per step: object 6 (index 5), pose 2, MI-CLASS, case iii (occluded)"
+    lines = plots.wrap_title(t, 62).split("\n")
+    assert lines == ["Belief per step: object 6 (index 5), pose 2, MI-CLASS,", "case iii (occluded)"]
+    assert plots.wrap_title("short", 62) == "short"
+    long = plots.wrap_title("a " * 50, 20).split("\n")  # one part longer than the width: spaces
+    assert all(len(line) <= 20 for line in long)
