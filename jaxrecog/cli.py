@@ -739,17 +739,9 @@ def _quick_settings(ex) -> dict[str, Any]:
 def load_settings_flat(path: str) -> dict[str, Any]:
     """An experiment TOML: top-level keys (``case``, ``planners``, Settings
     fields); a ``[settings]`` table is merged in too."""
-    import tomllib
+    from .config import ConfigFileError, read_toml
 
-    from .config import ConfigFileError
-
-    try:
-        with open(path, "rb") as f:
-            data = tomllib.load(f)
-    except FileNotFoundError:
-        raise ConfigFileError(f"experiment file {path} not found") from None
-    except tomllib.TOMLDecodeError as e:
-        raise ConfigFileError(f"experiment file {path} is not valid TOML: {e}") from None
+    data = read_toml(path, "experiment file")
     inner = data.pop("settings", {})
     if not isinstance(inner, dict):
         raise ConfigFileError(f"experiment file {path}: 'settings' must be a table")

@@ -24,25 +24,32 @@ import tomllib
 from pathlib import Path
 from typing import Any
 
-__all__ = ["ConfigFileError", "load_settings", "section"]
+__all__ = ["ConfigFileError", "load_settings", "read_toml", "section"]
 
 
 class ConfigFileError(ValueError):
     """The settings file is missing, is not TOML, or names an unknown option."""
 
 
-def load_settings(path: str | os.PathLike) -> dict[str, Any]:
-    """Read the whole settings file (tables by subcommand name)."""
+def read_toml(path: str | os.PathLike, what: str = "settings file") -> dict[str, Any]:
+    """Parse a TOML file; a missing, unreadable or invalid file is a
+    :class:`ConfigFileError` that names ``what`` and the path."""
     p = Path(path)
     try:
         with open(p, "rb") as f:
-            data = tomllib.load(f)
+            return tomllib.load(f)
     except FileNotFoundError:
-        raise ConfigFileError(f"settings file {p} not found") from None
+        raise ConfigFileError(f"{what} {p} not found") from None
     except tomllib.TOMLDecodeError as e:
-        raise ConfigFileError(f"settings file {p} is not valid TOML: {e}") from None
+        raise ConfigFileError(f"{what} {p} is not valid TOML: {e}") from None
     except OSError as e:
-        raise ConfigFileError(f"settings file {p} cannot be read: {e.strerror}") from None
+        raise ConfigFileError(f"{what} {p} cannot be read: {e.strerror}") from None
+
+
+def load_settings(path: str | os.PathLike) -> dict[str, Any]:
+    """Read the whole settings file (tables by subcommand name)."""
+    p = Path(path)
+    data = read_toml(p)
     for k, v in data.items():
         if not isinstance(v, dict):
             raise ConfigFileError(f"settings file {p}: top-level key {k!r} must be a table "

@@ -414,3 +414,15 @@ def test_recognize_on_a_rig_from_toml(tiny, tmp_path):
     p = run("recognize", tmp_path / "m.npz", "--rig", tmp_path / "none.toml")
     assert p.returncode == 1
     one_error_line(p, "none.toml")
+
+
+def test_bad_toml_files_are_usage_errors_naming_the_file(tmp_path):
+    bad = tmp_path / "broken.toml"
+    bad.write_text("case = [unclosed\n")
+    p = run("experiment", bad)
+    assert p.returncode == 2 and "experiment file" in p.stderr and "broken.toml" in p.stderr
+    assert "not valid TOML" in p.stderr and "Traceback" not in p.stderr
+    p = run("--config", bad, "inspect", tmp_path)
+    assert p.returncode == 2 and "settings file" in p.stderr and "broken.toml" in p.stderr
+    p = run("--config", tmp_path / "absent.toml", "inspect", tmp_path)
+    assert p.returncode == 2 and "absent.toml" in p.stderr and "not found" in p.stderr
