@@ -4,11 +4,17 @@
 row-major to ``D = H * W``.
 
 :func:`project` is the checked entry point for one image: an image of the
-wrong size, with NaN/inf, all black (zero energy, eq. 4.2 undefined) or constant
-raises :class:`ImageError` naming the image; nothing NaN leaves this layer.
+wrong size, with NaN/inf, negative values, values that overflow float32, all
+black (zero energy, eq. 4.2 undefined) or constant raises :class:`ImageError`
+naming the image; nothing NaN leaves this layer.
 :func:`project_batch` / :func:`project_camera` are the pure, jittable batched
-versions for the recognizer: invalid images give ``g = 0`` and ``valid = False``
-(a value, not an exception, inside traced code).
+versions for the recognizer: invalid images (non-finite, negative, all zero,
+constant) give ``g = 0`` and ``valid = False`` (a value, not an exception,
+inside traced code).
+
+Both paths divide by the brightest pixel before taking the norm, so the
+energy cannot overflow or underflow: ``y / ||y||`` is unchanged by that scale
+(eq. 4.2 is scale invariant) and is finite for every valid image.
 """
 
 from __future__ import annotations
@@ -24,11 +30,17 @@ __all__ = ["ImageError", "check_image", "project", "project_batch", "project_cam
 
 
 class ImageError(ValueError):
-    """An image cannot be projected (wrong size, NaN, zero energy, constant)."""
+    """An image cannot be projected (wrong size, NaN, negative, overflow, zero
+    energy, constant)."""
 
 
 def check_image(image, image_shape: tuple[int, int], name: str = "image") -> np.ndarray:
     """Validate one gray image and return it as ``float32 [D]``.
+
+    Checked, in order: a real (integer or float) dtype, the model's image
+    shape, every pixel finite, no negative pixel, every pixel finite after the
+    cast to float32 (no overflow), and - on the float32 values returned - not
+    all zero (eq. 4.2 needs energy) and not constant.
 
     Raises:
         ImageError: naming ``name`` and what is wrong.
@@ -44,17 +56,34 @@ def check_image(image, image_shape: tuple[int, int], name: str = "image") -> np.
     if not np.all(np.isfinite(y)):
         n_bad = int(np.sum(~np.isfinite(y)))
         raise ImageError(f"{name}: {n_bad} pixel(s) are NaN or infinite")
-    if not np.any(y != 0.0):
+    if np.any(y < 0):
+        n_neg = int(np.sum(y < 0))
+        raise ImageError(f"{name}: {n_neg} pixel(s) are negative (min {y.min():g}); "
+                         f"gray levels must be >= 0")
+    with np.errstate(over="ignore"):
+        y32 = y.astype(np.float32)
+    if not np.all(np.isfinite(y32)):
+        n_big = int(np.sum(~np.isfinite(y32)))
+        raise ImageError(f"{name}: {n_big} pixel(s) overflow float32 (max {y.max():g} > "
+                         f"{float(np.finfo(np.float32).max):g})")
+    if not np.any(y32 != 0.0):
         raise ImageError(f"{name}: all-black image has zero energy (eq. 4.2), cannot normalise")
-    if y.min() == y.max():
-        raise ImageError(f"{name}: constant image (every pixel {y[0]:g}) carries no appearance")
-    return y.astype(np.float32)
+    if y32.min() == y32.max():
+        raise ImageError(f"{name}: constant image (every pixel {y32[0]:g}) carries no appearance")
+    return y32
+
+
+def _unit_vector(y: np.ndarray) -> np.ndarray:
+    """``y / ||y||`` (eq. 4.1-4.2) of one checked image, in float64 and scaled
+    by its brightest pixel first, so the energy neither overflows nor underflows."""
+    y = np.asarray(y, np.float64)
+    y = y / y.max()
+    return y / np.linalg.norm(y)
 
 
 @jax.jit
 def _project_one(mean_image: Float[Array, " D"], basis: Float[Array, "D K"],
-                 y: Float[Array, " D"]) -> Float[Array, " K"]:
-    xhat = y / jnp.linalg.norm(y)
+                 xhat: Float[Array, " D"]) -> Float[Array, " K"]:
     return (xhat - mean_image) @ basis
 
 
@@ -73,15 +102,17 @@ def project(model: SensorModel, camera: int, position: int, image, *, name: str 
         raise IndexError(f"position {position} out of range for camera {camera} "
                          f"({cam.n_positions} positions)")
     label = name or f"image (camera {camera}, position {position})"
-    y = check_image(image, model.image_shape, label)
-    return _project_one(cam.mean_image[position], cam.basis[position], jnp.asarray(y))
+    xhat = _unit_vector(check_image(image, model.image_shape, label))
+    return _project_one(cam.mean_image[position], cam.basis[position],
+                        jnp.asarray(xhat, dtype=cam.basis.dtype))
 
 
 def project_batch(mean_image: Float[Array, " D"], basis: Float[Array, "D K"],
                   images: Float[Array, "B D"]) -> tuple[Float[Array, "B K"], Bool[Array, " B"]]:
     """Pure batched projection for one position: ``(g [B, K], valid [B])``.
 
-    Rows that are non-finite, all zero or constant are invalid: their ``g`` is 0.
+    Rows that are non-finite, negative somewhere, all zero or constant are
+    invalid: their ``g`` is 0.
     """
     y_hat, valid = _unit_energy(jnp.asarray(images, dtype=basis.dtype))
     g = (y_hat - mean_image[None, :]) @ basis
@@ -90,14 +121,21 @@ def project_batch(mean_image: Float[Array, " D"], basis: Float[Array, "D K"],
 
 def _unit_energy(y: Float[Array, "B D"]) -> tuple[Float[Array, "B D"], Bool[Array, " B"]]:
     """``y / ||y||`` per row (eq. 4.1-4.2) and its validity: rows that are
-    non-finite, all zero or constant are invalid (and returned as 0)."""
+    non-finite, negative somewhere, all zero or constant are invalid (and
+    returned as 0).  Each row is divided by its brightest pixel before the norm,
+    so a valid row's norm lies in ``[1, sqrt(D)]``: no overflow (e.g. pixels of
+    1e30, whose squares are inf in float32), no underflow to zero energy."""
     finite = jnp.all(jnp.isfinite(y), axis=1)
-    y = jnp.where(finite[:, None], y, 0.0)
-    norm = jnp.linalg.norm(y, axis=1)
-    varies = jnp.max(y, axis=1) > jnp.min(y, axis=1)
-    valid = finite & (norm > 0) & varies
+    nonneg = jnp.all(y >= 0, axis=1)
+    usable = finite & nonneg
+    y = jnp.where(usable[:, None], y, 0.0)
+    peak = jnp.max(y, axis=1)
+    varies = peak > jnp.min(y, axis=1)
+    valid = usable & (peak > 0) & varies
+    scaled = y / jnp.where(valid, peak, 1.0)[:, None]
+    norm = jnp.linalg.norm(scaled, axis=1)
     safe = jnp.where(valid, norm, 1.0)
-    return jnp.where(valid[:, None], y / safe[:, None], 0.0), valid
+    return jnp.where(valid[:, None], scaled / safe[:, None], 0.0), valid
 
 
 def project_camera(camera: CameraModel, positions: Int[Array, " B"],

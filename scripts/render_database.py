@@ -43,8 +43,19 @@ def main(argv=None) -> int:
     ap.add_argument("--sheet-views", default="0:9,1:3", help="camera:position pairs for the contact sheet")
     ap.add_argument("--lookalike-table", action="store_true", help="print the look-alike pairs' distance per position")
     args = ap.parse_args(argv)
+    try:
+        views = [tuple(int(x) for x in s.split(":")) for s in args.sheet_views.split(",")]
+        if any(len(v) != 2 for v in views):
+            raise ValueError
+    except ValueError:
+        ap.error(f"--sheet-views {args.sheet_views!r}: expected camera:position pairs such as 0:9,1:3")
 
     with SyntheticRig(seed=args.seed) as rig:
+        if args.contact_sheet:      # check the views before minutes of rendering, not after
+            for i, v in views:
+                if not (0 <= i < len(rig.positions) and 0 <= v < rig.positions[i]):
+                    ap.error(f"--sheet-views: camera {i} position {v} is not on the rig "
+                             f"(positions per camera {tuple(rig.positions)})")
         n_train = sum(rig.positions) * rig.n_objects * rig.n_poses
         total = n_train * (1 + args.test_per_view)
         t0 = time.perf_counter()
@@ -60,7 +71,6 @@ def main(argv=None) -> int:
             )
         print(f"wrote {total} images and {manifest} in {time.perf_counter() - t0:.1f} s")
         if args.contact_sheet:
-            views = [tuple(int(x) for x in s.split(":")) for s in args.sheet_views.split(",")]
             sheet = contact_sheet(rig, views)
             if not cv2.imwrite(args.contact_sheet, sheet):
                 print(f"could not write {args.contact_sheet}", file=sys.stderr)

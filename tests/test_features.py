@@ -35,6 +35,8 @@ def test_project_matches_numpy(setup):
     (lambda s: np.where(np.eye(*s) > 0, np.nan, 5.0), "1 pixel"),
     (lambda s: np.ones((s[0] + 1, s[1]), np.uint8), "does not match"),
     (lambda s: np.full(s, np.inf), "NaN or infinite"),
+    (lambda s: np.full(s, 1e39), "overflow float32"),
+    (lambda s: np.where(np.eye(*s) > 0, -1.0, 5.0), "negative"),
 ])
 def test_bad_images_raise_naming_image(setup, make, match):
     _, m = setup
@@ -47,6 +49,25 @@ def test_bad_images_raise_naming_image(setup, make, match):
     assert str(e.value).startswith("frame_0042.png:")
     with pytest.raises(ImageError, match=r"camera 1, position 2"):
         project(m, 1, 2, img)
+
+
+@pytest.mark.parametrize("scale", [1e30, 1e-30, 1e6])
+def test_project_is_scale_invariant_without_overflow(setup, scale):
+    """Pixels whose squares overflow (1e30) or underflow (1e-30) in float32
+    still give the finite features of the unscaled image (eq. 4.2 is scale
+    invariant), on the checked and on the batched path."""
+    db, m = setup
+    i = int(db.rows("test")[5])
+    cam, pos = int(db.camera[i]), int(db.position[i])
+    ref = np.asarray(project(m, cam, pos, db.images[i]))
+    img = db.images[i].astype(np.float64) * scale
+    g = np.asarray(project(m, cam, pos, img))
+    assert np.all(np.isfinite(g))
+    np.testing.assert_allclose(g, ref, atol=1e-5)
+    gb, vb = project_camera(m.cameras[cam], jnp.asarray([pos]),
+                            jnp.asarray(img[None].astype(np.float32)))
+    assert vb.tolist() == [True]
+    np.testing.assert_allclose(np.asarray(gb[0]), ref, atol=1e-5)
 
 
 def test_out_of_range(setup):
@@ -77,3 +98,33 @@ def test_batched_agree_jit_and_flag_bad(setup):
                                     jnp.asarray(all_imgs.reshape(9, -1)))
     np.testing.assert_allclose(gb[0], g[0], atol=1e-6)
     assert vb.tolist() == valid.tolist() and np.all(np.isfinite(np.asarray(gb)))
+
+
+def test_batched_marks_overflow_and_negative_invalid(setup):
+    """In-graph rows that overflow float32 (1e39 -> inf after the cast), hold a
+    negative pixel, or whose energy overflows float32 (1e30 per pixel) never
+    give NaN/inf: the first two are invalid with ``g = 0``, the last is valid
+    with the features of the unscaled image."""
+    db, m = setup
+    cam = m.cameras[1]
+    rows = db.rows("test")
+    rows = rows[db.camera[rows] == 1][:3]
+    imgs = db.images[rows].astype(np.float64)
+    with np.errstate(over="ignore"):                     # the cast a float32 graph sees
+        huge = np.full(m.image_shape, 1e39).astype(np.float32)
+    negative = imgs[0].copy()
+    negative[3, 4] = -1.0
+    batch = np.stack([imgs[0], huge, negative, imgs[1] * 1e30, imgs[2]]).astype(np.float32)
+    pos = np.asarray([int(db.position[rows[0]]), 0, int(db.position[rows[0]]),
+                      int(db.position[rows[1]]), int(db.position[rows[2]])])
+    for fn in (project_camera, jax.jit(project_camera)):
+        g, valid = fn(cam, jnp.asarray(pos), jnp.asarray(batch))
+        g = np.asarray(g)
+        assert valid.tolist() == [True, False, False, True, True]
+        assert np.all(np.isfinite(g)) and np.all(g[1:3] == 0)
+        np.testing.assert_allclose(g[3], project(m, 1, int(pos[3]), db.images[rows[1]]), atol=1e-5)
+    p = int(pos[0])
+    gb, vb = jax.jit(project_batch)(cam.mean_image[p], cam.basis[p],
+                                    jnp.asarray(batch.reshape(5, -1)))
+    assert vb.tolist() == [True, False, False, True, True]
+    assert np.all(np.isfinite(np.asarray(gb))) and np.all(np.asarray(gb[1:3]) == 0)

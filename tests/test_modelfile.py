@@ -107,7 +107,21 @@ def test_errors_each_their_own(tmp_path, models):
     _rewrite(good, tmp_path / "dt.npz", wrong_dtype)
     with pytest.raises(ModelFileContentError, match="camera1.var has dtype float64"):
         load_model(tmp_path / "dt.npz")
-    for f in ("trunc", "junk", "flip", "v", "nan", "dt"):
+
+    def wrong_shape(d):
+        from jaxrecog.modelfile import _content_hash
+        V, C, L, K = d["camera0.mu"].shape
+        d["camera0.mu"] = d["camera0.mu"].reshape(V, C * L, K)     # same values, wrong layout
+        meta = json.loads(bytes(d["meta"]).decode())
+        meta["content_sha256"] = _content_hash({k: v for k, v in d.items() if "." in k})
+        d["meta"] = np.frombuffer(json.dumps(meta).encode(), np.uint8)
+    _rewrite(good, tmp_path / "sh.npz", wrong_shape)
+    V, C, L, K = np.asarray(m.cameras[0].mu).shape
+    with pytest.raises(ModelFileContentError,
+                       match=rf"camera0.mu has shape \({V}, {C * L}, {K}\), "
+                             rf"expected \({V}, {C}, {L}, {K}\)"):
+        load_model(tmp_path / "sh.npz")
+    for f in ("trunc", "junk", "flip", "v", "nan", "dt", "sh"):
         with pytest.raises(Exception) as e:
             load_model(tmp_path / f"{f}.npz")
         assert "\n" not in str(e.value) and str(tmp_path) in str(e.value)

@@ -11,6 +11,7 @@ import sys
 import numpy as np
 import pytest
 
+from jaxrecog import load_database
 from jaxrecog.hardware import (
     Noise,
     OccluderLayout,
@@ -360,6 +361,16 @@ def test_render_database_writes_the_manifest_format(tmp_path):
         img = cv2.imread(str(tmp_path / path), cv2.IMREAD_UNCHANGED)
         assert img.dtype == np.uint8 and img.shape == (120, 160)
         np.testing.assert_array_equal(img, rig.render_clean(1, 2)[0])
+    # the foundation loader accepts the folder as it is written
+    db = load_database(tmp_path)
+    assert db.n_rows == len(rows) == 3 * 6 * 32
+    assert db.n_cameras == 2 and db.positions == rig.positions == (3, 3)
+    assert db.n_objects == 8 and db.n_poses == 4 and db.n_classes == 32
+    assert db.image_shape == (120, 160) and db.images.dtype == np.uint8
+    assert db.rows("train").size == 6 * 32 and db.rows("test").size == 2 * 6 * 32
+    assert db.train_images(1).shape == (3, 32, 120, 160)
+    j = db.paths.index(path)
+    np.testing.assert_array_equal(db.images[j], img)
 
 
 @pytest.mark.slow
@@ -372,6 +383,11 @@ def test_render_full_training_database(tmp_path):
         per_position[i, v] = per_position.get((i, v), 0) + 1
     assert len(per_position) == 39 and set(per_position.values()) == {32}
     assert manifest.stat().st_size > 0
+    db = load_database(tmp_path)
+    assert db.n_rows == 1248 and db.positions == (32, 7)
+    assert db.n_classes == 32 and db.image_shape == (120, 160)
+    assert db.train_images(0).shape == (32, 32, 120, 160)
+    assert db.train_images(1).shape == (7, 32, 120, 160)
 
 
 def test_contact_sheet_tiles_every_object_and_pose(rig):
