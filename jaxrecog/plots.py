@@ -143,6 +143,7 @@ def belief_lines(
     if P.ndim != 2 or P.shape[0] < 1:
         raise ValueError(f"object_probs must be [steps, objects], got shape {P.shape}")
     S, M = P.shape
+    R = None if reference is None or true_object is None else np.asarray(reference, dtype=float)
     fig, ax = plt.subplots(figsize=(7.0, 4.5))
     cmap = plt.get_cmap("tab10")
     steps = np.arange(S)
@@ -150,14 +151,13 @@ def belief_lines(
         thick = true_object is not None and m == true_object
         ax.plot(steps, P[:, m], marker="o", lw=5 if thick else 1.3, ms=9 if thick else 5, color=cmap(m % 10),
                 label=f"object {m + 1}" + (" (true)" if thick else ""), zorder=2 if thick else 3)  # true line underneath, so ties stay visible
-    if reference is not None and true_object is not None:
-        R = np.asarray(reference, dtype=float)
+    if R is not None:
         ax.plot(np.arange(R.shape[0]), R[:, true_object], ls=":", color="k", lw=1.5,
                 label=f"thesis Table 7.8, object {true_object + 1}")
     ax.set_xlabel("step (0 = prior, n = after the n-th image set)")
     ax.set_ylabel("P(object | images so far)")
     ax.set_ylim(-0.02, 1.02)
-    ax.set_xticks(steps)
+    ax.set_xticks(np.arange(max(S, 0 if R is None else R.shape[0])))  # ticks cover the reference line too
     ax.grid(alpha=0.3)
     ax.set_title(wrap_title(title, 62), fontsize=10)  # wrapped: the axes are narrower than the figure
     ax.legend(loc="center left", bbox_to_anchor=(1.01, 0.5), fontsize=8, frameon=False)
