@@ -15,15 +15,35 @@ a cache (idempotent), an older one is ignored (it must never move the rig
 backwards), and a newer one is a new move.  A new session id retires the old
 one.
 
-Faults, drawn from ``random.Random(seed)`` per datagram (so a run is
-reproducible up to thread timing): ``loss`` (each direction), ``duplicate``,
-``reorder`` (hold a reply back by ``reorder_delay_s`` so later ones overtake
-it), ``corrupt`` (flip one byte), ``delay_s`` (uniform extra latency), and
-``silent`` (drop everything, settable at run time).
+Network faults hit both directions alike: every incoming request and every
+outgoing reply goes through the same fault model -- ``loss``, ``duplicate``
+(a second copy), ``reorder`` (hold a copy back by ``reorder_delay_s`` so later
+datagrams overtake it), ``corrupt`` (flip one bit), ``delay_s`` (uniform
+extra latency) -- before it is handled or sent; ``silent`` (settable at run
+time) drops everything.  A held-back or duplicated request that arrives after
+the client has moved on is *stale* and ignored; a corrupt one fails the CRC
+and is dropped like a lost one.
+
+Fault decisions are seeded per datagram: the fate of the ``n``-th copy of a
+(direction, message type, seq) seen by the simulator is drawn from a
+generator seeded with ``(seed, direction, type, seq, n)``, so a given seed
+gives every request and reply the same faults in every run, whatever the
+thread timing (only how many retransmissions the client makes depends on
+timing).
+
+:attr:`ControllerSimulator.stats` counts what happened: ``request_*`` /
+``reply_*`` with ``lost``, ``duplicated``, ``reordered``, ``delayed``,
+``corrupted`` (the faults applied), and for the requests that reached the
+controller: ``corrupt`` (failed decoding, dropped), ``new`` (a new seq:
+executed or rejected), ``repeat`` (the seq just executed: answered from the
+cache), ``stale`` (an older seq: ignored), ``retired`` (a retired session:
+ignored), ``duplicate_copy`` (the extra copy of a duplicated request, handled
+like any other).
 """
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 import heapq
 import ipaddress
@@ -121,7 +141,9 @@ class ControllerSimulator:
         self.linear_speed = float(linear_speed)
         self.turntable_speed = float(turntable_speed)
         self.moving_after_s = float(moving_after_s)
-        self._rng = random.Random(seed)
+        self.seed = int(seed)
+        self._occurrences: dict[tuple[str, bytes], int] = {}
+        self.stats: collections.Counter[str] = collections.Counter()
         # state: gantry (x, y), track y, turn-table angle -- start at the centre
         ws = self.workspace
         self.gantry = (ws.object_xyz[0], ws.object_xyz[1])
@@ -135,7 +157,8 @@ class ControllerSimulator:
         self._cache: Datagram | None = None  # reply to the last executed seq
         self._busy_until = 0.0  # wall time the last move finishes
         self._duration_s = 0.0
-        self._queue: list[tuple[float, int, bytes, tuple]] = []
+        self._queue: list[tuple[float, int, bytes, tuple]] = []  # replies due out
+        self._inbox: list[tuple[float, int, bytes, tuple, bool]] = []  # requests due in
         self._counter = 0
         self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self._sock.bind((host, port))
@@ -165,27 +188,62 @@ class ControllerSimulator:
     def silent(self, value: bool) -> None:
         self.faults.silent = bool(value)
 
-    # ------------------------------------------------------------ sending
-    def _schedule(self, when: float, data: bytes, peer: tuple) -> None:
-        self._counter += 1
-        heapq.heappush(self._queue, (when, self._counter, data, peer))
+    # ------------------------------------------------------------ network faults
+    def _fault_rng(self, direction: str, data: bytes) -> random.Random:
+        """The generator deciding the fate of this copy of ``data``: seeded with
+        (seed, direction, type, seq, how many copies of that type and seq came before)."""
+        ident = data[3:4] + data[8:12] if len(data) >= 12 else data
+        key = (direction, ident)
+        if len(self._occurrences) > 100_000:  # bound the memory of a long run
+            self._occurrences.clear()
+        n = self._occurrences.get(key, 0)
+        self._occurrences[key] = n + 1
+        return random.Random(b"%d|%s|%s|%d" % (self.seed, direction.encode(), ident.hex().encode(), n))
 
-    def _send(self, dg: Datagram, peer: tuple, not_before: float = 0.0) -> None:
-        """Queue a reply through the fault model."""
-        f, rng = self.faults, self._rng
-        if f.silent or rng.random() < f.loss:
-            return
-        data = encode(dg)
+    def _network(self, direction: str, data: bytes, not_before: float = 0.0) -> list[tuple[float, bytes, bool]]:
+        """The copies of ``data`` the faulty network delivers: (due time, bytes, is the extra copy)."""
+        f, st = self.faults, self.stats
+        if f.silent:
+            st[f"{direction}_silenced"] += 1
+            return []
+        rng = self._fault_rng(direction, data)
+        if rng.random() < f.loss:
+            st[f"{direction}_lost"] += 1
+            return []
         copies = 2 if rng.random() < f.duplicate else 1
-        for _ in range(copies):
-            when = max(time.monotonic(), not_before) + rng.uniform(*f.delay_s)
+        if copies == 2:
+            st[f"{direction}_duplicated"] += 1
+        out = []
+        now = time.monotonic()
+        for k in range(copies):
+            delay = rng.uniform(*f.delay_s)
+            if delay > 0:
+                st[f"{direction}_delayed"] += 1
+            when = max(now, not_before) + delay
             if rng.random() < f.reorder:
                 when += f.reorder_delay_s
-            out = data
+                st[f"{direction}_reordered"] += 1
+            b = data
             if rng.random() < f.corrupt:
                 i = rng.randrange(len(data))
-                out = data[:i] + bytes([data[i] ^ (1 << rng.randrange(8))]) + data[i + 1:]
-            self._schedule(when, out, peer)
+                b = data[:i] + bytes([data[i] ^ (1 << rng.randrange(8))]) + data[i + 1:]
+                st[f"{direction}_corrupted"] += 1
+            out.append((when, b, k > 0))
+        return out
+
+    # ------------------------------------------------------------ sending
+    def _send(self, dg: Datagram, peer: tuple, not_before: float = 0.0) -> None:
+        """Queue a reply through the fault model."""
+        for when, data, _ in self._network("reply", encode(dg), not_before):
+            self._counter += 1
+            heapq.heappush(self._queue, (when, self._counter, data, peer))
+
+    def _receive(self, data: bytes, peer: tuple) -> None:
+        """Queue an incoming request through the fault model."""
+        self.stats["request_received"] += 1
+        for when, b, extra in self._network("request", data):
+            self._counter += 1
+            heapq.heappush(self._inbox, (when, self._counter, b, peer, extra))
 
     # ------------------------------------------------------------ serving
     def _serve(self) -> None:
@@ -197,7 +255,12 @@ class ControllerSimulator:
                     self._sock.sendto(data, peer)
                 except OSError:
                     pass
-            wait = 0.02 if not self._queue else min(0.02, max(self._queue[0][0] - now, 0.0))
+            while self._inbox and self._inbox[0][0] <= now:
+                _, _, data, peer, extra = heapq.heappop(self._inbox)
+                self._deliver(data, peer, extra)
+            now = time.monotonic()
+            heads = [q[0][0] for q in (self._queue, self._inbox) if q]
+            wait = min([0.02] + [max(h - now, 0.0) for h in heads])
             self._sock.settimeout(max(wait, 1e-4))
             try:
                 data, peer = self._sock.recvfrom(2048)
@@ -207,31 +270,43 @@ class ControllerSimulator:
                 if self._stop.is_set():
                     return
                 continue
-            if self.faults.silent or self._rng.random() < self.faults.loss:
-                continue
-            try:
-                dg = decode(data)
-            except DatagramError:
-                continue  # a corrupt request is indistinguishable from a lost one
-            self.received += 1
-            with self._lock:
-                self._handle(dg, peer)
+            self._receive(data, peer)
+
+    def _deliver(self, data: bytes, peer: tuple, extra_copy: bool) -> None:
+        """A request that made it through the network: decode and handle it."""
+        if self.faults.silent:
+            self.stats["request_silenced"] += 1
+            return
+        try:
+            dg = decode(data)
+        except DatagramError:
+            self.stats["corrupt"] += 1
+            return  # a corrupt request is indistinguishable from a lost one
+        self.received += 1
+        if extra_copy:
+            self.stats["duplicate_copy"] += 1
+        with self._lock:
+            self._handle(dg, peer)
 
     def _handle(self, dg: Datagram, peer: tuple) -> None:
         if dg.type == MsgType.PING:
+            self.stats["ping"] += 1
             self._send(Datagram(MsgType.PONG, dg.session, dg.seq), peer)
             return
         if dg.type != MsgType.MOVE:
             return
         if dg.session != self._session:
             if dg.session in self._retired:
+                self.stats["retired"] += 1
                 return  # a straggler from an earlier client
             if self._session is not None:
                 self._retired.add(self._session)
             self._session, self._last_seq, self._cache = dg.session, 0, None
         if dg.seq < self._last_seq:
+            self.stats["stale"] += 1
             return  # stale retransmission: never move backwards
         if dg.seq == self._last_seq and self._cache is not None:
+            self.stats["repeat"] += 1
             reply = self._cache
             left = self._busy_until - time.monotonic()
             if reply.type == MsgType.IN_POSITION and left > 0:
@@ -241,6 +316,7 @@ class ControllerSimulator:
                 self._send(reply, peer)
             return
         assert isinstance(dg.payload, Move)
+        self.stats["new"] += 1
         self._last_seq = dg.seq
         self._cache = reply = self._execute(dg)
         if reply.type == MsgType.REJECTED:

@@ -189,6 +189,7 @@ class HardwareRig:
             starts = []
             for i, unit in enumerate(self.ptus):
                 pan, tilt = ptu_angles(self.eyes[i], ws.object_xyz, self.config.ptu(i))
+                unit.resync()  # after an earlier fault: learn where the unit really is
                 starts.append(unit.target)
                 unit.move_to(pan, tilt, wait=False)  # all units move at once ...
             for i, (unit, start) in enumerate(zip(self.ptus, starts)):
@@ -287,6 +288,18 @@ class SimulatedHardwareRig(HardwareRig):
             raise
         self._opened = opened
         self.last_occlusion: list[float] = []
+
+    def reseed(self, seed) -> None:
+        """Restart the renderer's capture noise from ``seed`` (passed through to
+        ``renderer.reseed``; a no-op for a renderer without one).
+
+        :func:`jaxrecog.campaign.run_campaign` reseeds every rig that has this
+        method with ``(seed, trial, step)`` before each capture, so a campaign
+        on the simulated hardware draws the same capture noise as the same
+        campaign on the synthetic rig it renders with."""
+        reseed = getattr(self.renderer, "reseed", None)
+        if reseed is not None:
+            reseed(seed)
 
     def reset(self, object: int, pose: int, occluders: object | None = None) -> None:
         """Turn the simulated turn-table, then reset the scene to the pose it *reports*."""

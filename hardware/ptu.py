@@ -33,7 +33,17 @@ Every failure is a :class:`PTUError` naming the command: a missing reply is a
 :class:`PTUTimeoutError`, a ``!`` reply is a :class:`PTUErrorReply`, anything
 else (noise, malformed numbers, non-ASCII bytes) is a :class:`PTUGarbageError`.
 After any of them the input buffer is drained and flushed, so the next command
-starts on a clean line.
+starts on a clean line; after a timeout the driver keeps draining until the
+line has been quiet for a whole reply timeout, so that a reply that was merely
+late (it arrives after the driver gave up) is discarded instead of being read
+as the answer to the next command.
+
+The driver remembers the commanded target of each axis (relative moves and
+the ``A`` timeout are computed from it).  It is updated after each command
+the unit acknowledges; when a position command fails the driver cannot know
+whether the unit took it (a lost or garbled reply to an executed command, a
+refusal), so before the next move it waits for the unit (``A``) and reads the
+axes back (``PP``, ``TP``).
 """
 
 from __future__ import annotations
@@ -190,6 +200,7 @@ class PTU:
         self.limits: PTULimits | None = None
         self._speed: tuple[int, int] = (0, 0)
         self._target: tuple[int, int] = (0, 0)
+        self._unsure = [False, False]  # a failed PP/TP/PO/TO left this axis's target unknown
         if connect:
             self.connect()
 
@@ -257,6 +268,7 @@ class PTU:
         self.limits = PTULimits(pan, tilt, self.query_int("PU"), self.query_int("TU"))
         self._speed = (self.query_int("PS"), self.query_int("TS"))
         self._target = (self.query_int("PP"), self.query_int("TP"))
+        self._unsure = [False, False]
 
     # ------------------------------------------------------------ raw I/O
     def _port(self, command: str) -> serial.SerialBase:
@@ -306,7 +318,9 @@ class PTU:
                 except (serial.SerialException, OSError):
                     pass
         if not line.endswith(b"\n"):
-            self._recover()
+            # the reply may only be late: wait for the line to stay quiet for a
+            # whole reply timeout, so it cannot be taken for the next answer
+            self._drain(quiet=self.timeout, longest=4.0 * self.timeout + 0.2)
             wait = self.timeout if timeout is None else timeout
             raise PTUTimeoutError(command, f"no complete reply within {wait:.3g} s (got {line[:40]!r})")
         return line
@@ -368,12 +382,14 @@ class PTU:
         for i, (axis, deg) in enumerate((("P", pan), ("T", tilt))):
             if deg is not None:
                 pos = self.to_positions(axis, deg)
-                cmds.append(f"{axis}P{pos}")
+                cmds.append((i, f"{axis}P{pos}"))
                 target[i] = pos
-        self._send_moves(cmds, tuple(target), wait)
+        self.resync()
+        self._send_moves(cmds, target, wait)
 
     def move_by(self, pan: float = 0.0, tilt: float = 0.0, *, wait: bool = True) -> None:
         """Relative move (``PO`` / ``TO``) by ``pan`` / ``tilt`` degrees from the current target."""
+        self.resync()  # the base of a relative move must be what the unit really holds
         cmds = []
         target = list(self._target)
         for i, (axis, deg) in enumerate((("P", pan), ("T", tilt))):
@@ -382,17 +398,37 @@ class PTU:
                     raise PTULimitError(f"{axis}O", f"offset {deg!r} is not finite")
                 off = int(round(deg * 3600.0 / self._res(axis)))
                 self._check_position(axis, target[i] + off)
-                cmds.append(f"{axis}O{off}")
+                cmds.append((i, f"{axis}O{off}"))
                 target[i] += off
-        self._send_moves(cmds, tuple(target), wait)
+        self._send_moves(cmds, target, wait)
 
-    def _send_moves(self, cmds: list[str], target: tuple[int, int], wait: bool) -> None:
+    def _send_moves(self, cmds: list[tuple[int, str]], target: list[int], wait: bool) -> None:
         start = self._target
-        for c in cmds:
-            self.command(c)
-        self._target = target
+        for i, c in cmds:
+            try:
+                self.command(c)
+            except PTUError:
+                self._unsure[i] = True  # did the unit take it? resync() finds out
+                raise
+            now = list(self._target)
+            now[i] = target[i]
+            self._target = (now[0], now[1])  # committed axis by axis
         if wait:
             self.await_motion(start)
+
+    def resync(self) -> None:
+        """After a failed position command: wait for the unit (``A``) and read
+        its axes back (``PP``, ``TP``) as the new target.  A no-op otherwise.
+
+        (In slaved mode the ``A`` also starts any queued move.)"""
+        if not any(self._unsure):
+            return
+        assert self.limits is not None
+        span = max(self.limits.pan[1] - self.limits.pan[0], self.limits.tilt[1] - self.limits.tilt[0])
+        longest = span / max(min(self._speed), 1)
+        self.command("A", timeout=self.timeout + longest + self.await_margin)
+        self._target = self.position_counts()
+        self._unsure = [False, False]
 
     @property
     def target(self) -> tuple[int, int]:
@@ -454,3 +490,4 @@ class PTU:
         """``R``: recalibrate (the unit sweeps to its limits and back to 0, 0)."""
         self._checked("R", "reset", timeout)
         self._target = (0, 0)
+        self._unsure = [False, False]

@@ -17,7 +17,13 @@ Faults (:meth:`PTUSimulator.inject`), each applied to the next reply:
 * ``"drop"``  -- execute the command but send no reply (driver: timeout)
 * ``"error"`` -- do not execute it, answer ``! Simulated fault``
 * ``"noise"`` -- execute it, send a line of random non-protocol bytes instead of the reply
+* ``"late"``  -- execute it, send the right reply after ``late_s`` wall seconds
+  (set it above the driver's timeout); like a busy unit, it answers the
+  commands that follow only after that
 * ``"silent"`` (attribute ``silent = True``) -- ignore all input until cleared.
+
+``inject(fault, count, after=n)`` lets ``n`` replies through first (e.g. the
+``PP`` of a pan+tilt move, so the fault hits its ``TP``).
 """
 
 from __future__ import annotations
@@ -33,7 +39,7 @@ import tty
 
 __all__ = ["PTUSimulator", "PTU_FAULTS"]
 
-PTU_FAULTS = ("drop", "error", "noise")
+PTU_FAULTS = ("drop", "error", "noise", "late")
 _TOKEN = re.compile(r"([A-Z]+)([+-]?[0-9]+)?")
 
 
@@ -93,7 +99,8 @@ class PTUSimulator:
         self.terse = False
         self.slaved = False
         self.silent = False
-        self._faults: collections.deque[str] = collections.deque()
+        self.late_s = 0.3  # wall seconds a "late" reply is held back
+        self._faults: collections.deque[str | None] = collections.deque()
         self.log: list[str] = []  # commands received (tests read it)
         self._lock = threading.Lock()
         self._origin = time.monotonic()
@@ -105,12 +112,15 @@ class PTUSimulator:
         self._thread.start()
 
     # ------------------------------------------------------------ control
-    def inject(self, fault: str, count: int = 1) -> None:
-        """Apply ``fault`` ("drop", "error" or "noise") to the next ``count`` replies."""
+    def inject(self, fault: str, count: int = 1, *, after: int = 0) -> None:
+        """Apply ``fault`` ("drop", "error", "noise" or "late") to ``count`` replies,
+        after letting the next ``after`` replies through (faults already queued come first)."""
         if fault not in PTU_FAULTS:
             raise ValueError(f"unknown PTU fault {fault!r}; choose from {PTU_FAULTS}")
+        if count < 1 or after < 0:
+            raise ValueError(f"count must be >= 1 and after >= 0, got {count}, {after}")
         with self._lock:
-            self._faults.extend([fault] * count)
+            self._faults.extend([None] * after + [fault] * count)
 
     def now(self) -> float:
         """Simulated seconds since start."""
@@ -174,7 +184,9 @@ class PTUSimulator:
     def _reply(self, text: str, fault: str | None) -> None:
         if fault == "drop":
             return
-        if fault == "noise":
+        if fault == "late":
+            time.sleep(self.late_s)
+        elif fault == "noise":
             n = self._rng.randint(1, 12)
             junk = bytes(self._rng.choice(b"#$%&\x00\x07\x1b\xfe\x80?@~") for _ in range(n))
             self._write(junk + b"\r\n")

@@ -83,7 +83,10 @@ def test_occluded_campaign_recognises_far_above_chance(world, planner):
 def test_closed_loop_through_the_simulated_hardware(world):
     """The recognizer drives the real PTU driver and UDP link (against their
     simulators); images are rendered where the simulators say the cameras are.
-    It must recognise as it does on the synthetic rig itself."""
+    It must recognise as it does on the synthetic rig itself: both rigs are
+    reseeded per (trial, step) by the campaign (``SimulatedHardwareRig.reseed``
+    passes through to the renderer), so each trial sees the same capture noise
+    on both paths and must reach the same decision by the same moves."""
     table, rig, model = world
     rec = Recognizer(model, make_planner("mi-class", model, key=jr.PRNGKey(0), samples=256))
     specs = plan_trials(4, 4, table.positions, 2, seed=11)
@@ -91,7 +94,14 @@ def test_closed_loop_through_the_simulated_hardware(world):
         assert hw.positions == rig.positions
         via_hw = run_campaign(rec, hw, specs, key=jr.PRNGKey(2), batch=4)
     direct = run_campaign(rec, rig, specs, key=jr.PRNGKey(2), batch=4)
-    hw_correct = sum(r.correct for r in via_hw)
-    direct_correct = sum(r.correct for r in direct)
-    assert hw_correct >= 6  # of 8; chance is 0.5
-    assert abs(hw_correct - direct_correct) <= 1
+    assert sum(r.correct for r in via_hw) >= 6  # of 8; chance is 0.5
+    assert [r.trial for r in via_hw] == [r.trial for r in direct]
+    for h, d in zip(via_hw, direct):
+        # the same decision, reached by the same camera moves in the same number of steps
+        assert (h.predicted_object, h.predicted_pose, h.steps, h.configurations) == (
+            d.predicted_object, d.predicted_pose, d.steps, d.configurations), (h, d)
+        # not bit-equal: the hardware path renders at the eye the controller
+        # reports, quantised to its 10 um encoders, so a few edge pixels of an
+        # image differ (measured: <= 11 pixels an image, exit probabilities
+        # <= 5e-4 apart; without the shared reseed they were ~1e-2 apart)
+        assert h.exit_prob == pytest.approx(d.exit_prob, abs=1e-3)

@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 from jaxrecog.hardware import Rig, RigError
-from jaxrecog.hardware.config import ConfigError, PTUConfig, RigConfig, default_mounts, load_config
+from jaxrecog.hardware.camera import CameraError
+from jaxrecog.hardware.config import ConfigError, ControllerConfig, PTUConfig, RigConfig, default_mounts, load_config
 from jaxrecog.hardware.controller_sim import LINEAR_RESOLUTION_M, ControllerSimulator
 from jaxrecog.hardware.hardware_rig import (
     HardwareRig,
@@ -20,8 +21,11 @@ from jaxrecog.hardware.hardware_rig import (
     ptu_angles,
     rig_from_config,
 )
+from jaxrecog.hardware.kinematics import Workspace
 from jaxrecog.hardware.positions import default_table
+from jaxrecog.hardware.ptu import PTU
 from jaxrecog.hardware.ptu_sim import PTUSimulator
+from jaxrecog.hardware.udp_link import ControllerLink, ControllerRejected
 
 EXAMPLE = os.path.join(os.path.dirname(__file__), "..", "examples", "simulated_rig.toml")
 H, W = 120, 160
@@ -161,6 +165,89 @@ def test_renderer_with_wrong_image_shape_is_refused():
         r.move((0, 0))
         with pytest.raises(RigError, match=r"expected uint8 \(120, 160\)"):
             r.capture()
+
+
+# ---------------------------------------------------------------- HardwareRig error wrapping
+class FakeCamera:
+    """A camera that delivers a gray frame, or raises CameraError while ``fail`` is set."""
+
+    def __init__(self, fail=False):
+        self.fail, self.reads = fail, 0
+
+    def read(self):
+        self.reads += 1
+        if self.fail:
+            raise CameraError("no usable frame after 4 tries (black frame)")
+        return np.full((H, W), 100, np.uint8)
+
+    def close(self):
+        pass
+
+
+@pytest.fixture
+def hardware(request):
+    """A HardwareRig on ready-made devices: PTU drivers and a UDP link against the
+    simulators, fake cameras.  An indirect parameter gives the controller's workspace."""
+    workspace = getattr(request, "param", None)
+    table = default_table()
+    with ControllerSimulator(workspace or table.workspace, time_scale=0.001) as ctl, \
+            PTUSimulator(time_scale=0.001) as p1, PTUSimulator(time_scale=0.001) as p2:
+        ptus = [PTU(p.port, timeout=0.2) for p in (p1, p2)]
+        link = ControllerLink(ctl.address, timeout=0.1, retries=2)
+        cams = [FakeCamera(), FakeCamera()]
+        try:
+            with HardwareRig(RigConfig("hardware", table), ptus=ptus, link=link, cameras=cams) as rig:
+                yield rig, ctl, (p1, p2), cams
+        finally:
+            link.close()
+            for p in ptus:
+                p.close()
+
+
+def test_camera_error_becomes_a_rig_error_naming_the_camera(hardware):
+    rig, _, _, cams = hardware
+    rig.move((3, 2))
+    assert [i.shape for i in rig.capture()] == [(H, W), (H, W)]
+    cams[1].fail = True
+    with pytest.raises(RigError, match=r"^camera 2: no usable frame after 4 tries") as e:
+        rig.capture()
+    assert isinstance(e.value.__cause__, CameraError)
+    cams[1].fail = False
+    assert len(rig.capture()) == 2  # the rig is still usable
+
+
+NARROW = dataclasses.replace(default_table().workspace, gantry_x=(-0.05, 0.05))
+
+
+@pytest.mark.parametrize("hardware", [NARROW], indirect=True)
+def test_controller_rejection_becomes_a_rig_error_naming_the_motion_controller(hardware):
+    """The controller's workspace is narrower than the table the rig was given:
+    the controller refuses the move, the rig says so and does not point the PTUs."""
+    rig, ctl, sims, _ = hardware
+    views = rig.table.views[0]
+    wide = max(range(len(views)), key=lambda v: abs(views[v].eye[0]))
+    inside = min(range(len(views)), key=lambda v: abs(views[v].eye[0]))
+    assert abs(views[wide].eye[0]) > 0.05 >= abs(views[inside].eye[0])
+    rig.move((inside, 3))
+    before = [s.position() for s in sims]
+    with pytest.raises(RigError, match=rf"^motion controller: move to configuration \({wide}, 3\) failed: "
+                                       r"controller rejected .*gantry x") as e:
+        rig.move((wide, 3))
+    assert isinstance(e.value.__cause__, ControllerRejected)
+    assert not rig.in_position
+    with pytest.raises(RigError, match="in position"):
+        rig.capture()
+    assert [s.position() for s in sims] == before  # nothing was pointed
+    assert [x.move.cam1_pan for x in ctl.executed] == [views[inside].pan]
+    rig.move((inside, 4))  # a move the controller accepts still works
+    assert rig.in_position
+
+
+def test_device_that_cannot_be_opened_is_a_rig_error():
+    cfg = RigConfig("hardware", default_table(), controller=ControllerConfig(port=9),
+                    ptus=(PTUConfig(port="/nonexistent/ttyPTU0", timeout_s=0.05),) * 2)
+    with pytest.raises(RigError, match="cannot open the rig: PTU command 'open'"):
+        HardwareRig(cfg, cameras=[FakeCamera(), FakeCamera()])
 
 
 # ---------------------------------------------------------------- configs

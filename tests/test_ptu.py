@@ -155,6 +155,64 @@ def test_silent_unit_times_out_then_reconnect_recovers(sim, ptu):
     assert ptu.position() == pytest.approx((5.0, 5.0), abs=deg(0.5))
 
 
+def test_silent_unit_answers_again_without_reconnect(sim, ptu):
+    ptu.move_to(12.0, -7.0)
+    want = (round(12 * 3600 / 185.1428), round(-7 * 3600 / 185.1428))
+    sim.silent = True
+    with pytest.raises(PTUTimeoutError, match="'PP'"):
+        ptu.position()
+    sim.silent = False
+    # no reconnect(): the driver drained the line, the next command just works
+    assert ptu.position() == pytest.approx((deg(want[0]), deg(want[1])), abs=1e-12)
+    ptu.move_by(pan=1.0)
+    assert sim.position() == (want[0] + round(3600 / 185.1428), want[1])
+
+
+def test_late_reply_is_drained_and_the_driver_stays_in_step(sim, ptu):
+    ptu.move_to(20.0, -10.0)
+    pan, tilt = round(20 * 3600 / 185.1428), round(-10 * 3600 / 185.1428)
+    sim.late_s = 0.25  # the answer to PP comes 0.1 s after the driver's 0.15 s timeout
+    sim.inject("late")
+    with pytest.raises(PTUTimeoutError) as e:
+        ptu.query_int("PP")
+    assert e.value.command == "PP"
+    # the late "* <pan>" was discarded, not taken for the answer to the next query
+    assert ptu.query_int("TP") == tilt
+    assert ptu.position_counts() == (pan, tilt)
+
+
+@pytest.mark.parametrize("fault", ["error", "drop", "noise", "late"])
+def test_fault_on_the_tilt_command_of_a_move_keeps_the_driver_in_step(sim, ptu, fault):
+    """PP is acknowledged, TP fails: the pan target is committed, the tilt one is
+    read back from the unit, and the next relative move starts from where the unit is."""
+    res = 185.1428
+    sim.late_s = 0.25
+    sim.inject(fault, after=1)  # PP goes through, TP meets the fault
+    with pytest.raises(PTUError) as e:
+        ptu.move_to(150.0, 20.0)
+    assert e.value.command.startswith("TP")
+    pan = round(150 * 3600 / res)
+    tilt = 0 if fault == "error" else round(20 * 3600 / res)  # refused, or taken with its reply lost
+    assert ptu.target[0] == pan
+    # 150 + 15 deg is past the 159 deg pan limit: caught before sending, from the right base
+    before = len(sim.log)
+    with pytest.raises(PTULimitError, match="pan"):
+        ptu.move_by(pan=15.0)
+    assert not any(c.startswith("PO") for c in sim.log[before:])
+    assert ptu.target == (pan, tilt)
+    ptu.move_by(pan=-10.0, tilt=5.0)
+    want = (pan + round(-10 * 3600 / res), tilt + round(5 * 3600 / res))
+    assert sim.position() == want and ptu.target == want
+    assert ptu.position_counts() == want
+
+
+def test_inject_checks_its_arguments(sim):
+    with pytest.raises(ValueError, match="unknown PTU fault"):
+        sim.inject("fire")
+    with pytest.raises(ValueError, match="after"):
+        sim.inject("drop", after=-1)
+
+
 def test_closed_port_is_a_connection_error(ptu):
     ptu.close()
     with pytest.raises(PTUConnectionError, match="not open"):

@@ -68,10 +68,11 @@ def test_workspace_violation_is_rejected_not_retried():
 
 
 def test_200_moves_under_loss_duplication_reordering_and_corruption():
+    # the faults hit requests and replies alike; their pattern is fixed by the seed
     faults = LinkFaults(loss=0.2, duplicate=0.2, reorder=0.2, corrupt=0.05, delay_s=(0.0, 0.002), reorder_delay_s=0.012)
     timeout, retries, n = 0.012, 25, 200
     with ControllerSimulator(faults=faults, seed=7, time_scale=0.0005) as sim:
-        with ControllerLink(sim.address, timeout=timeout, retries=retries) as link:
+        with ControllerLink(sim.address, timeout=timeout, retries=retries, session=7) as link:
             t0 = time.monotonic()
             for i in range(n):
                 m = move_of(i)
@@ -80,12 +81,64 @@ def test_200_moves_under_loss_duplication_reordering_and_corruption():
     # every move executed exactly once, in order (idempotent retransmissions)
     assert [e.move for e in sim.executed] == [move_of(i) for i in range(n)]
     assert [e.seq for e in sim.executed] == list(range(1, n + 1))
-    s = link.stats
+    s, c = link.stats, sim.stats
     assert s["accepted"] == n and s["retransmit"] > 0
-    assert s["duplicate"] > 0 and s["stale"] + s["duplicate"] > 0 and s["corrupt"] > 0  # the faults happened
+    # the controller really saw faulty requests: lost, duplicated (the extra copy
+    # arrived and was answered from the cache, not executed), held back until
+    # the client had moved on (stale: ignored, the rig never moved back), corrupt
+    assert c["request_lost"] > 0 and c["request_duplicated"] > 0 and c["request_reordered"] > 0
+    assert c["duplicate_copy"] > 0 and c["repeat"] > 0
+    assert c["stale"] > 0
+    assert c["request_corrupted"] > 0 and c["corrupt"] > 0
+    assert c["new"] == n
+    # and the client saw faulty replies: duplicated, stale (a reply for an
+    # earlier move, overtaken), corrupt -- all dropped
+    assert c["reply_duplicated"] > 0 and c["reply_reordered"] > 0
+    assert s["duplicate"] > 0
+    assert s["stale"] > 0
+    assert s["corrupt"] > 0
     # bounded time: the worst case is every move using every retry; in practice far less
     assert total < n * (retries + 1) * timeout
     assert total < 20.0, f"{n} moves took {total:.2f} s; stats {dict(s)}"
+
+
+def test_request_faults_are_seeded_per_datagram():
+    """The same seed gives every request the same fate, whatever the timing."""
+
+    def fates(seed):
+        faults = LinkFaults(loss=0.3, duplicate=0.3, reorder=0.3, corrupt=0.1, delay_s=(0.0, 0.001))
+        with ControllerSimulator(faults=faults, seed=seed) as sim:
+            with sim._lock:  # no serving thread involved: the fault model alone
+                return [
+                    [(round(w - min(x[0] for x in out), 9), d, extra) for w, d, extra in out]
+                    for out in (sim._network("request", encode(Datagram(MsgType.MOVE, 1, seq, move_of(seq))))
+                                for seq in range(1, 60))
+                ]
+
+    first = fates(5)
+    assert fates(5) == first
+    assert fates(6) != first
+    assert any(not f for f in first)  # lost
+    assert any(len(f) == 2 for f in first)  # duplicated
+    clean = {encode(Datagram(MsgType.MOVE, 1, seq, move_of(seq))) for seq in range(1, 60)}
+    assert any(d not in clean for f in first for _, d, _ in f)  # corrupted
+
+
+def test_held_back_request_copy_is_stale_and_never_moves_the_rig_back():
+    """Every request duplicated, the extra copy held back until the next move
+    has arrived: the controller sees each one late and ignores it."""
+    faults = LinkFaults(duplicate=1.0, reorder=0.5, reorder_delay_s=0.03)
+    with ControllerSimulator(faults=faults, seed=1, time_scale=0.0001) as sim:
+        with ControllerLink(sim.address, timeout=0.2, retries=3, session=3) as link:
+            for i in range(20):
+                m = move_of(i)
+                assert_matches(link.move(*m.astuple()), m)
+                time.sleep(0.005)
+            time.sleep(0.08)  # let the last held-back copies arrive
+    assert [e.move for e in sim.executed] == [move_of(i) for i in range(20)]
+    assert sim.stats["request_duplicated"] == 20 + link.stats["retransmit"]
+    assert sim.stats["stale"] > 0 and sim.stats["duplicate_copy"] >= sim.stats["stale"]
+    assert sim.stats["new"] == 20
 
 
 def test_silent_controller_times_out_in_bounded_time_then_recovers():
@@ -156,16 +209,18 @@ def test_controller_binds_loopback_only():
 def test_same_seed_same_faults():
     def run(seed):
         faults = LinkFaults(loss=0.3, duplicate=0.3)
-        with ControllerSimulator(faults=faults, seed=seed, time_scale=0.0001) as sim:
-            # the timeout is far above a move's duration, so only the seeded faults cause resends
+        with ControllerSimulator(faults=faults, seed=seed, time_scale=0.001) as sim:
+            # the timeout is far above a move's duration (~1 ms), so only the seeded faults
+            # (now on requests and replies) cause resends
             with ControllerLink(sim.address, timeout=0.08, retries=30, session=1) as link:
                 for i in range(12):
                     link.move(*move_of(i).astuple())
                 time.sleep(0.01)
-                return dict(link.stats)
+                return dict(link.stats), dict(sim.stats)
 
     first = run(3)
-    assert first["retransmit"] > 0 and first["duplicate"] > 0
+    assert first[0]["retransmit"] > 0 and first[0]["duplicate"] > 0
+    assert first[1]["request_duplicated"] > 0 and first[1]["request_lost"] > 0
     assert run(3) == first
 
 
