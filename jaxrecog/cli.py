@@ -153,8 +153,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     # inspect --------------------------------------------------------------
     p = add("inspect", "summarise a model file or an image database",
-            "Print a summary of a model file (.npz) or an image database folder; optionally\n"
-            "draw its eigenimages (model) or occluder examples (database).")
+            "Print a summary of a model file (.npz; with a calibrated model, its variance factors\n"
+            "per camera and position) or an image database folder; optionally draw its\n"
+            "eigenimages (model) or occluder examples (database).")
     p.add_argument("path", metavar="PATH", help="model file or database folder")
     p.add_argument("--plot-dir", metavar="FOLDER",
                    help="write figures here: eigenimages (model) or occlusion examples (database)")
@@ -228,10 +229,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     # demo -----------------------------------------------------------------
     p = add("demo", "what `make demo` runs: render, train, a short campaign, plots",
-            "Render a small synthetic database, train DB1 and DB2, run a short case (iii)\n"
-            "campaign (occluded scenes, DB2 model) with the MI planners (class and state targets),\n"
-            "print the table and write "
-            "the plots.")
+            "Render a small synthetic database, train DB1 and DB2 (and print their summaries), run\n"
+            "a short case (iii) campaign (occluded scenes, DB2 model) with the MI planners (class and\n"
+            "state targets), print the table and write the plots.")
     p.add_argument("--out", default="out/demo", metavar="FOLDER", help="output folder")
     p.add_argument("--trials", type=_positive, default=10, help="trials per object")
     p.add_argument("--planners", nargs="+", choices=PLANNERS, default=["mi-class", "mi"], metavar="PLANNER",
@@ -369,11 +369,7 @@ def cmd_train(args) -> int:
         raise UsageError(f"--components must be an integer >= 1 or a fraction in (0, 1], got {args.components}")
     calibrate = None
     if args.calibrate:
-        try:
-            calibrate = importlib.import_module("jaxrecog.calibration").calibrate_model
-        except (ImportError, AttributeError):
-            raise CLIError("--calibrate needs jaxrecog.calibration.calibrate_model, which this build "
-                           "does not have yet") from None
+        from .calibration import calibrate_model as calibrate
     db = load_database(args.database)
     with bar(sum(db.positions), f"train {args.kind}", "pos") as b:
         model, info = train_model(db, kind=args.kind, n_components=comps, samples_per_image=args.samples,
@@ -405,6 +401,39 @@ def _database_summary(db) -> str:
     ])
 
 
+def _calibration_lines(model) -> list[str]:
+    """Each calibrated camera's variance factors ``[V, L]``, per position: one
+    row per occlusion level (one row when every level has the same factors)."""
+    import numpy as np
+
+    lines = []
+    for i, cam in enumerate(model.cameras):
+        if cam.calibration is None:
+            continue
+        f = np.asarray(cam.calibration, dtype=float)
+        lines.append(f"  camera {i} variance factors, positions 0..{f.shape[0] - 1}:")
+        if np.all(f == f[:, :1]):
+            rows = [("all levels", f[:, 0])]
+        else:
+            rows = [(f"level {lv:.2f}", f[:, j]) for j, lv in enumerate(model.levels)]
+        lines += [f"    {name}: " + " ".join(f"{x:.3g}" for x in r) for name, r in rows]
+    return lines
+
+
+def _model_report(path, model=None) -> str:
+    """What ``inspect`` prints for a model file: its summary, how it was
+    trained and, when calibrated, the variance factors per camera and position."""
+    from .modelfile import load_model_meta
+
+    model = _load_model(str(path)) if model is None else model
+    lines = [f"model file {path}", model.summary()]
+    train = load_model_meta(path).get("training") or {}
+    if train:
+        keys = ("kind", "K", "samples_per_image", "covariance", "seed")
+        lines.append("  training: " + ", ".join(f"{k} {train[k]}" for k in keys if k in train))
+    return "\n".join(lines + _calibration_lines(model))
+
+
 def cmd_inspect(args) -> int:
     import numpy as np
 
@@ -427,16 +456,8 @@ def cmd_inspect(args) -> int:
             written += plots.occlusion_examples(db.images[rows[0]], Path(args.plot_dir) / "occlusion_examples",
                                                 title=f"DB2 occluders on camera {args.camera}, position {args.position}")
     else:
-        from .modelfile import load_model_meta
-
         model = _load_model(str(path))
-        meta = load_model_meta(path)
-        print(f"model file {path}")
-        print(model.summary())
-        train = meta.get("training") or {}
-        if train:
-            keys = ("kind", "K", "samples_per_image", "covariance", "seed")
-            print("  training: " + ", ".join(f"{k} {train[k]}" for k in keys if k in train))
+        print(_model_report(path, model))
         if args.plot_dir:
             if args.camera >= len(model.cameras) or args.position >= model.cameras[args.camera].mu.shape[0]:
                 raise UsageError(f"the model has no camera {args.camera} position {args.position} "
@@ -841,6 +862,9 @@ def cmd_demo(args) -> int:
     settings = _make_settings(ex, values, "demo")
     prepared = ex.prepare(settings, progress=_bars(), databases=("DB1", "DB2"))
     print(f"database and DB1/DB2 models ready in {time.perf_counter() - t0:.0f} s ({settings.workdir})")
+    for kind, path in sorted(prepared.models.items()):
+        print(f"{kind} model:")
+        print(_model_report(path))
     report = ex.run_case("iii", settings, planners=list(args.planners), progress=_bars(), prepared=prepared)
     print(report.markdown())
     written = _write_report(report, "iii", out, "iii")

@@ -78,7 +78,8 @@ class Settings:
         trials_per_object: thesis: ~100.
         seed: seeds trials, occluders, training and the planners' tables.
         samples: Monte Carlo samples per configuration for MI / CRLB.
-        batch: trials run in lockstep (one vmapped planning call).
+        batch: trials run in lockstep: each step of a batch is one jitted call
+            (a ``lax.map`` over the trials, :func:`~jaxrecog.campaign.batched_step`).
         n_components: eigenspace dimension K.
         samples_per_image: augmented samples per training image.
         p_threshold, max_steps: stop rule (thesis: 0.95, 7).

@@ -22,6 +22,7 @@ these planners.
 from __future__ import annotations
 
 import math
+from typing import ClassVar
 
 import equinox as eqx
 import jax
@@ -65,8 +66,15 @@ def _tables(model, key: PRNGKeyArray, samples: int, store: str) -> K.MITables:
 
 
 class Planner(eqx.Module):
-    """Scores all configurations; higher is better."""
+    """Scores all configurations; higher is better.
 
+    ``revisits`` (a class attribute, not a field): whether the recognizer
+    takes the planner's argmax as it is, even a configuration already visited
+    (true for :class:`FixedPlanner`, which never moves); otherwise visited
+    configurations are excluded while unvisited ones remain.
+    """
+
+    revisits: ClassVar[bool] = False
     n_configs: int = eqx.field(static=True)
 
     def scores(self, prior: K.Belief, key: PRNGKeyArray) -> Float[Array, " A"]:
@@ -78,7 +86,12 @@ class MIPlanner(Planner):
 
     ``levels="belief"`` uses the predicted level distribution of each camera
     (exact for both transitions); ``levels="uniform"`` uses the thesis's
-    belief-free offline tables (P_i(k|c) = 1/L, eq. 3.9, 5.12-5.13).
+    belief-free offline tables (P_i(k|c) = 1/L, eq. 3.9, 5.12-5.13) for every
+    camera at every position and ignores the prior's level rows.  Under the
+    uniform transition that is exact only for configurations where every
+    camera moves: a camera that keeps its position keeps its levels, which the
+    offline tables treat as re-drawn, so configurations with a staying camera
+    are scored approximately; use ``levels="belief"`` for the exact value.
     """
 
     tables: K.MITables
@@ -128,6 +141,7 @@ class RandomPlanner(Planner):
 class FixedPlanner(Planner):
     """Always the same configuration (passive recognition)."""
 
+    revisits: ClassVar[bool] = True
     index: int = eqx.field(static=True, default=0)
 
     def scores(self, prior, key):

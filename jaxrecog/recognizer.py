@@ -31,7 +31,7 @@ from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 
 from . import kernels as K
 from .features import project_camera
-from .planners import FixedPlanner, Planner, model_arrays
+from .planners import Planner, model_arrays
 
 __all__ = ["Recognizer", "RecognizerState", "Decision", "restrict_cameras", "image_features"]
 
@@ -118,7 +118,8 @@ class Recognizer(eqx.Module):
         transition: ``"uniform"`` (thesis, eq. 3.9) or ``"sticky"``.
         rho: stay probability of the sticky transition.
         revisit: allow choosing a configuration already used (always true
-            for a :class:`~jaxrecog.planners.FixedPlanner`, which never moves).
+            for a planner whose ``revisits`` class attribute is true, e.g. a
+            :class:`~jaxrecog.planners.FixedPlanner`, which never moves).
     """
 
     model: object
@@ -180,7 +181,7 @@ class Recognizer(eqx.Module):
         # a non-finite score (a failed estimate) ranks below every finite one,
         # but above a configuration excluded as visited
         usable = jnp.where(jnp.isfinite(scores), scores, jnp.finfo(scores.dtype).min)
-        if self.revisit or isinstance(self.planner, FixedPlanner):
+        if self.revisit or self.planner.revisits:
             scores_for_choice = usable
         else:
             masked = jnp.where(visited, -jnp.inf, usable)

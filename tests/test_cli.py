@@ -163,6 +163,12 @@ def test_train_bad_database_and_calibrate(tiny, tmp_path):
     assert all(c.calibration is not None and np.all(np.asarray(c.calibration) >= 1.0) for c in model.cameras)
     p = run("inspect", tmp_path / "c.npz")
     assert p.returncode == 0 and "calibration" in p.stdout
+    # the factors per camera and position, as stored (one row: fitted per position, all levels alike)
+    for i, cam in enumerate(model.cameras):
+        f = np.asarray(cam.calibration, dtype=float)
+        assert np.all(f == f[:, :1])
+        assert f"  camera {i} variance factors, positions 0..{f.shape[0] - 1}:" in p.stdout
+        assert "    all levels: " + " ".join(f"{x:.3g}" for x in f[:, 0]) in p.stdout.splitlines()
 
 
 @pytest.mark.slow
@@ -294,7 +300,7 @@ def test_experiment_case_and_toml(fake_experiments, tmp_path, capsys):
 
 
 @pytest.mark.slow
-def test_demo_writes_every_plot(fake_experiments, tmp_path, capsys):
+def test_demo_writes_every_plot(fake_experiments, tiny, tmp_path, capsys):
     out = tmp_path / "demo"
     assert cli.main(["demo", "--out", str(out), "--trials", "3"]) == 0
     text = capsys.readouterr().out
@@ -306,6 +312,9 @@ def test_demo_writes_every_plot(fake_experiments, tmp_path, capsys):
         assert (out / f"{stem}.svg").is_file()
     assert "| Average |" in text
     assert fake_experiments["run_case"][0] == "iii"
+    # the prepared models' summaries, before the campaign's table
+    assert text.index("DB2 model:\nmodel file " + str(tiny["model"])) < text.index("| Average |")
+    assert "2 objects x 2 poses" in text and "kind DB2" in text
 
 
 # -- bench -------------------------------------------------------------------

@@ -3,6 +3,10 @@ and closed loops on a replayed image database."""
 
 from __future__ import annotations
 
+import dataclasses
+from typing import ClassVar
+
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import jax.random as jr
@@ -11,6 +15,7 @@ import pytest
 
 from jaxrecog import ImageDatabase, train_model
 from jaxrecog.campaign import plan_trials, run_campaign
+from jaxrecog.features import project_camera
 from jaxrecog.hardware import DatasetRig
 from jaxrecog.planners import FixedPlanner, MIPlanner, RandomPlanner, make_planner
 from jaxrecog.recognizer import Recognizer, restrict_cameras
@@ -55,16 +60,18 @@ def test_step_shapes_for_any_number_of_cameras(positions, planner, getkey):
     assert not bool(state.visited[dec.next_index]) or bool(jnp.all(state.visited))
 
 
-def test_zero_recompiles_over_50_steps(getkey):
+@pytest.mark.parametrize("name", ["random", "mi", "crlb", "crlb-det", "crlb-eig"])
+def test_zero_recompiles_over_50_steps(name, getkey):
     model = random_model()
     traces = []
+    base = make_planner(name, model, key=getkey(), samples=32)
 
-    class CountingPlanner(RandomPlanner):
+    class Counting(type(base)):
         def scores(self, prior, key):
             traces.append(1)  # runs at trace time only
             return super().scores(prior, key)
 
-    rec = Recognizer(model, CountingPlanner(12))
+    rec = Recognizer(model, Counting(**{f.name: getattr(base, f.name) for f in dataclasses.fields(base)}))
     state = rec.init(getkey())
     for i in range(50):
         images = jr.randint(getkey(), (2, 6, 8), 1, 255).astype(jnp.uint8)
@@ -74,6 +81,7 @@ def test_zero_recompiles_over_50_steps(getkey):
             n_after_warmup = len(traces)
         if bool(dec.stop):
             state = rec.init(getkey())
+        assert bool(dec.valid) and 0 <= int(dec.next_index) < 12 and dec.scores.shape == (12,)
     assert n_after_warmup == 1
     assert len(traces) == 1
 
@@ -100,6 +108,67 @@ def test_stop_rule_and_fixed_planner(getkey):
         stops.append(bool(dec.stop) or float(dec.probability) >= 0.95)
         assert int(dec.next_index) == 7
     assert stops[-1]
+
+
+def separated_model(llr=5.0):
+    """One camera, 3 positions, 2 objects x 1 pose, one level, and ``images[v, m]``
+    whose features are exactly the class means: the clean image of either
+    object gives a log-likelihood ratio of ``llr`` for it at every position."""
+    model = random_model((3,), n_objects=2, n_poses=1, levels=(0.0,))
+    images = np.random.default_rng(1).integers(1, 255, (3, 2, 6, 8)).astype(np.uint8)
+    cam = model.cameras[0]
+    g = np.stack([np.asarray(project_camera(cam, jnp.full((2,), v), jnp.asarray(images[v]))[0]) for v in range(3)])
+    d2 = ((g[:, 0] - g[:, 1]) ** 2).sum(-1)  # [V]
+    var = np.broadcast_to((d2 / (2 * llr))[:, None, None, None], (3, 2, 1, g.shape[-1]))
+    cam = eqx.tree_at(lambda c: (c.mu, c.var), cam, (jnp.asarray(g[:, :, None, :]), jnp.asarray(var, jnp.float32)))
+    return eqx.tree_at(lambda m: m.cameras, model, (cam,)), images
+
+
+def test_stop_rule_threshold_and_step_limit(getkey):
+    model, images = separated_model(llr=5.0)
+    p1 = 1 / (1 + np.exp(-5.0))  # 0.9933: above the thesis threshold, below 0.9999
+
+    def first_step(**settings):
+        rec = Recognizer(model, RandomPlanner(3), **settings)
+        state = rec.init(config=(1,))
+        return rec, rec.step(state, images[1, 1][None], getkey())
+
+    # thesis settings: one clean image of a well-separated object is enough
+    _, (state, dec) = first_step(max_steps=7)
+    assert int(state.steps) == 1 and int(dec.object) == 1
+    assert float(dec.probability) == pytest.approx(p1, rel=1e-5)
+    assert bool(dec.reached) and bool(dec.stop)
+    # a threshold very close to 1: not reached at step 1, and no stop before the limit
+    rec, (state, dec) = first_step(max_steps=7, p_threshold=0.9999)
+    assert not bool(dec.reached) and not bool(dec.stop)
+    # a second clean image doubles the evidence (llr 10: p = 0.99995) and reaches it
+    state, dec = rec.step(state, images[int(dec.next_config[0]), 1][None], getkey())
+    assert int(state.steps) == 2 and bool(dec.reached) and bool(dec.stop)
+    # the step limit alone stops, without reaching the threshold
+    _, (state, dec) = first_step(max_steps=1, p_threshold=0.9999)
+    assert bool(dec.stop) and not bool(dec.reached)
+
+
+def test_the_recognizer_reads_the_planners_revisits_attribute(getkey):
+    """Not a branch on the planner's class: any planner with ``revisits``
+    keeps its argmax even when visited, any other is moved off it."""
+    model = random_model()
+
+    class Favourite(RandomPlanner):  # always prefers configuration 0
+        def scores(self, prior, key):
+            return jax.nn.one_hot(0, self.n_configs)
+
+    class Stubborn(Favourite):
+        revisits: ClassVar[bool] = True
+
+    images = jr.randint(getkey(), (2, 6, 8), 1, 255).astype(jnp.uint8)
+    chosen = {}
+    for planner in (Favourite(12), Stubborn(12)):
+        rec = Recognizer(model, planner)
+        state, dec = rec.step(rec.init(config=(0, 0)), images, getkey())
+        chosen[type(planner).__name__] = int(dec.next_index)
+    assert chosen == {"Favourite": 1, "Stubborn": 0}
+    assert FixedPlanner.revisits and not RandomPlanner.revisits
 
 
 def test_restrict_cameras_gives_single_camera_model():
