@@ -252,11 +252,11 @@ def _version() -> str:
 # --------------------------------------------------------------------------
 
 def _require(module: str, what: str):
-    """Import ``module`` or fail with a clear message (pieces that land later)."""
+    """Import ``module`` lazily (keeps `--help` fast) or fail with one clear line, e.g. when an extra it needs is missing."""
     try:
         return importlib.import_module(module)
     except (ImportError, AttributeError) as e:
-        raise CLIError(f"{what} needs {module}, which is not available in this build ({type(e).__name__}: {e})") from e
+        raise CLIError(f"{what} needs {module}, which could not be imported ({type(e).__name__}: {e})") from e
 
 
 def _recognizer_modules():
