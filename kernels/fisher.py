@@ -94,7 +94,11 @@ def fisher_information(
         key: PRNG key for the smoothing noise eps (shared by all configurations).
         n_objects, n_poses: with ``C = n_objects * n_poses``, c = object * n_poses + pose.
         sigma_s: smoothing width (static).
-        levels: ``"belief"`` or ``"uniform"`` (P_i(k|c) = 1/L_i).
+        levels: ``"belief"`` or ``"uniform"`` (P_i(k|c) = 1/L_i for every
+            camera at every position, the belief's level rows ignored: as for
+            :func:`jaxrecog.kernels.mutual_information`, exact for the uniform
+            transition only where every camera moves, since a camera that
+            stays keeps its levels).
         with_stderr: also return the elementwise Monte Carlo standard error
             from the J independent replicates (J >= 2).  Static.
 

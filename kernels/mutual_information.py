@@ -27,10 +27,17 @@ product (see :mod:`._grid`).  Targets: ``"state"`` (thesis, I(s; g)) uses
 log p(g|s) = sum_i LD_i[v_i, c, k_i, j, c, k_i]; ``"class"`` (I(c; g), levels
 marginalised) uses log p(g|c) = sum_i T_i[v_i, c, k_i, j, c].
 
-Under the uniform transition (eq. 3.9, P_i(k'|c') = 1/L) T_i does not depend
-on the belief: ``mi_tables(..., store="uniform")`` precomputes it (the exact
-form of the thesis's offline trick, eq. 5.12-5.13) and
-``mutual_information(..., levels="uniform")`` uses it.
+With P_i(k'|c') = 1/L_i for every camera and position, T_i does not depend on
+the belief: ``mi_tables(..., store="uniform")`` precomputes it (the thesis's
+offline trick, eq. 5.12-5.13) and ``mutual_information(..., levels="uniform")``
+uses it.  That variant treats every camera's levels as re-drawn uniformly at
+every step, *including a camera that stays where it is*.  Under the thesis's
+uniform transition (eq. 3.9: P_alpha = 1/L only for a camera that moves; a
+camera that does not move keeps its levels) it is therefore exact only on
+configurations where every camera moves; on a configuration where some camera
+keeps its position it ignores that camera's kept level rows and is an
+approximation.  The exact value for every configuration is ``levels="belief"``
+with the predicted prior of :func:`jaxrecog.kernels.transition_per_position`.
 
 Samples per configuration: C * prod_i L_i * J (see :func:`samples_per_configuration`).
 """
@@ -208,10 +215,16 @@ def mutual_information(
         belief: the predicted prior; level rows ``[C, L_i]`` or per position
             ``[V_i, C, L_i]`` (:func:`jaxrecog.kernels.transition_per_position`).
         target: ``"state"`` or ``"class"`` (static).
-        levels: ``"belief"`` uses the belief's P_i(k|c) (needs ``tables.ld``);
-            ``"uniform"`` uses P_i(k|c) = 1/L_i and the precomputed
-            ``tables.t_uniform`` (the exact offline-table variant; the belief's
-            level rows are ignored).  Static.
+        levels: ``"belief"`` uses the belief's P_i(k|c) (needs ``tables.ld``;
+            exact for any transition when given the per-position prediction).
+            ``"uniform"`` uses P_i(k|c) = 1/L_i for every camera at every
+            position and the precomputed ``tables.t_uniform``; the belief's
+            level rows are ignored (only P(c) is used).  This is the value
+            under "every camera's levels are re-drawn": equal to the
+            ``"belief"`` value of the uniform-transition prediction on
+            configurations where every camera moves, an approximation on those
+            where some camera stays (it keeps its levels under eq. 3.9; see the
+            module docstring).  Static.
         with_stderr: also return the Monte Carlo standard error, from the J
             independent replicates (needs J >= 2).  Static.
 

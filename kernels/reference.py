@@ -96,9 +96,16 @@ def joint_transition_ref(log_p, moved, kind="uniform", rho=0.9):
 # --- Mutual Information (eq. 5.5-5.13) -------------------------------------------------------
 
 
-def _joint_logliks(gs, cfg, mus, vars):
+def _camera_loglik_ref(g, mus, vars, chols, i, v):
+    """log p(g_i | c', k', v) -> [C, L_i], diagonal (``vars``) or full (``chols``) covariance."""
+    if chols is not None:
+        return log_likelihood_full_ref(g, mus[i][v], chols[i][v])
+    return log_likelihood_ref(g, mus[i][v], vars[i][v])
+
+
+def _joint_logliks(gs, cfg, mus, vars, chols=None):
     """log p(g | s', a) for every joint state s' -> [C, L_0, L_1, ...]."""
-    lls = [log_likelihood_ref(g, mu[v], var[v]) for g, mu, var, v in zip(gs, mus, vars, cfg)]
+    lls = [_camera_loglik_ref(g, mus, vars, chols, i, v) for i, (g, v) in enumerate(zip(gs, cfg))]
     c = lls[0].shape[0]
     out = np.zeros((c,) + tuple(ll.shape[1] for ll in lls))
     for idx in np.ndindex(*out.shape):
@@ -106,36 +113,52 @@ def _joint_logliks(gs, cfg, mus, vars):
     return out
 
 
+def _sample_ref(mus, vars, chols, zs, i, v, c, k, j):
+    """g_i = mu_i[v, c, k] + sqrt(var_i[v, c, k]) * z (diagonal) or + L_i[v, c, k] @ z (full)."""
+    z = zs[i][c, k, j]
+    if chols is not None:
+        return mus[i][v, c, k] + chols[i][v, c, k] @ z
+    return mus[i][v, c, k] + np.sqrt(vars[i][v, c, k]) * z
 
-def _stratified_samples(cfg, mus, vars, zs, log_joint):
+
+def _as_float_arrays(arrays):
+    return None if arrays is None else [np.asarray(a, float) for a in arrays]
+
+
+def _stratified_samples(cfg, mus, vars, zs, log_joint, chols=None):
     """Every (state s, P(s), replicate j, features g) of the stratified Monte Carlo
     at configuration ``cfg``: g_i = mu_i[v_i, c, k_i] + sqrt(var_i) * z_i[c, k_i, j]
-    (the kernels' common random numbers); states with P(s) = 0 are skipped."""
+    (full covariance: + L_i[v_i, c, k_i] @ z_i[c, k_i, j]), the kernels' common
+    random numbers; states with P(s) = 0 are skipped."""
     for s in np.ndindex(*log_joint.shape):
         p_s = math.exp(log_joint[s])
         if p_s == 0.0:
             continue
         c, ks = s[0], s[1:]
         for j in range(zs[0].shape[2]):
-            gs = [mus[i][cfg[i], c, ks[i]] + np.sqrt(vars[i][cfg[i], c, ks[i]]) * zs[i][c, ks[i], j] for i in range(len(mus))]
+            gs = [_sample_ref(mus, vars, chols, zs, i, cfg[i], c, ks[i], j) for i in range(len(mus))]
             yield s, p_s, j, gs
 
-def mutual_information_ref(mus, vars, zs, log_joint, target="state"):
+
+def mutual_information_ref(mus, vars, zs, log_joint, target="state", chols=None):
     """MI for every configuration from the *same* stratified samples as the kernel.
 
     Args:
-        mus, vars: per camera ``[V_i, C, L_i, K_i]``.
+        mus, vars: per camera ``[V_i, C, L_i, K_i]`` (``vars`` may be ``None``
+            when ``chols`` is given).
         zs: per camera ``[C, L_i, J, K_i]`` standard-normal draws
             (``MITables.z``); sample j of state (c, k_0, ...) at configuration
             (v_0, ...) is g_i = mu_i[v_i, c, k_i] + sqrt(var_i) * z_i[c, k_i, j].
         log_joint: ``[C, L_0, ...]`` log P(s) (the full joint belief).
         target: ``"state"`` (I(s; g)) or ``"class"`` (I(c; g)).
+        chols: per camera ``[V_i, C, L_i, K_i, K_i]`` lower Cholesky factors
+            (full covariance; then g_i = mu_i + L_i @ z_i and ``vars`` is ignored).
 
     Returns:
         ``(mi [A], per-replicate estimates [J, A])``.
     """
     mus = [np.asarray(m, float) for m in mus]
-    vars = [np.asarray(v, float) for v in vars]
+    vars, chols = _as_float_arrays(vars), _as_float_arrays(chols)
     zs = [np.asarray(z, float) for z in zs]
     log_joint = np.asarray(log_joint, float)
     positions = [m.shape[0] for m in mus]
@@ -144,9 +167,9 @@ def mutual_information_ref(mus, vars, zs, log_joint, target="state"):
     configs = list(itertools.product(*[range(v) for v in positions]))
     reps = np.zeros((j_count, len(configs)))
     for a, cfg in enumerate(configs):
-        for s, p_s, j, gs in _stratified_samples(cfg, mus, vars, zs, log_joint):
+        for s, p_s, j, gs in _stratified_samples(cfg, mus, vars, zs, log_joint, chols):
             c = s[0]
-            ll = _joint_logliks(gs, cfg, mus, vars)
+            ll = _joint_logliks(gs, cfg, mus, vars, chols)
             log_pg = logsumexp(log_joint + ll)
             if target == "state":
                 log_self = ll[s]
@@ -208,11 +231,11 @@ def mutual_information_quadrature(mus, vars, log_joint, cfg, target="state", n_g
 # --- Fisher information (eq. 5.22-5.28) ------------------------------------------------------
 
 
-def fisher_score_difference_ref(s_c, gs, cfg, mus, vars, log_joint, n_poses, sigma_s):
+def fisher_score_difference_ref(s_c, gs, cfg, mus, vars, log_joint, n_poses, sigma_s, chols=None):
     """(grad log p(g, s_c) - grad log p(s_c)) = (E[d|s_c,g] - E[d|s_c]) / sigma_s^2,
     enumerating every joint state d = (object, pose, k_0, ...)."""
     log_joint = np.asarray(log_joint, float)
-    ll = _joint_logliks(gs, cfg, mus, vars)
+    ll = _joint_logliks(gs, cfg, mus, vars, chols)
     states = list(np.ndindex(*log_joint.shape))
     d = np.array([[c // n_poses, c % n_poses] + list(ks) for c, *ks in states], float)
     logw0 = np.array([log_joint[s] for s in states]) - 0.5 * np.sum((s_c[None] - d) ** 2, -1) / sigma_s**2
@@ -222,18 +245,20 @@ def fisher_score_difference_ref(s_c, gs, cfg, mus, vars, log_joint, n_poses, sig
     return (wg @ d - w0 @ d) / sigma_s**2
 
 
-def fisher_information_ref(mus, vars, zs, draws, log_joint, n_poses, sigma_s):
+def fisher_information_ref(mus, vars, zs, draws, log_joint, n_poses, sigma_s, chols=None):
     """J_g(a) for every configuration from the same samples as the kernel.
 
     Args:
         zs: ``MITables.z``; draws: ``(eps_obj [C, J], eps_pose [C, J], eps_occ per camera
             [C, L_i, J])`` (``FisherDraws``).
+        chols: full-covariance Cholesky factors instead of ``vars`` (as in
+            :func:`mutual_information_ref`).
 
     Returns:
         ``(J [A, D, D], per-replicate [J_samples, A, D, D])``.
     """
     mus = [np.asarray(m, float) for m in mus]
-    vars = [np.asarray(v, float) for v in vars]
+    vars, chols = _as_float_arrays(vars), _as_float_arrays(chols)
     zs = [np.asarray(z, float) for z in zs]
     eps_obj, eps_pose = np.asarray(draws[0], float), np.asarray(draws[1], float)
     eps_occ = [np.asarray(e, float) for e in draws[2]]
@@ -244,13 +269,13 @@ def fisher_information_ref(mus, vars, zs, draws, log_joint, n_poses, sigma_s):
     configs = list(itertools.product(*[range(v) for v in positions]))
     reps = np.zeros((j_count, len(configs), n + 2, n + 2))
     for a, cfg in enumerate(configs):
-        for s, p_s, j, gs in _stratified_samples(cfg, mus, vars, zs, log_joint):
+        for s, p_s, j, gs in _stratified_samples(cfg, mus, vars, zs, log_joint, chols):
             c, ks = s[0], s[1:]
             s_c = np.array(
                 [c // n_poses + sigma_s * eps_obj[c, j], c % n_poses + sigma_s * eps_pose[c, j]]
                 + [ks[i] + sigma_s * eps_occ[i][c, ks[i], j] for i in range(n)]
             )
-            delta = fisher_score_difference_ref(s_c, gs, cfg, mus, vars, log_joint, n_poses, sigma_s)
+            delta = fisher_score_difference_ref(s_c, gs, cfg, mus, vars, log_joint, n_poses, sigma_s, chols)
             reps[j, a] += p_s * np.outer(delta, delta)
     return reps.mean(axis=0), reps
 

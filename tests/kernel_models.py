@@ -17,10 +17,12 @@ def random_model(rng, n_classes=4, levels=(2, 3), positions=(3, 2), dims=(3, 2),
     return tuple(mus), tuple(vars)
 
 
-def random_chols(rng, n_classes, levels, positions, dims):
+def random_chols(rng, n_classes, levels, positions, dims, scale=0.3):
+    """Per-camera lower Cholesky factors of A A^T + 0.5 I, A ~ N(0, scale^2) entries
+    (``scale=1`` gives strongly correlated, far from diagonal covariances)."""
     out = []
     for l, v, k in zip(levels, positions, dims):
-        a = rng.normal(size=(v, n_classes, l, k, k)) * 0.3
+        a = rng.normal(size=(v, n_classes, l, k, k)) * scale
         cov = a @ np.swapaxes(a, -1, -2) + 0.5 * np.eye(k)
         out.append(np.linalg.cholesky(cov))
     return tuple(out)
