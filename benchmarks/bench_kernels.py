@@ -184,10 +184,14 @@ def numpy_belief_update(belief, lls, kernel_ms, repeat=5):
 
 
 def mi_parts(tables, belief, repeat=20):
-    """Time the two stages of the MI kernel separately (what limits it):
+    """Time the stages of the MI kernel separately (what limits it):
 
-    * ``lse_over_ld``: T_i = logsumexp_k' (LD_i + log P_i(k'|c')), one exp per
-      LD entry; only the belief-level variant pays it online;
+    * ``level_tables``: T_i = logsumexp_k' (LD_i + log P_i(k'|c')) as the
+      kernel computes it (``belief_level_tables``: a batched product with the
+      offline E_i = exp(LD_i - M_i), exact fallback on underflow); only the
+      belief-level variant pays it online;
+    * ``lse_over_ld``: the same T_i by a plain logsumexp (one exp per LD
+      entry), what the kernel did before the offline E_i, for reference;
     * ``grid_mixture``: exps of the shifted T tables, the batched matmul over
       c' on the (v_0, v_1) grid and the log of the result; both variants.
     """
@@ -197,7 +201,8 @@ def mi_parts(tables, belief, repeat=20):
     positions = tuple(t.shape[0] for t in tables.ld_self)
     log_pk = [lp.astype(jnp.float32) for lp in mi_mod.per_position_levels(belief, positions)]
     lse_fn = jax.jit(lambda lds, lps: [lse(ld + lp[:, None, None, None], axis=-1) for ld, lp in zip(lds, lps)])
-    ts = lse_fn(tables.ld, log_pk)
+    level_fn = jax.jit(mi_mod.belief_level_tables)
+    ts = level_fn(tables, log_pk)
     n_c, j = tables.ld_self[0].shape[1], tables.ld_self[0].shape[3]
 
     def mixture(ts, log_pc):
@@ -206,6 +211,7 @@ def mi_parts(tables, belief, repeat=20):
 
     return {
         "ld_entries": int(sum(x.size for x in tables.ld)),
+        "level_tables": _timeit(level_fn, tables, log_pk, repeat=repeat),
         "lse_over_ld": _timeit(lse_fn, tables.ld, log_pk, repeat=repeat),
         "grid_mixture": _timeit(jax.jit(mixture), ts, belief.log_pc, repeat=repeat),
     }

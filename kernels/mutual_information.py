@@ -23,7 +23,10 @@ Online (:func:`mutual_information`) with the belief:
     log p(g | a)        = logsumexp_c' (log P(c') + sum_i T_i[v_i, c, k_i, j, c'])
 
 evaluated on the whole (v_0, v_1, ...) grid with a shifted batched matrix
-product (see :mod:`._grid`).  Targets: ``"state"`` (thesis, I(s; g)) uses
+product (see :mod:`._grid`).  T_i needs no exp over LD_i online: the tables
+also hold M_i = max_k' LD_i and E_i = exp(LD_i - M_i), and
+T_i = M_i + log sum_k' E_i P_i(k'|c') (a batched matrix product), with an
+exact fallback where that sum underflows (:func:`belief_level_tables`).  Targets: ``"state"`` (thesis, I(s; g)) uses
 log p(g|s) = sum_i LD_i[v_i, c, k_i, j, c, k_i]; ``"class"`` (I(c; g), levels
 marginalised) uses log p(g|c) = sum_i T_i[v_i, c, k_i, j, c].
 
@@ -70,12 +73,22 @@ class MITables(NamedTuple):
         t_uniform: per camera ``[V_i, C, L_i, J, C]``,
             logsumexp_k' LD_i - log L_i (``None`` with ``store="full"``).
         z: per camera ``[C, L_i, J, K_i]`` the standard-normal draws.
+        ld_max: per camera ``[V_i, C, L_i, J, C]``, M_i = max_k' LD_i (0 where
+            that is not finite); ``None`` when built with ``store="uniform"``.
+        ld_exp: per camera ``[V_i, C', L_i', C, L_i, J]`` (this axis order makes
+            the online contraction over k' a fast batched matrix product),
+            E_i = exp(LD_i - M_i) with values below the smallest normal float
+            flushed to 0; ``None`` when built with ``store="uniform"``.  With
+            these the belief path needs no exp over LD (see
+            :func:`mutual_information`).
     """
 
     ld: tuple[Float[Array, "V C L J C L"], ...] | None
     ld_self: tuple[Float[Array, "V C L J"], ...]
     t_uniform: tuple[Float[Array, "V C L J C"], ...] | None
     z: tuple[Float[Array, "C L J K"], ...]
+    ld_max: tuple[Float[Array, "V C L J C"], ...] | None = None
+    ld_exp: tuple[Float[Array, "V C L C L J"], ...] | None = None
 
 
 def samples_per_configuration(tables: MITables) -> int:
@@ -148,7 +161,7 @@ def mi_tables(
     j = int(samples_per_stratum)
     if j < 1:
         raise ValueError(f"mi_tables: samples_per_stratum must be >= 1, got {samples_per_stratum}")
-    lds, selfs, tus, zs = [], [], [], []
+    lds, selfs, tus, zs, mxs, exs = [], [], [], [], [], []
     for i, mu in enumerate(mus):
         _, c, l, k = mu.shape
         z = jr.normal(jr.fold_in(key, i), (c, l, j, k), mu.dtype)
@@ -159,6 +172,9 @@ def mi_tables(
         selfs.append(jnp.transpose(d2, (0, 2, 3, 1)))
         if store != "uniform":
             lds.append(ld)
+            mx, ex = _shifted_exp(ld)
+            mxs.append(mx)
+            exs.append(ex)
         if store != "full":
             tus.append(lse(ld, axis=-1) - math.log(l))
         zs.append(z)
@@ -167,7 +183,58 @@ def mi_tables(
         tuple(selfs),
         tuple(tus) if store != "full" else None,
         tuple(zs),
+        tuple(mxs) if store != "uniform" else None,
+        tuple(exs) if store != "uniform" else None,
     )
+
+
+def _shifted_exp(ld):
+    """(M, E): M = max over the last axis (0 where not finite, as in ``lse``) and
+    E = exp(ld - M[..., None]), flushed to 0 below the smallest normal float
+    (no subnormals: ~100x slower on x86, see :mod:`._grid`), stored as
+    ``[V, C', L', C, L, J]``."""
+    m = jnp.max(ld, axis=-1)
+    m = jnp.where(jnp.isfinite(m), m, 0.0)
+    d = ld - m[..., None]
+    floor = math.log(float(jnp.finfo(ld.dtype).tiny))
+    e = jnp.where(d < floor, 0.0, jnp.exp(jnp.maximum(d, floor)))
+    return m, jnp.transpose(e, (0, 4, 5, 1, 2, 3))
+
+
+def belief_level_tables(tables: MITables, log_pk):
+    """T_i = logsumexp_k' (LD_i + log P_i(k'|c')) per camera, ``[V_i, C, L_i, J, C]``.
+
+    Fast path (tables with ``ld_max`` / ``ld_exp``): with M_i = max_k' LD_i and
+    E_i = exp(LD_i - M_i) precomputed offline,
+
+        T_i = M_i + log sum_k' E_i[..., k'] P_i(k'|c')
+
+    (a batched matrix product over k', no exp over the LD entries online; P_i = ``weights(log P_i)``,
+    values below the smallest normal float flushed to 0).  Guard: the shift M_i
+    ignores the belief, so where the belief puts ~all its mass on levels whose
+    E_i is tiny or flushed (e.g. P_i ~ 0 on the level holding the max of LD_i),
+    the sum underflows and loses precision.  If any sum in any camera is below
+    ``tau = L_i * tiny / eps`` (or not a number), the whole call uses the exact
+    logsumexp over LD_i instead, under ``lax.cond`` (nothing is paid for it
+    when no sum underflows; under ``vmap`` both branches run).  Above ``tau``
+    the flushed terms (each below ``tiny``) change the sum by at most a relative
+    ``eps``, so the two paths agree to rounding.
+    """
+    dtype = tables.ld[0].dtype
+    finfo = jnp.finfo(dtype)
+
+    def exact(_):
+        return [lse(ld + lp[:, None, None, None], axis=-1) for ld, lp in zip(tables.ld, log_pk)]
+
+    if tables.ld_max is None or tables.ld_exp is None:
+        return exact(None)
+    fast, under = [], jnp.zeros((), bool)
+    for mx, ex, lp in zip(tables.ld_max, tables.ld_exp, log_pk):
+        tau = lp.shape[-1] * float(finfo.tiny) / float(finfo.eps)
+        s = jnp.einsum("vCKclj,vCK->vcljC", ex, weights(lp))
+        under = under | jnp.any(~(s >= tau))
+        fast.append(jnp.log(s) + mx)
+    return jax.lax.cond(under, exact, lambda _: fast, None)
 
 
 def per_position_levels(belief: Belief, positions: tuple[int, ...]):
@@ -257,7 +324,7 @@ def mutual_information(
         if tables.ld is None:
             raise ValueError("mutual_information: levels='belief' needs tables built with store='full' or 'both'")
         log_pk = [lp.astype(dtype) for lp in per_position_levels(belief, positions)]
-        ts = [lse(ld + lp[:, None, None, None], axis=-1) for ld, lp in zip(tables.ld, log_pk)]
+        ts = belief_level_tables(tables, log_pk)
 
     # E_s E_g log p(g|a): mixture over c' on the (v_0, v_1, ...) grid.
     grid_tabs = [_to_grid(t) for t in ts]  # [C, J, X_i, C']

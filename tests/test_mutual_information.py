@@ -264,3 +264,29 @@ def test_bad_arguments(rng, getkey):
         MI(tables, K.uniform_belief(4, (2,)))
     with pytest.raises(ValueError, match="C = 4"):
         MI(tables, K.uniform_belief(5, (2, 3)))
+
+
+@pytest.mark.parametrize("target", ["state", "class"])
+def test_belief_levels_fallback_when_shifted_sum_underflows(rng, getkey, target):
+    """The belief path's fast T_i = M_i + log sum_k' E_i P_i (E_i = exp(LD_i - M_i)
+    precomputed) underflows where the belief puts ~all its mass on levels whose
+    E_i is ~0; it must then fall back to the exact logsumexp, unchanged results."""
+    levels = (2, 2)
+    mus, vars = random_model(rng, 3, levels, (2, 3), (30, 30), spread=3.0)
+    b = random_belief(rng, 3, levels)
+    # camera 0: every class's mass on level 1 (level 0 at log P = -1e30)
+    lp0 = np.array(b.log_pk[0])
+    lp0[:, 0], lp0[:, 1] = -1e30, 0.0
+    b = K.Belief(jnp.asarray(b.log_pc, jnp.float32), (jnp.asarray(lp0, jnp.float32), jnp.asarray(b.log_pk[1], jnp.float32)))
+    tables = MI_TABLES(tuple(jnp.asarray(m, jnp.float32) for m in mus), tuple(jnp.asarray(v, jnp.float32) for v in vars),
+                       key=getkey(), samples_per_stratum=2)
+    # the fast path's sums do underflow here (samples of level 0 see E ~ 0 at level 1)
+    s = np.einsum("vCKclj,vCK->vcljC", np.asarray(tables.ld_exp[0], float), np.exp(lp0.astype(float))[None].repeat(2, 0))
+    fi = np.finfo(np.float32)
+    assert np.any(s < 2 * fi.tiny / fi.eps)
+    a = np.asarray(MI(tables, b, target))
+    exact = np.asarray(MI(tables._replace(ld_max=None, ld_exp=None), b, target))
+    np.testing.assert_array_equal(a, exact)
+    assert np.all(np.isfinite(a))
+    ref, _ = mutual_information_ref(mus, vars, tables.z, np.asarray(K.log_joint(b), float), target)
+    np.testing.assert_allclose(a, ref, rtol=2e-4, atol=2e-4)
