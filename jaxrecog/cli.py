@@ -200,22 +200,38 @@ def build_parser() -> argparse.ArgumentParser:
     _table_options(p)
 
     # experiment -----------------------------------------------------------
-    p = add("experiment", "run a thesis case (or a TOML experiment) and write tables + plots",
+    p = add("experiment", "run a thesis case, a TOML experiment or a campaign on an image database",
             "Run a recognition campaign as in thesis chapter 7 and write the tables (Markdown,\n"
             "JSON) and plots into --out.  CASE is a case name (i, ii, iii, single-clean,\n"
-            "single-occluded) or a TOML file with 'case' and Settings fields.")
-    p.add_argument("case", metavar="CASE", help="thesis case name or experiment TOML file")
+            "single-occluded) or a TOML file with 'case' and Settings fields; the case renders\n"
+            "and trains its own database and models (cached in --workdir).\n\n"
+            "With --rig dataset:FOLDER --model MODEL.NPZ (and no CASE) the campaign replays the\n"
+            "test split of an image database instead: every object of the model, --trials per\n"
+            "object with a random pose and start, any number of cameras and positions (the\n"
+            "model's).  A TOML file may give 'rig' and 'model' in place of 'case'.")
+    p.add_argument("case", metavar="CASE", nargs="?",
+                   help="thesis case name or experiment TOML file (leave out with --rig dataset:FOLDER)")
     p.add_argument("--out", default="out/experiment", metavar="FOLDER", help="where tables and plots go")
-    p.add_argument("--workdir", metavar="FOLDER", help="cache of the rendered database and models "
-                   "(default: OUT/work)")
+    p.add_argument("--workdir", metavar="FOLDER", help="cache of the rendered database and models, and the "
+                   "finished trials (default: OUT/work)")
+    p.add_argument("--rig", metavar="RIG",
+                   help="'synthetic' (the thesis case's rendered rig; the default) or 'dataset:FOLDER' "
+                        "(replay an image database's test split; needs --model)")
+    p.add_argument("--model", metavar="MODEL.NPZ", help="trained model file for --rig dataset:FOLDER")
     p.add_argument("--planners", nargs="+", choices=PLANNERS, metavar="PLANNER",
-                   help=f"planners to compare, from {', '.join(PLANNERS)} (default: the case's)")
+                   help=f"planners to compare, from {', '.join(PLANNERS)} (default: the case's; "
+                        "mi random on a dataset rig)")
     p.add_argument("--trials", type=_positive, help="trials per object (default: the case's)")
     p.add_argument("--samples", type=_positive, help="Monte Carlo samples of the planners")
     p.add_argument("--batch", type=_positive, help="trials run in lockstep")
     p.add_argument("--seed", type=int, help="campaign seed")
-    p.add_argument("--quick", action="store_true", help="small database and models (minutes, not hours)")
-    p.add_argument("--trace", action="store_true", help="also run one traced trial and plot its belief")
+    p.add_argument("--stride", type=_positive,
+                   help="synthetic rig: keep every STRIDE-th position of each camera (8 = a 4 x 1 table "
+                        "that renders and trains in seconds; default 1 = the thesis's 32 x 7)")
+    p.add_argument("--quick", action="store_true", help="small models and fewer planner samples "
+                   "(minutes, not hours)")
+    p.add_argument("--trace", action="store_true", help="also run one traced trial and plot its belief "
+                   "(thesis cases)")
 
     # bench ----------------------------------------------------------------
     p = add("bench", "run the benchmark scripts and merge their JSON",
@@ -229,14 +245,17 @@ def build_parser() -> argparse.ArgumentParser:
 
     # demo -----------------------------------------------------------------
     p = add("demo", "what `make demo` runs: render, train, a short campaign, plots",
-            "Render a small synthetic database, train DB1 and DB2 (and print their summaries), run\n"
+            "Render the synthetic database, train DB1 and DB2 (and print their summaries), run\n"
             "a short case (iii) campaign (occluded scenes, DB2 model) with the MI planners (class and\n"
-            "state targets), print the table and write the plots.")
+            "state targets), print the table and write the plots.  --stride 8 makes it a smoke\n"
+            "run of well under a minute (positions (4, 1), 160 images).")
     p.add_argument("--out", default="out/demo", metavar="FOLDER", help="output folder")
     p.add_argument("--trials", type=_positive, default=10, help="trials per object")
     p.add_argument("--planners", nargs="+", choices=PLANNERS, default=["mi-class", "mi"], metavar="PLANNER",
                    help=f"planners to run, from {', '.join(PLANNERS)}; the first also draws the trace "
                         "(default: mi-class mi, the class and the thesis's state target)")
+    p.add_argument("--stride", type=_positive, default=1,
+                   help="keep every STRIDE-th position of each camera (1 = the thesis's 32 x 7 table)")
     p.add_argument("--seed", type=int, default=0, help="campaign seed")
     return parser
 
@@ -428,6 +447,8 @@ def _model_report(path, model=None) -> str:
     model = _load_model(str(path)) if model is None else model
     lines = [f"model file {path}", model.summary()]
     train = load_model_meta(path).get("training") or {}
+    if isinstance(train.get("params"), dict):  # TrainingInfo.to_dict() (experiments.prepare) nests them
+        train = train["params"]
     if train:
         keys = ("kind", "K", "samples_per_image", "covariance", "seed")
         lines.append("  training: " + ", ".join(f"{k} {train[k]}" for k in keys if k in train))
@@ -646,9 +667,14 @@ def _make_settings(ex, values: dict[str, Any], where: str):
     return ex.Settings(**values)
 
 
-def _write_report(report, name: str, out: Path, thesis_key: str | None) -> list[Path]:
+def _write_report(report, name: str, out: Path, thesis_key: str | None, title: str | None = None) -> list[Path]:
+    """``case_NAME.md`` / ``.json`` and the ``campaign_NAME`` bars (PNG + SVG),
+    with the thesis's numbers as markers for a thesis case on the full table."""
     from . import plots
     from .thesis import SINGLE_CAMERA, TABLES
+
+    full_table = getattr(report.settings, "stride", 1) == 1  # a strided table is not the thesis's rig
+    thesis_key = thesis_key if full_table else None
 
     out.mkdir(parents=True, exist_ok=True)
     written = []
@@ -663,7 +689,7 @@ def _write_report(report, name: str, out: Path, thesis_key: str | None) -> list[
     # "mi-class" and "crlb-det" are variants of the thesis's "mi" / "crlb" planners
     ref = {p: TABLES[(thesis_key, p.split("-")[0])] for p in rows
            if (thesis_key, p.split("-")[0]) in TABLES} if thesis_key else {}
-    if name.startswith("single-") and name.split("-", 1)[1] in SINGLE_CAMERA:
+    if full_table and name.startswith("single-") and name.split("-", 1)[1] in SINGLE_CAMERA:
         # the thesis gives only the average for the single camera (§7.3), MI planner
         rate, views, exitp = SINGLE_CAMERA[name.split("-", 1)[1]]
         n_obj = sum(r.label != "Average" for r in next(iter(rows.values())))
@@ -671,7 +697,9 @@ def _write_report(report, name: str, out: Path, thesis_key: str | None) -> list[
                                     average=(rate, exitp, views))
         ref = {p: avg for p in rows if p.startswith("mi")}
     written += plots.campaign_bars(rows, out / f"campaign_{name}", thesis=ref,
-                                   title=f"Case ({name}): {report.settings.trials_per_object} trials per object"
+                                   title=(title or f"Case ({name})")
+                                         + ("" if full_table else f", every {report.settings.stride}th position")
+                                         + f": {report.settings.trials_per_object} trials per object"
                                          + (", markers: thesis" if ref else ""))
     return written
 
@@ -689,11 +717,21 @@ def _trace_plot(ex, settings, out: Path, planner: str = "mi", obj: int = 5, prep
     probs = np.asarray(res.object_probs, dtype=float)
     M = probs.shape[1]
     probs = np.vstack([np.full((1, M), 1.0 / M), probs])
-    ref = np.asarray(TABLE_7_8) if M == len(TABLE_7_8[0]) and obj == 5 and case == "iii" else None
+    thesis_rig = getattr(settings, "stride", 1) == 1
+    ref = np.asarray(TABLE_7_8) if thesis_rig and M == len(TABLE_7_8[0]) and obj == 5 and case == "iii" else None
     scene = "occluded" if ex.CASES[case].occluded else "clean"
     return list(plots.belief_lines(probs, out / "belief_trace", true_object=res.object, reference=ref,
                                    title=f"Belief per step: object {res.object + 1} (index {res.object}), "
                                          f"pose {res.pose}, {planner.upper()}, case {case} ({scene})"))
+
+
+def _dataset_folder(rig: str) -> str:
+    if not rig.startswith("dataset:"):
+        raise UsageError(f"--rig {rig!r}: expected 'synthetic' or 'dataset:FOLDER'")
+    folder = rig[len("dataset:"):]
+    if not folder:
+        raise UsageError("--rig dataset:FOLDER needs a folder")
+    return folder
 
 
 def cmd_experiment(args, file_settings: dict[str, Any] | None = None) -> int:
@@ -701,24 +739,48 @@ def cmd_experiment(args, file_settings: dict[str, Any] | None = None) -> int:
     values: dict[str, Any] = {}
     planners = args.planners
     name = args.case
-    if name.endswith(".toml") or Path(name).is_file():
+    rig, model = args.rig, args.model
+    if name is not None and (name.endswith(".toml") or Path(name).is_file()):
         from .config import ConfigFileError, load_settings
 
+        path = name
         try:
-            data = load_settings_flat(name)
+            data = load_settings_flat(path)
         except ConfigFileError as e:
             raise UsageError(str(e)) from None
-        if "case" not in data:
-            raise UsageError(f"experiment file {name}: needs a 'case' key ({', '.join(ex.CASES)})")
-        name = str(data.pop("case"))
+        file_rig, file_model = data.pop("rig", None), data.pop("model", None)
+        rig = rig if rig is not None else file_rig
+        model = model if model is not None else file_model
+        if "case" not in data and rig in (None, "synthetic"):
+            raise UsageError(f"experiment file {path}: needs a 'case' key ({', '.join(ex.CASES)}) "
+                             "or 'rig' = 'dataset:FOLDER' and 'model'")
+        name = str(data.pop("case")) if "case" in data else None
         if planners is None and "planners" in data:
             planners = list(data.pop("planners"))
         data.pop("planners", None)
         values.update(data)
-    if name not in ex.CASES:
-        raise UsageError(f"unknown case {name!r}; choose {', '.join(ex.CASES)} or a TOML file")
+    dataset = rig is not None and str(rig) != "synthetic"
+    if dataset:
+        folder = _dataset_folder(str(rig))
+        if name is not None:
+            raise UsageError(f"--rig {rig} replays a database, not a thesis case: leave out the case ({name})")
+        if not model:
+            raise UsageError("--rig dataset:FOLDER needs --model MODEL.NPZ (a model file trained on the database)")
+        if args.trace:
+            raise UsageError("--trace works with the thesis cases (synthetic rig) only")
+        if (args.stride or values.get("stride", 1)) != 1:
+            raise UsageError("--stride selects positions of the synthetic rig; a database has its own positions")
+    else:
+        if model:
+            raise UsageError("--model is used with --rig dataset:FOLDER only (a thesis case trains its own models)")
+        if name is None:
+            raise UsageError("give a CASE (" + ", ".join(ex.CASES) + ") or an experiment TOML file, "
+                             "or --rig dataset:FOLDER --model MODEL.NPZ")
+        if name not in ex.CASES:
+            raise UsageError(f"unknown case {name!r}; choose {', '.join(ex.CASES)} or a TOML file")
     out = Path(args.out)
-    over = {"trials_per_object": args.trials, "samples": args.samples, "batch": args.batch, "seed": args.seed}
+    over = {"trials_per_object": args.trials, "samples": args.samples, "batch": args.batch, "seed": args.seed,
+            "stride": args.stride}
     values.update({k: v for k, v in over.items() if v is not None})
     if args.quick:
         for k, v in _quick_settings(ex).items():
@@ -726,14 +788,22 @@ def cmd_experiment(args, file_settings: dict[str, Any] | None = None) -> int:
     values.setdefault("workdir", args.workdir or str(out / "work"))
     if args.workdir:
         values["workdir"] = args.workdir
-    settings = _make_settings(ex, values, args.case)
+    settings = _make_settings(ex, values, args.case or "experiment")
     t0 = time.perf_counter()
-    report = ex.run_case(name, settings, planners=planners, progress=_bars())
-    print(report.markdown())
-    written = _write_report(report, name, out, name if name in ("i", "ii", "iii") else None)
-    if args.trace:
-        written += _trace_plot(ex, settings, out, planner=(planners or ["mi"])[0], case=name)
-    print(f"case {name} in {time.perf_counter() - t0:.0f} s; wrote:")
+    if dataset:
+        if not hasattr(ex, "run_dataset"):
+            raise CLIError("jaxrecog.experiments has no run_dataset (this build is incomplete)")
+        report = ex.run_dataset(folder, model, settings, planners=planners, progress=_bars())
+        print(report.markdown())
+        written = _write_report(report, "dataset", out, None, title=f"Database {Path(folder).name}")
+        print(f"campaign on {folder} in {time.perf_counter() - t0:.0f} s; wrote:")
+    else:
+        report = ex.run_case(name, settings, planners=planners, progress=_bars())
+        print(report.markdown())
+        written = _write_report(report, name, out, name if name in ("i", "ii", "iii") else None)
+        if args.trace:
+            written += _trace_plot(ex, settings, out, planner=(planners or ["mi"])[0], case=name)
+        print(f"case {name} in {time.perf_counter() - t0:.0f} s; wrote:")
     for p in written:
         print(f"  {p}")
     return 0
@@ -746,7 +816,8 @@ def _bars() -> bool:
 
 
 #: "Quick" runs (demo, ``experiment --quick``): fewer Monte Carlo and training
-#: samples and a smaller eigenspace; the database is still the thesis's 32 x 7.
+#: samples and a smaller eigenspace; the database is still the thesis's 32 x 7
+#: (``--stride`` thins it).
 QUICK = {"samples": 256, "samples_per_image": 30, "n_components": 12}
 
 
@@ -858,6 +929,7 @@ def cmd_demo(args) -> int:
     out = Path(args.out)
     t0 = time.perf_counter()
     values = {"workdir": str(out / "work"), "trials_per_object": args.trials, "seed": args.seed}
+    values["stride"] = args.stride
     values.update(_quick_settings(ex))
     settings = _make_settings(ex, values, "demo")
     prepared = ex.prepare(settings, progress=_bars(), databases=("DB1", "DB2"))

@@ -1,11 +1,20 @@
-"""The thesis's experiments (chapter 7) on the synthetic rig.
+"""The thesis's experiments (chapter 7) on the synthetic rig, and campaigns
+on a stored image database.
 
 ``prepare`` renders the training database and trains the DB1 and DB2 sensor
 models (cached in the work folder); ``run_case`` runs one case with several
 planners on the *same* trials (same poses, initial configurations and
 occluder layouts per trial) and returns the thesis-shaped tables.
 Observations are rendered images with capture noise — never samples of the
-Gaussian model under test.
+Gaussian model under test.  ``Settings.stride`` thins the thesis's 32 x 7
+table (every ``stride``-th position per camera) for quick runs; each stride
+has its own cached database and models.
+
+``run_dataset`` runs the same protocol (every object, random pose and start
+per trial, planners on the same trials) on any image database in the folder
++ ``manifest.csv`` format with a trained model file: a
+:class:`~jaxrecog.hardware.DatasetRig` replays its ``test`` split, with as
+many cameras and positions as the model has.
 
 Cases (DESIGN.md §4):
 
@@ -44,14 +53,17 @@ from .campaign import TrialSpec, plan_trials, run_campaign
 from .results import ObjectRow, TrialResult, TrialStore, summarize, table_json, table_markdown
 from .thesis import SINGLE_CAMERA, TABLES
 
-__all__ = ["Case", "CASES", "Settings", "Prepared", "CaseReport", "prepare", "make_rig", "run_case", "run_trace"]
+__all__ = [
+    "Case", "CASES", "DATASET_PLANNERS", "Settings", "Prepared", "CaseReport", "prepare", "make_rig", "rig_table",
+    "results_dir", "run_case", "run_dataset", "run_trace",
+]
 
 
 @dataclasses.dataclass(frozen=True)
 class Case:
     name: str
     title: str
-    database: str  # "DB1" | "DB2"
+    database: str  # "DB1" | "DB2"; for run_dataset: the database folder
     occluded: bool
     cameras: tuple[int, ...] | None  # None = all cameras
     planners: tuple[str, ...]
@@ -85,6 +97,11 @@ class Settings:
         p_threshold, max_steps: stop rule (thesis: 0.95, 7).
         capture_noise: (brightness sd, pixel sd, max shift px) of every capture.
         transition: "uniform" (thesis) or "sticky".
+        stride: keep every ``stride``-th position of each camera of the thesis
+            table (``views[::stride]``, as ``jaxrecog render --stride``): 1 =
+            the full 32 x 7 table; 8 = (4, 1) positions, a database of 160
+            images that renders and trains in seconds (tests, smoke runs).
+            The database and model files of each stride are cached apart.
     """
 
     workdir: Path = Path("out/experiments")
@@ -98,11 +115,14 @@ class Settings:
     max_steps: int = 7
     capture_noise: tuple[float, float, int] = (0.05, 2.0, 2)
     transition: str = "uniform"
+    stride: int = 1
 
     def __post_init__(self):
         object.__setattr__(self, "workdir", Path(self.workdir))
         if self.trials_per_object < 1:
             raise ValueError("trials_per_object must be >= 1")
+        if isinstance(self.stride, bool) or not isinstance(self.stride, int) or self.stride < 1:
+            raise ValueError(f"stride must be an integer >= 1, got {self.stride!r}")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -136,27 +156,46 @@ def _run_id(settings: Settings, model_path: Path) -> str:
     return h.hexdigest()[:10]
 
 
+def rig_table(settings: Settings):
+    """The thesis table (:func:`~jaxrecog.hardware.positions.default_table`)
+    with every ``settings.stride``-th position of each camera."""
+    from .hardware.positions import CameraTable, default_table
+
+    table = default_table()
+    if settings.stride == 1:
+        return table
+    return CameraTable(table.workspace, tuple(v[:: settings.stride] for v in table.views))
+
+
+def _stride_tag(settings: Settings) -> str:
+    """File-name suffix of a strided table's cache ("" for the full table,
+    so existing full-size work folders stay valid)."""
+    return "" if settings.stride == 1 else f"-stride{settings.stride}"
+
+
 def prepare(settings: Settings, *, progress: bool = False, databases: Sequence[str] = ("DB1", "DB2")) -> Prepared:
     """Render the training database (once) and train the requested models
-    (cached by their training parameters and the manifest's hash)."""
+    (cached by their training parameters and the manifest's hash).  Each
+    ``settings.stride`` has its own database folder and model files, so a
+    small run never reuses a full-size cache or the other way round."""
     from .database import load_database
     from .hardware import render_database
-    from .hardware.positions import default_table
     from .modelfile import ModelFileError, load_model_meta, save_model
     from .train import train_model
 
     work = settings.workdir
-    db_dir = work / "database"
+    tag = _stride_tag(settings)
+    db_dir = work / f"database{tag}"
     manifest = db_dir / "manifest.csv"
     if not manifest.exists():
-        table = default_table()
+        table = rig_table(settings)
         n_images = sum(table.positions) * 8 * 4
         with _progress_bar(n_images, "render database", progress) as bar:
             render_database(db_dir, table, progress=bar.update)
     db = None
     models = {}
     for kind in databases:
-        path = work / f"model-{kind.lower()}-K{settings.n_components}-S{settings.samples_per_image}-seed{settings.seed}.npz"
+        path = work / f"model-{kind.lower()}{tag}-K{settings.n_components}-S{settings.samples_per_image}-seed{settings.seed}.npz"
         fresh = False
         if path.exists():
             try:
@@ -189,11 +228,12 @@ def prepare(settings: Settings, *, progress: bool = False, databases: Sequence[s
 
 
 def make_rig(settings: Settings, cameras: tuple[int, ...] | None = None, *, seed: int = 0):
-    """The synthetic rig with the thesis table (or a subset of its cameras)."""
+    """The synthetic rig with the thesis table (every ``settings.stride``-th
+    position; or a subset of its cameras)."""
     from .hardware import Noise, SyntheticRig
-    from .hardware.positions import CameraTable, default_table
+    from .hardware.positions import CameraTable
 
-    table = default_table()
+    table = rig_table(settings)
     if cameras is not None:
         table = CameraTable(table.workspace, tuple(table.views[i] for i in cameras))
     b, p, s = settings.capture_noise
@@ -254,6 +294,12 @@ def _load(prepared: Prepared, case: Case):
     return restrict_cameras(model, case.cameras) if case.cameras is not None else model
 
 
+def results_dir(settings: Settings) -> Path:
+    """Where :meth:`CaseReport.write` puts tables by default:
+    ``workdir/results`` (``workdir/results-strideN`` for a strided table)."""
+    return settings.workdir / f"results{_stride_tag(settings)}"
+
+
 @dataclasses.dataclass
 class CaseReport:
     case: Case
@@ -263,7 +309,10 @@ class CaseReport:
     seconds: dict[str, float]
 
     def reference(self, planner: str):
-        """The thesis's (rate, exit, views) rows for this case and planner, if any."""
+        """The thesis's (rate, exit, views) rows for this case and planner, if
+        any (none on a strided table: not the thesis's rig)."""
+        if self.settings.stride != 1:
+            return None
         t = TABLES.get((self.case.name, planner.split("-")[0]))
         if t is not None:
             return [(r, e, v) for r, e, v in zip(t.rate, t.exit_prob, t.views)] + [t.average]
@@ -290,13 +339,45 @@ class CaseReport:
         }
 
     def write(self, folder: Path | None = None) -> tuple[Path, Path]:
-        folder = Path(folder or self.settings.workdir / "results")
+        folder = Path(folder or results_dir(self.settings))
         folder.mkdir(parents=True, exist_ok=True)
         md = folder / f"case-{self.case.name}.md"
         js = folder / f"case-{self.case.name}.json"
         md.write_text(self.markdown())
         js.write_text(json.dumps(self.to_json(), indent=1))
         return md, js
+
+
+def _campaign(
+    case: Case,
+    model,
+    rig,
+    specs: Sequence[TrialSpec],
+    settings: Settings,
+    planners: Sequence[str],
+    store_name: Callable[[str], str],
+    *,
+    progress: bool,
+    on_result: Callable[[str, TrialResult], None] | None,
+) -> CaseReport:
+    """Each planner on the same trials (``specs``) on ``rig``; finished trials
+    go to ``workdir/trials/<store_name(planner)>.jsonl`` (resumable)."""
+    rows, results, seconds = {}, {}, {}
+    for planner in planners:
+        rec = _recognizer(model, planner, settings)
+        store = TrialStore(settings.workdir / "trials" / f"{store_name(planner)}.jsonl")
+        t0 = time.perf_counter()
+        with _progress_bar(len(specs), f"{case.name} {planner}" if case.name == "dataset" else f"case {case.name} {planner}", progress) as bar:
+            already = len(store.load())
+            bar.update(min(already, len(specs)))
+            res = run_campaign(rec, rig, specs, key=jr.PRNGKey(settings.seed + 1), batch=settings.batch, seed=settings.seed, store=store, progress=bar.update)
+        seconds[planner] = time.perf_counter() - t0
+        results[planner] = res
+        rows[planner] = summarize(res, model.n_objects)
+        if on_result is not None:
+            for r in res:
+                on_result(planner, r)
+    return CaseReport(case, settings, rows, results, seconds)
 
 
 def run_case(
@@ -317,23 +398,80 @@ def run_case(
     model = _load(prepared, case)
     rig = make_rig(settings, case.cameras, seed=settings.seed)
     specs = _specs(case, settings, rig, model.n_objects, model.n_poses)
-    rows, results, seconds = {}, {}, {}
-    for planner in planners or case.planners:
-        rec = _recognizer(model, planner, settings)
-        run_id = _run_id(settings, prepared.models[case.database])
-        store = TrialStore(settings.workdir / "trials" / f"case-{name}-{planner}-{run_id}.jsonl")
-        t0 = time.perf_counter()
-        with _progress_bar(len(specs), f"case {name} {planner}", progress) as bar:
-            already = len(store.load())
-            bar.update(min(already, len(specs)))
-            res = run_campaign(rec, rig, specs, key=jr.PRNGKey(settings.seed + 1), batch=settings.batch, seed=settings.seed, store=store, progress=bar.update)
-        seconds[planner] = time.perf_counter() - t0
-        results[planner] = res
-        rows[planner] = summarize(res, model.n_objects)
-        if on_result is not None:
-            for r in res:
-                on_result(planner, r)
-    return CaseReport(case, settings, rows, results, seconds)
+    run_id = _run_id(settings, prepared.models[case.database])
+    return _campaign(case, model, rig, specs, settings, list(planners or case.planners),
+                     lambda planner: f"case-{name}-{planner}-{run_id}", progress=progress, on_result=on_result)
+
+
+#: Planners of :func:`run_dataset` when none are given: MI against the random baseline.
+DATASET_PLANNERS = ("mi", "random")
+
+
+def _check_database_fits(db, model, folder, model_path) -> None:
+    """One clear error before any trial when the database's test split cannot
+    serve every (camera, position, object, pose) the model's campaign visits."""
+    import numpy as np
+
+    positions = tuple(int(p) for p in model.positions)
+    if tuple(int(p) for p in db.positions) != positions:
+        raise ValueError(f"database {folder} has positions {tuple(int(p) for p in db.positions)} but model "
+                         f"{model_path} has {positions}")
+    if (int(db.n_objects), int(db.n_poses)) != (model.n_objects, model.n_poses):
+        raise ValueError(f"database {folder} has {db.n_objects} objects x {db.n_poses} poses but model "
+                         f"{model_path} has {model.n_objects} x {model.n_poses}")
+    test = np.asarray(db.split) == "test"
+    have = set(zip(*(np.asarray(getattr(db, f))[test].tolist() for f in ("camera", "position", "object", "pose"))))
+    need = [(c, v, m, p) for c, n in enumerate(positions) for v in range(n)
+            for m in range(model.n_objects) for p in range(model.n_poses)]
+    missing = [k for k in need if k not in have]
+    if missing:
+        c, v, m, p = missing[0]
+        raise ValueError(f"database {folder}: {len(missing)} of {len(need)} views have no 'test' image to replay "
+                         f"(first: camera {c}, position {v}, object {m}, pose {p})")
+
+
+def run_dataset(
+    folder,
+    model_path,
+    settings: Settings,
+    planners: Sequence[str] | None = None,
+    *,
+    progress: bool = False,
+    on_result: Callable[[str, TrialResult], None] | None = None,
+) -> CaseReport:
+    """A campaign on a stored image database with a trained model file.
+
+    A :class:`~jaxrecog.hardware.DatasetRig` replays the database's ``test``
+    split; for every object of the model, ``settings.trials_per_object``
+    trials with a random pose and a random initial configuration
+    (:func:`~jaxrecog.campaign.plan_trials`), each planner on the same trials.
+    The model file fixes the cameras and positions (any number of each);
+    the database must have a test image of every view.  Finished trials are
+    kept in ``workdir/trials`` (named by the settings, the model's and the
+    manifest's hashes), so an interrupted campaign resumes.  ``stride``,
+    ``capture_noise`` and the training settings do not apply (stored images,
+    a given model); ``stride`` must stay 1.
+    """
+    from .database import load_database
+    from .hardware import DatasetRig
+    from .modelfile import load_model
+
+    if settings.stride != 1:
+        raise ValueError("stride selects positions of the synthetic rig; a database campaign uses the "
+                         "database's own positions (leave stride at 1)")
+    model = load_model(model_path)
+    db = load_database(folder)
+    _check_database_fits(db, model, folder, model_path)
+    rig = DatasetRig(db, seed=settings.seed)
+    planners = tuple(planners or DATASET_PLANNERS)
+    case = Case("dataset", f"Image database {folder} ({model.n_objects} objects x {model.n_poses} poses, "
+                           f"positions {tuple(int(p) for p in model.positions)}), model {model_path}",
+                str(folder), False, None, planners)
+    specs = plan_trials(model.n_objects, model.n_poses, rig.positions, settings.trials_per_object, seed=settings.seed)
+    run_id = _run_id(settings, model_path)
+    db_id = db.manifest_sha256[:10]
+    return _campaign(case, model, rig, specs, settings, planners,
+                     lambda planner: f"dataset-{planner}-{run_id}-{db_id}", progress=progress, on_result=on_result)
 
 
 def run_trace(settings: Settings, *, object: int = 5, planner: str = "mi", case: str = "iii", trial: int = 0, prepared: Prepared | None = None) -> TrialResult:

@@ -1,4 +1,4 @@
-"""A small generator of synthetic image databases, for tests and the demo.
+"""Small generators of synthetic image databases, for tests and the demo.
 
 Each object is a distinct flat shape drawn with OpenCV (polygon with its own
 number of corners, gray level and stripe texture, plus an off-centre marker so
@@ -21,7 +21,7 @@ import numpy as np
 
 from .database import ImageDatabase, write_database
 
-__all__ = ["render_view", "make_database", "write_synthetic_database"]
+__all__ = ["render_view", "make_database", "write_synthetic_database", "moving_database"]
 
 
 def render_view(
@@ -110,3 +110,35 @@ def make_database(
 def write_synthetic_database(folder: str | os.PathLike, **kwargs) -> Path:
     """Generate a database with :func:`make_database` and write it to ``folder``."""
     return write_database(folder, make_database(**kwargs))
+
+
+def moving_database() -> ImageDatabase:
+    """A database whose objects can only be told apart by moving: one camera,
+    3 positions, 2 objects x 3 poses, ``24 x 32`` images, one ``train`` (clean)
+    and one ``test`` (noise sd 4) image per view.  At positions 0 and 1 the
+    two objects look identical (only the pose shows); only position 2 shows
+    which object it is — the recognizer must move there.  Deterministic."""
+    rng = np.random.default_rng(0)
+    h, w = 24, 32
+
+    def smooth(lo, hi):  # a low-frequency pattern: survives the training's pixel shifts
+        return cv2.resize(rng.uniform(lo, hi, (3, 4)), (w, h), interpolation=cv2.INTER_CUBIC)
+
+    base = np.array([[smooth(90, 160) for _ in range(3)] for _ in range(3)])  # [position, pose]
+    marks = np.array([smooth(0, 255) for _ in range(2)])  # per object, seen at position 2 only
+    imgs, cam, pos, obj, pose, split = [], [], [], [], [], []
+    for v in range(3):
+        for m in range(2):
+            for p in range(3):
+                clean = base[v, p].copy()
+                if v == 2:
+                    clean[:, : w // 2] = marks[m, :, : w // 2]
+                for s, noise in (("train", 0.0), ("test", 4.0)):
+                    img = np.clip(clean + rng.normal(0, noise, clean.shape), 0, 255).astype(np.uint8)
+                    imgs.append(img)
+                    cam.append(0)
+                    pos.append(v)
+                    obj.append(m)
+                    pose.append(p)
+                    split.append(s)
+    return ImageDatabase.from_arrays(np.stack(imgs), cam, pos, obj, pose, split)

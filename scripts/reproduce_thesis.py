@@ -4,11 +4,17 @@
     python scripts/reproduce_thesis.py --case i            # one case, its default planners
     python scripts/reproduce_thesis.py --case all          # every case + the Table 7.8 trace
     python scripts/reproduce_thesis.py --case iii --planners mi,mi-class,crlb --trials 100
+    python scripts/reproduce_thesis.py --case i --trials 1 --stride 8   # a smoke run of seconds
 
 Renders the database and trains DB1/DB2 on first use (cached in --workdir),
 prints each case's thesis-shaped table (with the thesis's numbers beside
 ours) and writes it as Markdown and JSON under WORKDIR/results.  Finished
 trials are kept in WORKDIR/trials, so an interrupted run resumes.
+
+--stride N keeps every N-th position of each camera (8: a 4 x 1 table of
+160 images): a quick check of the whole pipeline, not the thesis's rig, so
+its tables carry no thesis numbers and go to WORKDIR/results-strideN (its
+database and models are cached apart from the full table's too).
 """
 
 from __future__ import annotations
@@ -18,11 +24,11 @@ import json
 import sys
 import time
 
-from jaxrecog.experiments import CASES, Settings, prepare, run_case, run_trace
+from jaxrecog.experiments import CASES, Settings, prepare, results_dir, run_case, run_trace
 from jaxrecog.thesis import TABLE_7_8
 
 
-def trace_markdown(res) -> str:
+def trace_markdown(res, thesis: bool = True) -> str:
     steps = len(res.object_probs)
     n_objects = len(res.object_probs[0])
     head = "| Step | Initial | " + " | ".join(f"Step {i + 1}" for i in range(steps)) + " |"
@@ -34,7 +40,8 @@ def trace_markdown(res) -> str:
     cfg = " / ".join(str(c) for c in res.configurations)
     lines += ["", f"Configurations per step: {cfg}", f"True occluded fraction per step (camera 1, camera 2): {occ}",
               f"Decision: object {res.predicted_object + 1}, pose {res.predicted_pose} (true object {res.object + 1}, pose {res.pose}), p = {res.exit_prob:.3f}"]
-    lines += ["", "Thesis Table 7.8 (object 6, occluded): " + " -> ".join(f"{row[5]:.4f}" for row in TABLE_7_8)]
+    if thesis:
+        lines += ["", "Thesis Table 7.8 (object 6, occluded): " + " -> ".join(f"{row[5]:.4f}" for row in TABLE_7_8)]
     return "\n".join(lines) + "\n"
 
 
@@ -47,24 +54,34 @@ def main(argv=None) -> int:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--samples", type=int, default=1024, help="Monte Carlo samples per configuration (default: 1024)")
     p.add_argument("--batch", type=int, default=16, help="trials run in lockstep (default: 16)")
+    p.add_argument("--stride", type=int, default=1,
+                   help="keep every STRIDE-th position of each camera (default: 1, the thesis's 32 x 7 table)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     args = p.parse_args(argv)
-    settings = Settings(workdir=args.workdir, trials_per_object=args.trials, seed=args.seed, samples=args.samples, batch=args.batch)
+    if args.stride < 1:
+        p.error(f"--stride must be >= 1, got {args.stride}")
+    settings = Settings(workdir=args.workdir, trials_per_object=args.trials, seed=args.seed, samples=args.samples,
+                        batch=args.batch, stride=args.stride)
     show = not args.quiet and sys.stderr.isatty()
-    prepared = prepare(settings, progress=show)
     cases = list(CASES) + ["trace"] if args.case == "all" else [args.case]
+    unknown = [c for c in cases if c != "trace" and c not in CASES]
+    if unknown:
+        p.error(f"--case {unknown[0]!r}: choose one of {', '.join(CASES)}, 'trace' or 'all'")
+    # train only the models the chosen cases use (the trace is a case-iii trial: DB2)
+    databases = sorted({CASES[c].database if c != "trace" else CASES["iii"].database for c in cases})
+    prepared = prepare(settings, progress=show, databases=databases)
     for name in cases:
         if name == "trace":
             md = ""
             records = {}
             for planner in (args.planners or "mi,mi-class").split(","):
                 res = run_trace(settings, prepared=prepared, planner=planner)
-                md += f"### Trace of one hard trial (object 6, occluded, case iii), planner {planner}\n\n" + trace_markdown(res) + "\n"
+                md += f"### Trace of one hard trial (object 6, occluded, case iii), planner {planner}\n\n" + trace_markdown(res, settings.stride == 1) + "\n"
                 records[planner] = res.__dict__
-            out = settings.workdir / "results" / "trace.md"
+            out = results_dir(settings) / "trace.md"
             out.parent.mkdir(parents=True, exist_ok=True)
             out.write_text(md)
-            (settings.workdir / "results" / "trace.json").write_text(json.dumps(records, default=list, indent=1))
+            (results_dir(settings) / "trace.json").write_text(json.dumps(records, default=list, indent=1))
             print(md)
             print(f"wrote {out}")
             continue

@@ -293,6 +293,12 @@ def test_experiment_case_and_toml(fake_experiments, tmp_path, capsys):
     assert cli.main(["experiment", str(toml), "--out", str(out), "--seed", "5"]) == 0
     name, settings, planners = fake_experiments["run_case"]
     assert (name, planners, settings.samples, settings.seed) == ("iii", ["crlb"], 99, 5)
+    # --stride reaches the Settings (a thinned table: no thesis markers, cached apart)
+    assert cli.main(["--quiet", "experiment", "i", "--out", str(out), "--stride", "8", "--planners", "mi"]) == 0
+    assert fake_experiments["run_case"][1].stride == 8
+    toml.write_text('case = "i"\n[settings]\nstride = 4\n')
+    assert cli.main(["--quiet", "experiment", str(toml), "--out", str(out)]) == 0
+    assert fake_experiments["run_case"][1].stride == 4
     toml.write_text('case = "iii"\nbogus = 1\n')
     assert cli.main(["experiment", str(toml), "--out", str(out)]) == 2
     assert "bogus" in capsys.readouterr().err
@@ -303,6 +309,7 @@ def test_experiment_case_and_toml(fake_experiments, tmp_path, capsys):
 def test_demo_writes_every_plot(fake_experiments, tiny, tmp_path, capsys):
     out = tmp_path / "demo"
     assert cli.main(["demo", "--out", str(out), "--trials", "3"]) == 0
+    assert fake_experiments["prepare"].stride == 1
     text = capsys.readouterr().out
     sizes = {"campaign_iii": (900, 650), "belief_trace": (700, 450), "mi_scores": (500, 800),
              "eigenimages": (960, 282), "occlusion_examples": (1040, 845)}

@@ -20,6 +20,7 @@ from jaxrecog.hardware import DatasetRig
 from jaxrecog.planners import FixedPlanner, MIPlanner, RandomPlanner, make_planner
 from jaxrecog.recognizer import Recognizer, restrict_cameras
 from jaxrecog.sensor_model import CameraModel, SensorModel
+from jaxrecog.testing import moving_database as _moving_database
 
 
 def random_model(positions=(4, 3), n_objects=3, n_poses=2, levels=(0.0, 0.1), k=3, hw=(6, 8), seed=0):
@@ -177,33 +178,6 @@ def test_restrict_cameras_gives_single_camera_model():
     assert single.positions == (4,)
     rec = Recognizer(single, RandomPlanner(4))
     assert rec.n_configs == 4
-
-
-def _moving_database():
-    """One camera, 3 positions, 2 objects x 3 poses.  At positions 0 and 1 the
-    two objects look identical (only the pose shows); only position 2 shows
-    which object it is — the recognizer must move there."""
-    import cv2
-
-    rng = np.random.default_rng(0)
-    h, w = 24, 32
-
-    def smooth(lo, hi):  # a low-frequency pattern: survives the training's pixel shifts
-        return cv2.resize(rng.uniform(lo, hi, (3, 4)), (w, h), interpolation=cv2.INTER_CUBIC)
-
-    base = np.array([[smooth(90, 160) for _ in range(3)] for _ in range(3)])  # [position, pose]
-    marks = np.array([smooth(0, 255) for _ in range(2)])  # per object, seen at position 2 only
-    imgs, cam, pos, obj, pose, split = [], [], [], [], [], []
-    for v in range(3):
-        for m in range(2):
-            for p in range(3):
-                clean = base[v, p].copy()
-                if v == 2:
-                    clean[:, : w // 2] = marks[m, :, : w // 2]
-                for s, noise in (("train", 0.0), ("test", 4.0)):
-                    img = np.clip(clean + rng.normal(0, noise, clean.shape), 0, 255).astype(np.uint8)
-                    imgs.append(img), cam.append(0), pos.append(v), obj.append(m), pose.append(p), split.append(s)
-    return ImageDatabase.from_arrays(np.stack(imgs), cam, pos, obj, pose, split)
 
 
 @pytest.mark.slow

@@ -1,0 +1,171 @@
+"""``jaxrecog experiment --rig dataset:FOLDER --model MODEL.NPZ``: a campaign on
+a stored image database (issue 6 item 5), through the real command: tables,
+files, plots, recognition above chance on a database whose objects can only
+be told apart by moving, TOML experiment files, and the exit codes."""
+
+from __future__ import annotations
+
+import glob
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from PIL import Image
+
+from jaxrecog import cli
+from jaxrecog.database import write_database
+from jaxrecog.modelfile import save_model
+from jaxrecog.testing import moving_database, write_synthetic_database
+from jaxrecog.train import train_model
+
+
+def run(*args, timeout=180):
+    env = dict(os.environ, JAX_PLATFORMS="cpu", COLUMNS="100")
+    return subprocess.run([sys.executable, "-m", "jaxrecog.cli", *map(str, args)], capture_output=True,
+                          text=True, timeout=timeout, env=env)
+
+
+def one_error_line(proc, *needles):
+    lines = [l for l in proc.stderr.splitlines() if l.startswith("jaxrecog: error:")]
+    assert len(lines) == 1, proc.stderr
+    assert "Traceback" not in proc.stderr
+    for n in needles:
+        assert n in lines[0], lines[0]
+    return lines[0]
+
+
+@pytest.fixture(scope="module")
+def moving(tmp_path_factory):
+    """The one-camera database of :func:`jaxrecog.testing.moving_database`
+    (3 positions, 2 objects x 3 poses; the objects differ at position 2 only)
+    on disk, and its DB1 model."""
+    root = tmp_path_factory.mktemp("moving")
+    write_database(root / "db", moving_database())
+    model, info = train_model(root / "db", kind="DB1", n_components=2, samples_per_image=30, return_info=True)
+    path = save_model(root / "model.npz", model, training=info.to_dict(), manifest_sha256=info.manifest_sha256)
+    return {"root": root, "db": root / "db", "model": Path(path)}
+
+
+def _png_size(path) -> tuple[int, int]:
+    assert Path(path).stat().st_size > 1000
+    with Image.open(path) as im:
+        return im.size
+
+
+@pytest.mark.slow
+def test_campaign_on_an_image_database(moving, tmp_path):
+    out = tmp_path / "out"
+    trials = 6
+    p = run("--quiet", "experiment", "--rig", f"dataset:{moving['db']}", "--model", moving["model"],
+            "--planners", "mi", "random", "--trials", trials, "--samples", 64, "--out", out)
+    assert p.returncode == 0, p.stderr
+    text = p.stdout
+    # the thesis-shaped table per planner: per-object rows and the average, no thesis column
+    assert f"### Image database {moving['db']} (2 objects x 3 poses, positions (3,))" in text
+    for planner in ("MI", "RANDOM"):
+        assert f"**{planner} — {trials} trials per object" in text
+    assert text.count("| Average | 12 |") == 2 and text.count("| 1 | 6 |") == 2 and "Thesis" not in text
+    # files: tables and the campaign bars, their paths printed
+    for name in ("case_dataset.md", "case_dataset.json", "campaign_dataset.png", "campaign_dataset.svg"):
+        assert (out / name).is_file() and str(out / name) in text
+    assert _png_size(out / "campaign_dataset.png") == (900, 650)
+    js = json.loads((out / "case_dataset.json").read_text())
+    assert js["case"]["name"] == "dataset" and js["case"]["database"] == str(moving["db"])
+    assert set(js["tables"]) == {"mi", "random"}
+    mi_avg = js["tables"]["mi"][-1]
+    assert mi_avg["label"] == "Average" and mi_avg["trials"] == 2 * trials
+    # far above chance: 1 in 6 (object, pose) classes
+    assert mi_avg["rate"] >= 90.0
+    assert js["tables"]["random"][-1]["rate"] > 50.0
+    # per-trial records (resumable store): random poses and starts, every object
+    records = {}
+    for planner in ("mi", "random"):
+        (path,) = glob.glob(str(out / "work" / "trials" / f"dataset-{planner}-*.jsonl"))
+        records[planner] = [json.loads(l) for l in Path(path).read_text().splitlines()]
+        assert len(records[planner]) == 2 * trials
+    mi = records["mi"]
+    assert {r["object"] for r in mi} == {0, 1} and len({r["pose"] for r in mi}) > 1
+    starts = [r["configurations"][0][0] for r in mi]
+    assert len(set(starts)) > 1 and sum(s != 2 for s in starts) >= 3
+    # the objects differ only at position 2: every correct answer saw it ...
+    for r in mi + records["random"]:
+        if r["correct"]:
+            assert [2] in r["configurations"], r
+    # ... and MI moves there straight from positions 0 and 1
+    for r in mi:
+        if r["configurations"][0] != [2]:
+            assert r["configurations"][1] == [2], r
+
+    # the same campaign from an experiment TOML file: resumes from the stored trials
+    toml = tmp_path / "db.toml"
+    toml.write_text(f'rig = "dataset:{moving["db"]}"\nmodel = "{moving["model"]}"\nplanners = ["mi"]\n'
+                    f"[settings]\ntrials_per_object = {trials}\nsamples = 64\n")
+    q = run("--quiet", "experiment", toml, "--out", out)
+    assert q.returncode == 0, q.stderr
+    mi_table = text[text.index("**MI"):text.index("**RANDOM")].split("\n", 1)[1]
+    assert mi_table.strip() in q.stdout and "RANDOM" not in q.stdout
+
+
+@pytest.mark.parametrize("argv,needle", [
+    (["--rig", "dataset:DB"], "needs --model"),
+    (["--model", "m.npz"], "--model is used with --rig dataset"),
+    (["i", "--rig", "dataset:DB", "--model", "m.npz"], "leave out the case"),
+    (["--rig", "dataset:", "--model", "m.npz"], "needs a folder"),
+    (["--rig", "cameras.toml", "--model", "m.npz"], "expected 'synthetic' or 'dataset:FOLDER'"),
+    (["--rig", "dataset:DB", "--model", "m.npz", "--trace"], "--trace"),
+    (["--rig", "dataset:DB", "--model", "m.npz", "--stride", "2"], "--stride"),
+    ([], "give a CASE"),
+    (["--rig", "synthetic"], "give a CASE"),
+])
+def test_usage_errors_exit_2(argv, needle, tmp_path, capsys):
+    assert cli.main(["experiment", *argv, "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert needle in err and "usage: jaxrecog experiment" in err
+    assert not any(tmp_path.iterdir())  # nothing ran
+
+
+def test_usage_errors_from_a_toml_file(tmp_path, capsys):
+    toml = tmp_path / "e.toml"
+    toml.write_text('rig = "dataset:DB"\n')
+    assert cli.main(["experiment", str(toml), "--out", str(tmp_path / "o")]) == 2
+    assert "needs --model" in capsys.readouterr().err
+    toml.write_text('planners = ["mi"]\n')
+    assert cli.main(["experiment", str(toml), "--out", str(tmp_path / "o")]) == 2
+    assert "needs a 'case' key" in capsys.readouterr().err
+
+
+def test_missing_model_is_usage_error_in_a_subprocess(moving):
+    p = run("experiment", "--rig", f"dataset:{moving['db']}")
+    assert p.returncode == 2 and "needs --model" in p.stderr and "Traceback" not in p.stderr
+
+
+@pytest.mark.slow
+def test_runtime_failures_exit_1_with_one_line(moving, tmp_path):
+    p = run("experiment", "--rig", f"dataset:{moving['db']}", "--model", tmp_path / "nope.npz", "--out", tmp_path)
+    assert p.returncode == 1
+    one_error_line(p, "nope.npz")
+    p = run("experiment", "--rig", f"dataset:{tmp_path / 'nodb'}", "--model", moving["model"], "--out", tmp_path)
+    assert p.returncode == 1
+    one_error_line(p, "nodb")
+    # a model of another layout: refused before any trial, naming both
+    other = write_synthetic_database(tmp_path / "other", positions=(2, 2), n_objects=2, n_poses=3,
+                                     image_shape=(24, 32))
+    other = other if other.is_dir() else other.parent
+    save_model(tmp_path / "other.npz", train_model(other, kind="DB1", n_components=2, samples_per_image=4))
+    p = run("experiment", "--rig", f"dataset:{moving['db']}", "--model", tmp_path / "other.npz", "--out", tmp_path)
+    assert p.returncode == 1
+    one_error_line(p, "positions (3,)", "other.npz", "(2, 2)")
+    # a database without a test image of every view
+    db = moving_database()
+    keep = ~((db.split == "test") & (db.position == 1) & (db.object == 1))
+    from jaxrecog.database import ImageDatabase
+
+    write_database(tmp_path / "gappy", ImageDatabase.from_arrays(
+        db.images[keep], *(getattr(db, f)[keep] for f in ("camera", "position", "object", "pose", "split"))))
+    p = run("experiment", "--rig", f"dataset:{tmp_path / 'gappy'}", "--model", moving["model"], "--out", tmp_path)
+    assert p.returncode == 1
+    one_error_line(p, "gappy", "3 of 18 views have no 'test' image", "camera 0, position 1, object 1")
+    assert not (tmp_path / "case_dataset.md").exists()

@@ -1,0 +1,104 @@
+"""``Settings.stride``: the thesis campaigns end to end on a thinned table
+(every 8th position: 4 x 1 configurations, 160 rendered images), for real —
+``jaxrecog demo`` and ``scripts/reproduce_thesis.py`` render, train, run a
+campaign and write their tables and plots; each stride has its own caches."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from PIL import Image
+
+from jaxrecog.experiments import CaseReport, Settings, make_rig, results_dir, rig_table
+
+ROOT = Path(__file__).resolve().parent.parent
+ENV = dict(os.environ, JAX_PLATFORMS="cpu", COLUMNS="100")
+
+
+def png_size(path) -> tuple[int, int]:
+    assert Path(path).stat().st_size > 1000
+    with Image.open(path) as im:
+        return im.size
+
+
+def test_stride_thins_the_table_and_names_the_caches(tmp_path):
+    assert rig_table(Settings()).positions == (32, 7)
+    assert rig_table(Settings(stride=8)).positions == (4, 1)
+    assert rig_table(Settings(stride=4)).positions == (8, 2)  # as `jaxrecog render --stride 4`
+    with make_rig(Settings(stride=8), (0,)) as rig:
+        assert rig.positions == (4,)
+    assert results_dir(Settings(workdir=tmp_path)) == tmp_path / "results"
+    assert results_dir(Settings(workdir=tmp_path, stride=8)) == tmp_path / "results-stride8"
+    for bad in (0, -1, 1.5, True):
+        with pytest.raises(ValueError, match="stride"):
+            Settings(stride=bad)
+    # a strided table is not the thesis's rig: no thesis numbers beside its tables
+    from jaxrecog.experiments import CASES
+
+    assert CaseReport(CASES["i"], Settings(), {}, {}, {}).reference("mi") is not None
+    assert CaseReport(CASES["i"], Settings(stride=8), {}, {}, {}).reference("mi") is None
+
+
+def _assert_small_database(work: Path) -> None:
+    manifest = work / "database-stride8" / "manifest.csv"
+    assert len(manifest.read_text().splitlines()) == 1 + (4 + 1) * 8 * 4
+    assert not (work / "database").exists()  # the full table's cache is neither made nor used
+
+
+@pytest.mark.slow
+def test_demo_on_a_strided_table(tmp_path):
+    out = tmp_path / "demo"
+    p = subprocess.run([sys.executable, "-m", "jaxrecog.cli", "--quiet", "demo", "--stride", "8", "--trials", "1",
+                        "--planners", "mi-class", "--out", str(out)],
+                       capture_output=True, text=True, timeout=300, env=ENV)
+    assert p.returncode == 0, p.stderr
+    text = p.stdout
+    assert "positions (4, 1), 8 objects x 4 poses" in text
+    assert "training: kind DB2, K 12, samples_per_image 30" in text
+    assert "### Case (iii)" in text and "**MI-CLASS — 1 trials per object" in text
+    assert "| Average | 8 |" in text and "Thesis" not in text
+    sizes = {"campaign_iii": (900, 650), "belief_trace": (700, 450), "mi_scores": (500, 800),
+             "eigenimages": (960, 515), "occlusion_examples": (1040, 845)}
+    for stem, size in sizes.items():
+        assert str(out / f"{stem}.png") in text
+        assert png_size(out / f"{stem}.png") == size
+        assert (out / f"{stem}.svg").is_file()
+    js = json.loads((out / "case_iii.json").read_text())
+    assert js["settings"]["stride"] == 8 and js["tables"]["mi-class"][-1]["trials"] == 8
+    work = out / "work"
+    _assert_small_database(work)
+    assert sorted(x.name for x in work.glob("model-*.npz")) == [
+        "model-db1-stride8-K12-S30-seed0.npz", "model-db2-stride8-K12-S30-seed0.npz"]
+
+
+@pytest.mark.slow
+def test_reproduce_thesis_script_on_a_strided_table(tmp_path):
+    work = tmp_path / "thesis"
+    p = subprocess.run([sys.executable, str(ROOT / "scripts/reproduce_thesis.py"), "--case", "i", "--trials", "1",
+                        "--stride", "8", "--workdir", str(work), "--quiet"],
+                       capture_output=True, text=True, timeout=300, env=ENV)
+    assert p.returncode == 0, p.stderr
+    text = p.stdout
+    assert "### Case (i)" in text and "Thesis" not in text
+    for planner in ("MI", "MI-CLASS", "CRLB", "RANDOM"):  # case (i)'s planners, each on the same 8 trials
+        assert f"**{planner} — 1 trials per object" in text
+    assert text.count("| Average | 8 |") == 4
+    md = work / "results-stride8" / "case-i.md"
+    assert f"wrote {md}" in text and md.read_text().strip() in text
+    js = json.loads((work / "results-stride8" / "case-i.json").read_text())
+    assert js["settings"]["stride"] == 8 and set(js["tables"]) == {"mi", "mi-class", "crlb", "random"}
+    avg = js["tables"]["mi"][-1]
+    assert avg["label"] == "Average" and avg["rate"] > 100 / 32  # above chance (32 classes)
+    _assert_small_database(work)
+    assert not (work / "results").exists()
+    # case (i) needs the DB1 model only
+    assert [x.name for x in work.glob("model-*.npz")] == ["model-db1-stride8-K20-S100-seed0.npz"]
+    assert len(list((work / "trials").glob("case-i-*.jsonl"))) == 4
+    q = subprocess.run([sys.executable, str(ROOT / "scripts/reproduce_thesis.py"), "--case", "iv"],
+                       capture_output=True, text=True, timeout=60, env=ENV)
+    assert q.returncode == 2 and "'iv'" in q.stderr and "Traceback" not in q.stderr
