@@ -8,7 +8,9 @@
   DB2, MI) *including rendering*, and of the rendering alone.
 
 Targets (issue 6, 2-core CPU): step ≤ 5 ms for MI with 1024 samples; 800
-trials of case (iii) ≤ 60 s.  Writes JSON (default out/bench/recognizer.json).
+trials of case (iii) ≤ 60 s.  The campaign defaults draw at least 8 samples
+per state stratum (``Settings.min_per_stratum``), 9216 a configuration for
+DB2; the MI step is timed at that and at the target's 1024 (J = 1).  Writes JSON (default out/bench/recognizer.json).
 Uses (and if needed creates) the models of ``jaxrecog.experiments.prepare``.
 """
 
@@ -30,6 +32,7 @@ import jax.random as jr
 import numpy as np
 
 from jaxrecog.campaign import batched_step, run_campaign
+from jaxrecog.planners import samples_per_stratum
 from jaxrecog.experiments import CASES, Settings, _load, _recognizer, _specs, make_rig, prepare
 
 
@@ -79,6 +82,8 @@ def step_latency(model, planner: str, settings: Settings, images, repeat: int) -
         btimes.append(time.perf_counter() - t0)
     return {
         "planner": planner,
+        "samples_per_stratum": samples_per_stratum(model, settings.samples, settings.min_per_stratum)
+        if planner.startswith(("mi", "crlb")) else None,
         "compile_s": compile_s,
         "median_ms": 1e3 * float(np.median(times)),
         "min_ms": 1e3 * float(np.min(times)),
@@ -105,8 +110,13 @@ def main(argv=None) -> int:
     images = np.stack(rig.capture())
 
     latency = [step_latency(model, name, settings, images, args.repeat) for name in args.planners.split(",")]
+    # the issue's latency target is defined at 1024 samples per configuration,
+    # which for DB2 (1152 strata) is one sample per stratum: measure that too
+    one = dataclasses.replace(settings, min_per_stratum=1)
+    latency += [dict(step_latency(model, name, one, images, args.repeat), variant="samples=1024, J=1")
+                for name in args.planners.split(",") if name.startswith("mi")]
     for r in latency:
-        print(f"step {r['planner']:9s}: median {r['median_ms']:7.2f} ms (min {r['min_ms']:.2f}), "
+        print(f"step {r['planner']:9s} (J={r['samples_per_stratum']}): median {r['median_ms']:7.2f} ms (min {r['min_ms']:.2f}), "
               f"in a batch of 16: {r['batched_per_trial_ms']:.2f} ms/trial, compile {r['compile_s']:.1f} s")
 
     specs = _specs(case, settings, rig, model.n_objects, model.n_poses)[: args.trials]
@@ -144,7 +154,10 @@ def main(argv=None) -> int:
         },
         "targets": {"step_mi_ms": 5.0, "campaign_800_s": 60.0},
         "ratios": {
-            "step_mi_vs_target": next((r["median_ms"] for r in latency if r["planner"] == "mi"), float("nan")) / 5.0,
+            "step_mi_vs_target": next((r["median_ms"] for r in latency if r["planner"] == "mi" and "variant" in r),
+                                      float("nan")) / 5.0,
+            "step_mi_default_vs_target": next((r["median_ms"] for r in latency
+                                               if r["planner"] == "mi" and "variant" not in r), float("nan")) / 5.0,
             "campaign_vs_target": campaign_s * (800 / max(len(results), 1)) / 60.0,
         },
     }

@@ -173,6 +173,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--at", type=_config_tuple, metavar="V1,V2",
                    help="configuration the --images were taken at (one position per camera)")
     p.add_argument("--samples", type=_positive, default=1024, help="Monte Carlo samples of the planner")
+    p.add_argument("--min-per-stratum", type=_positive, default=8,
+                   help="at least this many samples per state (object, pose, levels): with an occlusion model "
+                        "1024 samples alone give one draw per state, too few to see a sticker view")
     p.add_argument("--top", type=_positive, default=10, help="how many configurations to list")
     p.add_argument("--plot", metavar="PNG", help="also write the scores as a heat map (PNG + SVG)")
     p.add_argument("--seed", type=int, default=0, help="PRNG seed")
@@ -193,6 +196,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--threshold", type=_probability, default=0.95, help="stop probability P_th")
     p.add_argument("--max-steps", type=_positive, default=7, help="largest number of image sets")
     p.add_argument("--samples", type=_positive, default=1024, help="Monte Carlo samples of the planner")
+    p.add_argument("--min-per-stratum", type=_positive, default=8,
+                   help="at least this many samples per state (object, pose, levels): with an occlusion model "
+                        "1024 samples alone give one draw per state, too few to see a sticker view")
     p.add_argument("--occluders", action="store_true", help="synthetic rig: cardboard boards in front of the first views (as thesis case ii/iii)")
     p.add_argument("--noise", type=float, default=2.0, help="synthetic rig: per-pixel noise (gray levels)")
     p.add_argument("--plot", metavar="PNG", help="also plot the belief over objects per step")
@@ -223,6 +229,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "mi random on a dataset rig)")
     p.add_argument("--trials", type=_positive, help="trials per object (default: the case's)")
     p.add_argument("--samples", type=_positive, help="Monte Carlo samples of the planners")
+    p.add_argument("--min-per-stratum", type=_positive, help="at least this many planner samples per state "
+                   "(default 8)")
     p.add_argument("--batch", type=_positive, help="trials run in lockstep")
     p.add_argument("--seed", type=int, help="campaign seed")
     p.add_argument("--stride", type=_positive,
@@ -521,7 +529,8 @@ def cmd_plan(args) -> int:
     elif args.at is not None:
         raise UsageError("--at is only used with --images")
     k_plan, k_score = jr.split(_key(args.seed))
-    planner = P.make_planner(args.planner, model, key=k_plan, samples=args.samples)
+    planner = P.make_planner(args.planner, model, key=k_plan, samples=args.samples,
+                             min_per_stratum=args.min_per_stratum)
     rec = R.Recognizer(model, planner)
     if imgs is not None:
         state = rec.init(config=args.at)
@@ -595,7 +604,8 @@ def cmd_recognize(args) -> int:
             raise CLIError(f"rig {args.rig} has positions {tuple(rig.positions)} but model {args.model} has "
                            f"{positions} (for the synthetic rig use the --cameras/--stride the database "
                            "was rendered with)")
-        planner = P.make_planner(args.planner, model, key=k_plan, samples=args.samples)
+        planner = P.make_planner(args.planner, model, key=k_plan, samples=args.samples,
+                             min_per_stratum=args.min_per_stratum)
         rec = R.Recognizer(model, planner, p_threshold=args.threshold, max_steps=args.max_steps)
         state = rec.init(key=None if args.start is not None else k_init, config=args.start)
         occl = None
@@ -779,7 +789,8 @@ def cmd_experiment(args, file_settings: dict[str, Any] | None = None) -> int:
         if name not in ex.CASES:
             raise UsageError(f"unknown case {name!r}; choose {', '.join(ex.CASES)} or a TOML file")
     out = Path(args.out)
-    over = {"trials_per_object": args.trials, "samples": args.samples, "batch": args.batch, "seed": args.seed,
+    over = {"trials_per_object": args.trials, "samples": args.samples,
+            "min_per_stratum": args.min_per_stratum, "batch": args.batch, "seed": args.seed,
             "stride": args.stride}
     values.update({k: v for k, v in over.items() if v is not None})
     if args.quick:
@@ -818,7 +829,7 @@ def _bars() -> bool:
 #: "Quick" runs (demo, ``experiment --quick``): fewer Monte Carlo and training
 #: samples and a smaller eigenspace; the database is still the thesis's 32 x 7
 #: (``--stride`` thins it).
-QUICK = {"samples": 256, "samples_per_image": 30, "n_components": 12}
+QUICK = {"samples": 256, "min_per_stratum": 2, "samples_per_image": 30, "n_components": 12}
 
 
 def _quick_settings(ex) -> dict[str, Any]:
@@ -969,7 +980,8 @@ def _demo_model_plots(prepared, settings, out: Path, seed: int) -> list[Path]:
 
     k1, k2 = jr.split(_key(seed))
     positions = _model_positions(model)
-    planner = P.make_planner("mi", model, key=k1, samples=getattr(settings, "samples", 256) or 256)
+    planner = P.make_planner("mi", model, key=k1, samples=getattr(settings, "samples", 256) or 256,
+                             min_per_stratum=getattr(settings, "min_per_stratum", 1))
     prior = R.Recognizer(model, planner).init(config=(0,) * len(positions)).prior
     scores = np.asarray(planner.scores(prior, k2))
     written += plots.score_heatmap(scores, positions, out / "mi_scores",

@@ -90,6 +90,10 @@ class Settings:
         trials_per_object: thesis: ~100.
         seed: seeds trials, occluders, training and the planners' tables.
         samples: Monte Carlo samples per configuration for MI / CRLB.
+        min_per_stratum: at least this many samples per state stratum
+            (c, k_1, k_2): with DB2's 1152 strata, 1024 samples alone would
+            give one draw per stratum, too few for the planner to see a
+            sticker view (:func:`jaxrecog.planners.samples_per_stratum`).
         batch: trials run in lockstep: each step of a batch is one jitted call
             (a ``lax.map`` over the trials, :func:`~jaxrecog.campaign.batched_step`).
         n_components: eigenspace dimension K.
@@ -108,6 +112,7 @@ class Settings:
     trials_per_object: int = 100
     seed: int = 0
     samples: int = 1024
+    min_per_stratum: int = 8
     batch: int = 16
     n_components: int = 20
     samples_per_image: int = 100
@@ -282,7 +287,8 @@ def _recognizer(model, planner_name: str, settings: Settings):
     from .planners import make_planner
     from .recognizer import Recognizer
 
-    planner = make_planner(planner_name, model, key=jr.PRNGKey(settings.seed), samples=settings.samples)
+    planner = make_planner(planner_name, model, key=jr.PRNGKey(settings.seed), samples=settings.samples,
+                           min_per_stratum=settings.min_per_stratum)
     return Recognizer(model, planner, p_threshold=settings.p_threshold, max_steps=settings.max_steps, transition=settings.transition)
 
 

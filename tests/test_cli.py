@@ -299,6 +299,10 @@ def test_experiment_case_and_toml(fake_experiments, tmp_path, capsys):
     toml.write_text('case = "i"\n[settings]\nstride = 4\n')
     assert cli.main(["--quiet", "experiment", str(toml), "--out", str(out)]) == 0
     assert fake_experiments["run_case"][1].stride == 4
+    # the planner's sample floor: default 8, overridable
+    assert fake_experiments["run_case"][1].min_per_stratum == 8
+    assert cli.main(["--quiet", "experiment", "i", "--out", str(out), "--min-per-stratum", "2"]) == 0
+    assert fake_experiments["run_case"][1].min_per_stratum == 2
     toml.write_text('case = "iii"\nbogus = 1\n')
     assert cli.main(["experiment", str(toml), "--out", str(out)]) == 2
     assert "bogus" in capsys.readouterr().err
