@@ -14,6 +14,7 @@ from pathlib import Path
 
 import pytest
 from PIL import Image
+from test_cli import one_error_line
 
 from jaxrecog import cli
 from jaxrecog.database import write_database
@@ -26,15 +27,6 @@ def run(*args, timeout=180):
     env = dict(os.environ, JAX_PLATFORMS="cpu", COLUMNS="100")
     return subprocess.run([sys.executable, "-m", "jaxrecog.cli", *map(str, args)], capture_output=True,
                           text=True, timeout=timeout, env=env)
-
-
-def one_error_line(proc, *needles):
-    lines = [l for l in proc.stderr.splitlines() if l.startswith("jaxrecog: error:")]
-    assert len(lines) == 1, proc.stderr
-    assert "Traceback" not in proc.stderr
-    for n in needles:
-        assert n in lines[0], lines[0]
-    return lines[0]
 
 
 @pytest.fixture(scope="module")
