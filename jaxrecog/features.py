@@ -12,9 +12,11 @@ versions for the recognizer: invalid images (non-finite, negative, all zero,
 constant) give ``g = 0`` and ``valid = False`` (a value, not an exception,
 inside traced code).
 
-Both paths divide by the brightest pixel before taking the norm, so the
-energy cannot overflow or underflow: ``y / ||y||`` is unchanged by that scale
-(eq. 4.2 is scale invariant) and is finite for every valid image.
+Neither path can overflow or underflow the energy: :func:`project`
+normalises in float64 (with training's ``eigenspace.unit_energy``), the batched
+paths divide each row by its brightest pixel before the float32 norm
+(``y / ||y||`` is unchanged by that scale, eq. 4.2), so ``y / ||y||`` is finite
+for every valid image.
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
+from .eigenspace import unit_energy
 from .sensor_model import SensorModel, CameraModel
 
 __all__ = ["ImageError", "check_image", "project", "project_batch", "project_camera"]
@@ -73,14 +76,6 @@ def check_image(image, image_shape: tuple[int, int], name: str = "image") -> np.
     return y32
 
 
-def _unit_vector(y: np.ndarray) -> np.ndarray:
-    """``y / ||y||`` (eq. 4.1-4.2) of one checked image, in float64 and scaled
-    by its brightest pixel first, so the energy neither overflows nor underflows."""
-    y = np.asarray(y, np.float64)
-    y = y / y.max()
-    return y / np.linalg.norm(y)
-
-
 @jax.jit
 def _project_one(mean_image: Float[Array, " D"], basis: Float[Array, "D K"],
                  xhat: Float[Array, " D"]) -> Float[Array, " K"]:
@@ -102,7 +97,9 @@ def project(model: SensorModel, camera: int, position: int, image, *, name: str 
         raise IndexError(f"position {position} out of range for camera {camera} "
                          f"({cam.n_positions} positions)")
     label = name or f"image (camera {camera}, position {position})"
-    xhat = _unit_vector(check_image(image, model.image_shape, label))
+    # float64 (training's normaliser): a float32-finite image's energy can
+    # neither overflow nor underflow there
+    xhat = unit_energy(check_image(image, model.image_shape, label)[None])[0]
     return _project_one(cam.mean_image[position], cam.basis[position],
                         jnp.asarray(xhat, dtype=cam.basis.dtype))
 
