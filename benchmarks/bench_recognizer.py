@@ -17,10 +17,8 @@ Uses (and if needed creates) the models of ``jaxrecog.experiments.prepare``.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import dataclasses
 import json
-import logging
 import os
 import platform
 import time
@@ -33,27 +31,8 @@ import numpy as np
 
 from jaxrecog.campaign import batched_step, run_campaign
 from jaxrecog.planners import samples_per_stratum
+from jaxrecog.testing import count_compiles
 from jaxrecog.experiments import CASES, Settings, _load, _recognizer, _specs, make_rig, prepare
-
-
-@contextlib.contextmanager
-def counting_compiles():
-    """Yield a list that collects one entry per XLA compilation in the block."""
-    found: list[str] = []
-
-    class Handler(logging.Handler):
-        def emit(self, record):
-            msg = record.getMessage()
-            if msg.startswith("Compiling "):
-                found.append(msg.split(" with ", 1)[0][len("Compiling "):])
-
-    handler, logger = Handler(), logging.getLogger("jax")
-    logger.addHandler(handler)
-    try:
-        with jax.log_compiles():
-            yield found
-    finally:
-        logger.removeHandler(handler)
 
 
 def step_latency(model, planner: str, settings: Settings, images, repeat: int) -> dict:
@@ -131,7 +110,7 @@ def main(argv=None) -> int:
     # warm-up: compiles the batched step, which the timed campaign (same
     # recognizer, same batch shape) then finds in jit's cache
     run_campaign(rec, rig, specs[: settings.batch], key=jr.PRNGKey(0), batch=settings.batch)
-    with counting_compiles() as compiled:
+    with count_compiles() as compiled:
         t0 = time.perf_counter()
         results = run_campaign(rec, rig, specs, key=jr.PRNGKey(0), batch=settings.batch)
         campaign_s = time.perf_counter() - t0
@@ -140,7 +119,7 @@ def main(argv=None) -> int:
           f"({len(results) / campaign_s:.1f} trials/s, {views:.2f} views/trial); "
           f"rendering the first views alone: {render_first_s:.1f} s")
     if compiled:
-        print(f"warning: the timed campaign compiled {len(compiled)} program(s) ({', '.join(sorted(set(compiled)))}): "
+        print(f"warning: the timed campaign compiled {sum(compiled.values())} program(s) ({', '.join(sorted(compiled))}): "
               "its time includes compilation")
 
     out = {
@@ -150,7 +129,7 @@ def main(argv=None) -> int:
         "campaign": {
             "case": "iii", "planner": "mi", "trials": len(results), "seconds": campaign_s,
             "trials_per_s": len(results) / campaign_s, "mean_views": views,
-            "render_first_views_s": render_first_s, "compiles_in_timed_run": len(compiled),
+            "render_first_views_s": render_first_s, "compiles_in_timed_run": sum(compiled.values()),
         },
         "targets": {"step_mi_ms": 5.0, "campaign_800_s": 60.0},
         "ratios": {

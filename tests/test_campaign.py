@@ -5,14 +5,9 @@ missing trials, with the same results as an uninterrupted run."""
 from __future__ import annotations
 
 import collections
-import contextlib
-import logging
-import re
 
-import jax
 import jax.random as jr
 import pytest
-from test_recognizer import _moving_database
 
 from jaxrecog import train_model
 from jaxrecog.campaign import plan_trials, run_campaign
@@ -20,35 +15,13 @@ from jaxrecog.hardware import DatasetRig
 from jaxrecog.planners import RandomPlanner, make_planner
 from jaxrecog.recognizer import Recognizer
 from jaxrecog.results import TrialStore
+from jaxrecog.testing import count_compiles, moving_database
 
 
 @pytest.fixture(scope="module")
 def moving():
-    db = _moving_database()
+    db = moving_database()
     return db, train_model(db, kind="DB1", n_components=2, samples_per_image=10)
-
-
-class _CompileLog(logging.Handler):
-    def __init__(self):
-        super().__init__(logging.DEBUG)
-        self.names: collections.Counter[str] = collections.Counter()
-
-    def emit(self, record):
-        m = re.match(r"Compiling (?:jit\()?([\w<>.-]+)", record.getMessage())
-        if m:
-            self.names[m.group(1)] += 1
-
-
-@contextlib.contextmanager
-def compiles():
-    """Count XLA compilations by function name (``jax.log_compiles``)."""
-    log, logger = _CompileLog(), logging.getLogger("jax")
-    logger.addHandler(log)
-    try:
-        with jax.log_compiles():
-            yield log.names
-    finally:
-        logger.removeHandler(log)
 
 
 @pytest.mark.parametrize("planner", ["random", "mi"])
@@ -64,16 +37,16 @@ def test_a_second_campaign_with_the_same_recognizer_compiles_nothing(moving, pla
 
     rec = recognizer()
     specs = plan_trials(2, 3, rig.positions, 3, seed=4)  # 6 trials: 2 batches of 4
-    with compiles() as first:
+    with count_compiles() as first:
         a = run_campaign(rec, rig, specs, key=jr.PRNGKey(0), batch=4)
     assert first["_batched_step"] == 1, dict(first)
-    with compiles() as second:
+    with count_compiles() as second:
         b = run_campaign(rec, rig, specs, key=jr.PRNGKey(0), batch=4)
     assert sum(second.values()) == 0, dict(second)
     assert a == b
     # an equal recognizer built afresh (new planner tables, same shapes) reuses it too
     fresh = recognizer()
-    with compiles() as third:
+    with count_compiles() as third:
         run_campaign(fresh, rig, specs[:2], key=jr.PRNGKey(1), batch=4)
     assert sum(third.values()) == 0, dict(third)
 
