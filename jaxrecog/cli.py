@@ -109,6 +109,14 @@ def _table_options(p: argparse.ArgumentParser) -> None:
     g.add_argument("--poses", type=_positive, default=4, help="poses per object (pose p at 360*p/POSES degrees)")
 
 
+def _planner_size_options(p: argparse.ArgumentParser) -> None:
+    """The planners' Monte Carlo size (``plan`` and ``recognize``)."""
+    p.add_argument("--samples", type=_positive, default=1024, help="Monte Carlo samples of the planner")
+    p.add_argument("--min-per-stratum", type=_positive, default=8,
+                   help="at least this many samples per state (object, pose, levels): with an occlusion model "
+                        "1024 samples alone give one draw per state, too few to see a sticker view")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="jaxrecog", description=__doc__, formatter_class=_Formatter)
     _global_options(parser, suppress=False)
@@ -172,10 +180,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="one gray image per camera, taken at --at (default: score the uniform belief)")
     p.add_argument("--at", type=_config_tuple, metavar="V1,V2",
                    help="configuration the --images were taken at (one position per camera)")
-    p.add_argument("--samples", type=_positive, default=1024, help="Monte Carlo samples of the planner")
-    p.add_argument("--min-per-stratum", type=_positive, default=8,
-                   help="at least this many samples per state (object, pose, levels): with an occlusion model "
-                        "1024 samples alone give one draw per state, too few to see a sticker view")
+    _planner_size_options(p)
     p.add_argument("--top", type=_positive, default=10, help="how many configurations to list")
     p.add_argument("--plot", metavar="PNG", help="also write the scores as a heat map (PNG + SVG)")
     p.add_argument("--seed", type=int, default=0, help="PRNG seed")
@@ -195,10 +200,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--planner", choices=PLANNERS, default="mi", help="view planner")
     p.add_argument("--threshold", type=_probability, default=0.95, help="stop probability P_th")
     p.add_argument("--max-steps", type=_positive, default=7, help="largest number of image sets")
-    p.add_argument("--samples", type=_positive, default=1024, help="Monte Carlo samples of the planner")
-    p.add_argument("--min-per-stratum", type=_positive, default=8,
-                   help="at least this many samples per state (object, pose, levels): with an occlusion model "
-                        "1024 samples alone give one draw per state, too few to see a sticker view")
+    _planner_size_options(p)
     p.add_argument("--occluders", action="store_true", help="synthetic rig: cardboard boards in front of the first views (as thesis case ii/iii)")
     p.add_argument("--noise", type=float, default=2.0, help="synthetic rig: per-pixel noise (gray levels)")
     p.add_argument("--plot", metavar="PNG", help="also plot the belief over objects per step")
@@ -802,8 +804,6 @@ def cmd_experiment(args, file_settings: dict[str, Any] | None = None) -> int:
     settings = _make_settings(ex, values, args.case or "experiment")
     t0 = time.perf_counter()
     if dataset:
-        if not hasattr(ex, "run_dataset"):
-            raise CLIError("jaxrecog.experiments has no run_dataset (this build is incomplete)")
         report = ex.run_dataset(folder, model, settings, planners=planners, progress=_bars())
         print(report.markdown())
         written = _write_report(report, "dataset", out, None, title=f"Database {Path(folder).name}")
@@ -939,8 +939,8 @@ def cmd_demo(args) -> int:
     ex = _experiments()
     out = Path(args.out)
     t0 = time.perf_counter()
-    values = {"workdir": str(out / "work"), "trials_per_object": args.trials, "seed": args.seed}
-    values["stride"] = args.stride
+    values = {"workdir": str(out / "work"), "trials_per_object": args.trials, "seed": args.seed,
+              "stride": args.stride}
     values.update(_quick_settings(ex))
     settings = _make_settings(ex, values, "demo")
     prepared = ex.prepare(settings, progress=_bars(), databases=("DB1", "DB2"))
