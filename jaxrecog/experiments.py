@@ -50,6 +50,7 @@ from typing import Callable, Sequence
 import jax.random as jr
 
 from .campaign import TrialSpec, plan_trials, run_campaign
+from .planners import DEFAULT_MIN_PER_STRATUM, make_planner, planner_spec
 from .results import ObjectRow, TrialResult, TrialStore, summarize, table_json, table_markdown
 from .thesis import SINGLE_CAMERA, TABLES
 
@@ -112,7 +113,7 @@ class Settings:
     trials_per_object: int = 100
     seed: int = 0
     samples: int = 1024
-    min_per_stratum: int = 8
+    min_per_stratum: int = DEFAULT_MIN_PER_STRATUM
     batch: int = 16
     n_components: int = 20
     samples_per_image: int = 100
@@ -284,7 +285,6 @@ def _specs(case: Case, settings: Settings, rig, n_objects: int, n_poses: int, ob
 
 
 def _recognizer(model, planner_name: str, settings: Settings):
-    from .planners import make_planner
     from .recognizer import Recognizer
 
     planner = make_planner(planner_name, model, key=jr.PRNGKey(settings.seed), samples=settings.samples,
@@ -319,7 +319,7 @@ class CaseReport:
         any (none on a strided table: not the thesis's rig)."""
         if self.settings.stride != 1:
             return None
-        t = TABLES.get((self.case.name, planner.split("-")[0]))
+        t = TABLES.get((self.case.name, planner_spec(planner).thesis))
         if t is not None:
             return [(r, e, v) for r, e, v in zip(t.rate, t.exit_prob, t.views)] + [t.average]
         if self.case.name.startswith("single-"):

@@ -22,7 +22,7 @@ these planners.
 from __future__ import annotations
 
 import math
-from typing import ClassVar
+from typing import Callable, ClassVar, NamedTuple
 
 import equinox as eqx
 import jax
@@ -41,7 +41,19 @@ __all__ = [
     "model_arrays",
     "make_planner",
     "samples_per_stratum",
+    "PLANNERS",
+    "ALIASES",
+    "PlannerSpec",
+    "DEFAULT_MIN_PER_STRATUM",
+    "planner_names",
+    "planner_spec",
+    "planners_markdown",
 ]
+
+
+#: Monte Carlo floor of samples per state stratum used by campaigns, the CLI and
+#: :func:`make_planner` (see :func:`samples_per_stratum` for why 8, not 1).
+DEFAULT_MIN_PER_STRATUM = 8
 
 
 def model_arrays(model):
@@ -59,7 +71,8 @@ def _n_configs(model) -> int:
 
 def samples_per_stratum(model, samples: int, min_per_stratum: int = 1) -> int:
     """J: ``samples`` per configuration rounded up to whole samples per state
-    stratum (c, k_0, ...), and at least ``min_per_stratum``.
+    stratum (c, k_0, ...), and at least ``min_per_stratum`` (default 1: no floor;
+    the planners use :data:`DEFAULT_MIN_PER_STRATUM`).
 
     The floor matters for occlusion models: with C = 32 and L = 6 levels on
     two cameras there are 1152 strata, so 1024 samples give J = 1 and each
@@ -75,7 +88,7 @@ def samples_per_stratum(model, samples: int, min_per_stratum: int = 1) -> int:
     return max(int(min_per_stratum), math.ceil(samples / strata))
 
 
-def _tables(model, key: PRNGKeyArray, samples: int, store: str, min_per_stratum: int = 1) -> K.MITables:
+def _tables(model, key: PRNGKeyArray, samples: int, store: str, min_per_stratum: int) -> K.MITables:
     """The offline sample tables shared by MI and CRLB (J from :func:`samples_per_stratum`)."""
     mus, vars, chols = model_arrays(model)
     j = samples_per_stratum(model, samples, min_per_stratum)
@@ -117,7 +130,7 @@ class MIPlanner(Planner):
 
     @classmethod
     def from_model(cls, model, *, key: PRNGKeyArray, samples: int = 1024, target: str = "state", levels: str = "belief",
-                   min_per_stratum: int = 1) -> "MIPlanner":
+                   min_per_stratum: int = DEFAULT_MIN_PER_STRATUM) -> "MIPlanner":
         """Build the offline sample tables: ``samples`` ≈ samples per configuration
         (rounded up to a whole number of samples per state stratum)."""
         tables = _tables(model, key, samples, "uniform" if levels == "uniform" else "full", min_per_stratum)
@@ -139,7 +152,7 @@ class CRLBPlanner(Planner):
 
     @classmethod
     def from_model(cls, model, *, key: PRNGKeyArray, samples: int = 1024, criterion: str = "trace", sigma_s: float = K.DEFAULT_SIGMA_S,
-                   min_per_stratum: int = 1) -> "CRLBPlanner":
+                   min_per_stratum: int = DEFAULT_MIN_PER_STRATUM) -> "CRLBPlanner":
         tables = _tables(model, key, samples, "full", min_per_stratum)
         return cls(_n_configs(model), tables, model.n_objects, model.n_poses, criterion, sigma_s)
 
@@ -167,26 +180,96 @@ class FixedPlanner(Planner):
         return jax.nn.one_hot(self.index, self.n_configs)
 
 
-def make_planner(name: str, model, *, key: PRNGKeyArray, samples: int = 1024, min_per_stratum: int = 1,
-                 **options) -> Planner:
-    """Planner by name: ``mi``, ``mi-class``, ``crlb``, ``crlb-det``,
-    ``crlb-eig``, ``random``, ``fixed``.  ``samples`` / ``min_per_stratum``:
-    Monte Carlo size of MI and CRLB (see :func:`samples_per_stratum`)."""
-    n_configs = _n_configs(model)
-    if name not in ("random", "fixed"):
-        options["min_per_stratum"] = min_per_stratum
-    if name in ("mi", "mi-state"):
-        return MIPlanner.from_model(model, key=key, samples=samples, target="state", **options)
-    if name == "mi-class":
-        return MIPlanner.from_model(model, key=key, samples=samples, target="class", **options)
-    if name in ("crlb", "crlb-trace"):
-        return CRLBPlanner.from_model(model, key=key, samples=samples, criterion="trace", **options)
-    if name == "crlb-det":
-        return CRLBPlanner.from_model(model, key=key, samples=samples, criterion="logdet", **options)
-    if name == "crlb-eig":
-        return CRLBPlanner.from_model(model, key=key, samples=samples, criterion="maxeig", **options)
-    if name == "random":
-        return RandomPlanner(n_configs)
-    if name == "fixed":
-        return FixedPlanner(n_configs, int(options.get("index", 0)))
-    raise ValueError(f"unknown planner {name!r}; choose mi, mi-class, crlb, crlb-det, crlb-eig, random or fixed")
+def _mi(target: str):
+    def build(model, *, key, samples, min_per_stratum, **options):
+        return MIPlanner.from_model(model, key=key, samples=samples, target=target, min_per_stratum=min_per_stratum, **options)
+    return build
+
+
+def _crlb(criterion: str):
+    def build(model, *, key, samples, min_per_stratum, **options):
+        return CRLBPlanner.from_model(model, key=key, samples=samples, criterion=criterion,
+                                      min_per_stratum=min_per_stratum, **options)
+    return build
+
+
+def _random(model, *, key, samples, min_per_stratum):
+    return RandomPlanner(_n_configs(model))
+
+
+def _fixed(model, *, key, samples, min_per_stratum, index: int = 0):
+    return FixedPlanner(_n_configs(model), int(index))
+
+
+class PlannerSpec(NamedTuple):
+    """One entry of :data:`PLANNERS`.
+
+    Attributes:
+        build: ``build(model, *, key, samples, min_per_stratum, **options) -> Planner``.
+        thesis: the planner column of the thesis's chapter-7 tables this planner
+            is compared with (:data:`jaxrecog.thesis.TABLES` keys ``(case, thesis)``),
+            or ``None``.
+        description: one line for ``--help`` and ``docs/planners.md``.
+    """
+
+    build: Callable[..., Planner]
+    thesis: str | None
+    description: str
+
+
+#: The planner registry: name -> :class:`PlannerSpec`.  It feeds
+#: :func:`make_planner`, the CLI's ``--planner`` choices, ``docs/planners.md``
+#: and the thesis lookup of the result tables.  A new planner is one entry here
+#: plus its kernel.
+PLANNERS: dict[str, PlannerSpec] = {
+    "mi": PlannerSpec(_mi("state"), "mi", "Mutual Information I(s; g | a) over the full state (object, pose, levels), eq. 5.10"),
+    "mi-class": PlannerSpec(_mi("class"), "mi", "Mutual Information I(c; g | a) about (object, pose), occlusion levels marginalised"),
+    "crlb": PlannerSpec(_crlb("trace"), "crlb", "Cramér-Rao bound, minimise trace(J_g^-1) (A-optimal), eq. 5.25"),
+    "crlb-det": PlannerSpec(_crlb("logdet"), "crlb", "Cramér-Rao bound, minimise log det(J_g^-1) (D-optimal)"),
+    "crlb-eig": PlannerSpec(_crlb("maxeig"), "crlb", "Cramér-Rao bound, minimise the largest eigenvalue of J_g^-1 (E-optimal)"),
+    "random": PlannerSpec(_random, "random", "a uniformly random configuration (thesis Table 7.3)"),
+    "fixed": PlannerSpec(_fixed, None, "one fixed configuration, option index (passive baseline)"),
+}
+
+#: Other spellings accepted by :func:`make_planner` (not listed as choices).
+ALIASES = {"mi-state": "mi", "crlb-trace": "crlb"}
+
+
+def planner_names() -> tuple[str, ...]:
+    """The registered planner names, in registry order (the CLI's choices)."""
+    return tuple(PLANNERS)
+
+
+def planner_spec(name: str) -> PlannerSpec:
+    """The registry entry of ``name`` (or of an alias); a ``ValueError`` naming
+    the choices for an unknown name."""
+    spec = PLANNERS.get(ALIASES.get(name, name))
+    if spec is None:
+        raise ValueError(f"unknown planner {name!r}; choose one of {', '.join(PLANNERS)}")
+    return spec
+
+
+def make_planner(name: str, model, *, key: PRNGKeyArray, samples: int = 1024,
+                 min_per_stratum: int = DEFAULT_MIN_PER_STRATUM, **options) -> Planner:
+    """Planner by registry name (:data:`PLANNERS`).  ``samples`` /
+    ``min_per_stratum``: Monte Carlo size of the sampling planners (see
+    :func:`samples_per_stratum`; planners without samples ignore them);
+    ``options`` go to the entry's constructor (e.g. ``index`` for ``fixed``)."""
+    return planner_spec(name).build(model, key=key, samples=samples, min_per_stratum=min_per_stratum, **options)
+
+
+def planners_markdown() -> str:
+    """The registry as the Markdown table of ``docs/planners.md``."""
+    lines = [
+        "# Planners",
+        "",
+        "Generated from `jaxrecog.planners.PLANNERS` by `scripts/gen_cli_docs.py`; a new planner",
+        "is one registry entry in `jaxrecog/planners.py` plus its kernel.",
+        "",
+        "| name | compared with the thesis's | what it scores |",
+        "|---|---|---|",
+    ]
+    for name, spec in PLANNERS.items():
+        lines.append(f"| `{name}` | {spec.thesis or '—'} | {spec.description} |")
+    lines += ["", "Aliases: " + ", ".join(f"`{a}` = `{n}`" for a, n in ALIASES.items()), ""]
+    return "\n".join(lines)

@@ -1,7 +1,8 @@
-"""Write docs/cli.md from the ``--help`` of ``jaxrecog`` and its subcommands.
+"""Write docs/cli.md from the ``--help`` of ``jaxrecog`` and its subcommands, and
+docs/planners.md from the planner registry.
 
-    python scripts/gen_cli_docs.py            # rewrite docs/cli.md
-    python scripts/gen_cli_docs.py --check    # exit 1 if docs/cli.md is stale
+    python scripts/gen_cli_docs.py            # rewrite both
+    python scripts/gen_cli_docs.py --check    # exit 1 if either is stale
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 TARGET = ROOT / "docs" / "cli.md"
+PLANNERS_DOC = ROOT / "docs" / "planners.md"
 
 
 def render() -> str:
@@ -45,15 +47,18 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--check", action="store_true", help="only check that docs/cli.md is up to date")
     args = ap.parse_args(argv)
-    text = render()
+    from jaxrecog.planners import planners_markdown
+
+    docs = {TARGET: render(), PLANNERS_DOC: planners_markdown()}
     if args.check:
-        if not TARGET.is_file() or TARGET.read_text() != text:
-            print(f"{TARGET} is out of date: run python scripts/gen_cli_docs.py", file=sys.stderr)
-            return 1
-        return 0
-    TARGET.parent.mkdir(parents=True, exist_ok=True)
-    TARGET.write_text(text)
-    print(f"wrote {TARGET}")
+        stale = [p for p, text in docs.items() if not p.is_file() or p.read_text() != text]
+        for p in stale:
+            print(f"{p} is out of date: run python scripts/gen_cli_docs.py", file=sys.stderr)
+        return 1 if stale else 0
+    for p, text in docs.items():
+        p.parent.mkdir(parents=True, exist_ok=True)
+        p.write_text(text)
+        print(f"wrote {p}")
     return 0
 
 

@@ -4,12 +4,13 @@ from __future__ import annotations
 
 from types import SimpleNamespace
 
+import jax.numpy as jnp
 import jax.random as jr
 import pytest
 
 from jaxrecog import train_model
 from jaxrecog.experiments import Settings
-from jaxrecog.planners import make_planner, samples_per_stratum
+from jaxrecog.planners import DEFAULT_MIN_PER_STRATUM, PLANNERS, make_planner, planner_names, planner_spec, planners_markdown, samples_per_stratum
 from jaxrecog.testing import moving_database
 
 
@@ -43,7 +44,63 @@ def test_make_planner_builds_tables_with_the_floor(name):
     strata = model.n_objects * model.n_poses
     p = make_planner(name, model, key=jr.PRNGKey(0), samples=strata, min_per_stratum=3)
     assert p.tables.ld_self[0].shape[3] == 3
-    p1 = make_planner(name, model, key=jr.PRNGKey(0), samples=strata)
+    p1 = make_planner(name, model, key=jr.PRNGKey(0), samples=strata, min_per_stratum=1)
     assert p1.tables.ld_self[0].shape[3] == 1
+    # the default floor is the campaigns' (one definition, DEFAULT_MIN_PER_STRATUM = 8)
+    p8 = make_planner(name, model, key=jr.PRNGKey(0), samples=strata)
+    assert p8.tables.ld_self[0].shape[3] == DEFAULT_MIN_PER_STRATUM == 8
     # planners without tables accept (and ignore) the option
     assert make_planner("random", model, key=jr.PRNGKey(0), min_per_stratum=3).n_configs == p.n_configs
+
+
+# -- the registry (issue 14): one mapping feeds make_planner, the CLI, the docs and the thesis lookup
+
+
+def test_registry_names_are_the_choices_and_every_entry_builds(getkey):
+    model = train_model(moving_database(), kind="DB1", n_components=2, samples_per_image=10)
+    assert planner_names() == tuple(PLANNERS)
+    assert {"mi", "mi-class", "crlb", "crlb-det", "crlb-eig", "random", "fixed"} <= set(PLANNERS)
+    prior_free = {"random", "fixed"}
+    for name, spec in PLANNERS.items():
+        p = make_planner(name, model, key=getkey(), samples=8, min_per_stratum=1)
+        assert p.n_configs == 3  # the moving database: one camera, 3 positions
+        assert spec.description and "\n" not in spec.description
+        assert (name in prior_free) == (not hasattr(p, "tables"))
+
+
+def test_registry_thesis_keys_name_real_thesis_tables():
+    from jaxrecog.thesis import TABLES
+
+    columns = {planner for (_, planner) in TABLES}
+    for name, spec in PLANNERS.items():
+        assert spec.thesis is None or spec.thesis in columns, name
+    assert planner_spec("mi-class").thesis == "mi" and planner_spec("crlb-det").thesis == "crlb"
+    assert planner_spec("fixed").thesis is None
+
+
+def test_aliases_and_unknown_names():
+    assert planner_spec("mi-state") is PLANNERS["mi"]
+    assert planner_spec("crlb-trace") is PLANNERS["crlb"]
+    with pytest.raises(ValueError, match="unknown planner 'nope'; choose one of mi, mi-class"):
+        planner_spec("nope")
+
+
+def test_a_new_planner_is_one_registry_entry(getkey, monkeypatch):
+    """Registering an entry is all it takes for make_planner to build it."""
+    from jaxrecog import planners as P
+
+    model = train_model(moving_database(), kind="DB1", n_components=2, samples_per_image=10)
+    entry = P.PlannerSpec(lambda m, *, key, samples, min_per_stratum: P.FixedPlanner(P._n_configs(m), 2), None, "test")
+    monkeypatch.setitem(P.PLANNERS, "always-three", entry)
+    assert "always-three" in planner_names()
+    p = make_planner("always-three", model, key=getkey())
+    assert int(jnp.argmax(p.scores(None, getkey()))) == 2
+
+
+def test_planners_doc_is_generated_from_the_registry():
+    from pathlib import Path
+
+    doc = Path(__file__).resolve().parents[1] / "docs" / "planners.md"
+    assert doc.read_text() == planners_markdown(), "docs/planners.md is stale: run scripts/gen_cli_docs.py"
+    for name in PLANNERS:
+        assert f"`{name}`" in doc.read_text()
