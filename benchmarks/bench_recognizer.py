@@ -32,11 +32,11 @@ import numpy as np
 from jaxrecog.campaign import batched_step, run_campaign
 from jaxrecog.planners import samples_per_stratum
 from jaxrecog.testing import count_compiles
-from jaxrecog.experiments import CASES, Settings, _load, _recognizer, _specs, make_rig, prepare
+from jaxrecog.experiments import CASES, Settings, case_model, make_recognizer, case_trials, make_rig, prepare, rig_pool
 
 
 def step_latency(model, planner: str, settings: Settings, images, repeat: int) -> dict:
-    rec = _recognizer(model, planner, settings)
+    rec = make_recognizer(model, planner, settings)
     state = rec.init(config=(3, 2))
     t0 = time.perf_counter()
     s, d = rec.step(state, images, jr.PRNGKey(0))
@@ -51,13 +51,13 @@ def step_latency(model, planner: str, settings: Settings, images, repeat: int) -
     batch = 16
     step = batched_step(rec)
     states = jax.tree.map(lambda x: jnp.stack([x] * batch), state)
-    ims = jnp.asarray(np.stack([images] * batch))
-    keys = jr.split(jr.PRNGKey(1), batch)
-    jax.block_until_ready(step(states, ims, keys))
+    args = (np.zeros(batch, bool), np.tile(np.asarray(state.config), (batch, 1)), np.stack([images] * batch),
+            jr.PRNGKey(1), np.arange(batch, dtype=np.int32), np.zeros(batch, np.int32))
+    jax.block_until_ready(step(states, *args))
     btimes = []
     for _ in range(max(3, repeat // 10)):
         t0 = time.perf_counter()
-        jax.block_until_ready(step(states, ims, keys))
+        jax.block_until_ready(step(states, *args))
         btimes.append(time.perf_counter() - t0)
     return {
         "planner": planner,
@@ -82,11 +82,11 @@ def main(argv=None) -> int:
     settings = Settings(workdir=Path(args.workdir), trials_per_object=max(1, args.trials // 8))
     prepared = prepare(settings, databases=("DB2",))
     case = CASES["iii"]
-    model = _load(prepared, case)
+    model = case_model(prepared, case)
     rig = make_rig(settings, seed=settings.seed)
     rig.reset(5, 2)
     rig.move((3, 2))
-    images = np.stack(rig.capture())
+    images = rig.capture().images
 
     latency = [step_latency(model, name, settings, images, args.repeat) for name in args.planners.split(",")]
     # the latency target is defined at 1024 samples per configuration,
@@ -98,7 +98,7 @@ def main(argv=None) -> int:
         print(f"step {r['planner']:9s} (J={r['samples_per_stratum']}): median {r['median_ms']:7.2f} ms (min {r['min_ms']:.2f}), "
               f"in a batch of 16: {r['batched_per_trial_ms']:.2f} ms/trial, compile {r['compile_s']:.1f} s")
 
-    specs = _specs(case, settings, rig, model.n_objects, model.n_poses)[: args.trials]
+    specs = case_trials(case, settings, rig, model.n_objects, model.n_poses)[: args.trials]
     # rendering alone, the same scenes and first views
     t0 = time.perf_counter()
     for s in specs:
@@ -106,13 +106,14 @@ def main(argv=None) -> int:
         rig.move(s.initial)
         rig.capture()
     render_first_s = time.perf_counter() - t0
-    rec = _recognizer(model, "mi", settings)
+    rec = make_recognizer(model, "mi", settings)
+    rigs = rig_pool(settings, seed=settings.seed)  # one rig per lockstep slot, as run_case does
     # warm-up: compiles the batched step, which the timed campaign (same
     # recognizer, same batch shape) then finds in jit's cache
-    run_campaign(rec, rig, specs[: settings.batch], key=jr.PRNGKey(0), batch=settings.batch)
+    run_campaign(rec, rigs, specs[: settings.batch], key=jr.PRNGKey(0), batch=settings.batch)
     with count_compiles() as compiled:
         t0 = time.perf_counter()
-        results = run_campaign(rec, rig, specs, key=jr.PRNGKey(0), batch=settings.batch)
+        results = run_campaign(rec, rigs, specs, key=jr.PRNGKey(0), batch=settings.batch)
         campaign_s = time.perf_counter() - t0
     views = float(np.mean([r.steps for r in results]))
     print(f"campaign: {len(results)} trials of case (iii) with MI in {campaign_s:.1f} s "

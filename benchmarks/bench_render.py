@@ -30,7 +30,7 @@ def _frames(rig: SyntheticRig, occluded: bool, rng) -> float:
         rig.reset(m, m % rig.n_poses, random_occluders(rng, rig.table, radius=rig.radius) if occluded else None)
         for v in range(rig.positions[0]):
             rig.move((v,) + tuple(v % k for k in rig.positions[1:]))
-            n += len(rig.capture())
+            n += len(rig.capture().images)
     return (time.perf_counter() - t) / n
 
 

@@ -11,7 +11,7 @@ from .kinematics import (
     camera2_position,
 )
 from .occluders import Board, OccluderLayout, random_occluders
-from .rig import Rig, RigError, config_from_index, index_from_config
+from .rig import Capture, Rig, RigError, config_from_index, index_from_config
 from .camera import Camera, CameraError, ImageSequenceCamera, VideoCamera
 from .config import ConfigError, RigConfig, load_config
 from .controller_sim import ControllerSimulator, LinkFaults
@@ -28,6 +28,7 @@ from .synthetic import Noise, SyntheticRig
 from .dataset_rig import DatasetRig
 
 __all__ = [
+    "Capture",
     "Camera",
     "CameraError",
     "ConfigError",

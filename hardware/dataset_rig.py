@@ -12,7 +12,7 @@ from typing import Sequence
 
 import numpy as np
 
-from .rig import RigError, SeededCaptures
+from .rig import Capture, RigError, SeededCaptures
 
 __all__ = ["DatasetRig"]
 
@@ -43,7 +43,6 @@ class DatasetRig(SeededCaptures):
         self._shape = tuple(int(s) for s in database.images.shape[1:3])
         self._scene: tuple[int, int] | None = None
         self._config: tuple[int, ...] | None = None
-        self.last_occlusion: list[float] = []
 
     @classmethod
     def from_folder(cls, folder, **kwargs) -> "DatasetRig":
@@ -70,7 +69,7 @@ class DatasetRig(SeededCaptures):
             raise RigError(f"configuration {cfg} is outside the positions {self._positions}")
         self._config = cfg
 
-    def capture(self) -> list[np.ndarray]:
+    def capture(self) -> Capture:
         if self._scene is None or self._config is None:
             raise RigError("call reset() and move() before capture()")
         out = []
@@ -81,7 +80,4 @@ class DatasetRig(SeededCaptures):
                     f"no stored image for camera {cam}, position {v}, object {self._scene[0]}, pose {self._scene[1]}"
                 )
             out.append(np.array(self._db.images[rows[int(self._rng.integers(len(rows)))]], np.uint8))
-        # a stored image's occluded fraction is unknown; 0.0 keeps records comparable
-        # (NaN != NaN) — do not read it as "not occluded"
-        self.last_occlusion = [0.0] * len(out)
-        return out
+        return Capture.of(out)  # a stored image's occluded fraction is unknown

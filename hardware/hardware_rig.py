@@ -37,7 +37,7 @@ from .camera import CameraError, ImageSequenceCamera, VideoCamera
 from .config import ConfigError, RigConfig, load_config
 from .positions import CameraTable
 from .ptu import PTU, PTUError
-from .rig import RigError
+from .rig import Capture, RigError
 from .udp_link import ControllerLink, LinkError, MoveResult
 
 __all__ = ["HardwareRig", "SimulatedHardwareRig", "Renderer", "ptu_angles", "line_of_sight", "rig_from_config"]
@@ -200,8 +200,9 @@ class HardwareRig:
         self._configuration = cfg
         self.in_position = True
 
-    def capture(self) -> list[np.ndarray]:
-        """One ``uint8 [H, W]`` image per camera, camera 1 first."""
+    def capture(self) -> Capture:
+        """One ``uint8 [H, W]`` image per camera, camera 1 first (occluded
+        fractions are unknown on real images)."""
         if not self.in_position:
             raise RigError("capture() before the rig reported in position: call move() first")
         images = []
@@ -210,7 +211,11 @@ class HardwareRig:
                 images.append(self._checked_image(i, cam.read()))
             except CameraError as e:
                 raise RigError(f"camera {i + 1}: {e}") from e
-        return images
+        return Capture.of(images)
+
+    def reseed(self, seed) -> None:
+        """Real cameras draw no random numbers: nothing to reseed (the
+        simulated rig passes it to its renderer)."""
 
     def _checked_image(self, i: int, img: np.ndarray) -> np.ndarray:
         if not isinstance(img, np.ndarray) or img.dtype != np.uint8 or img.shape != self.image_shape:
@@ -287,14 +292,13 @@ class SimulatedHardwareRig(HardwareRig):
                 dev.close()
             raise
         self._opened = opened
-        self.last_occlusion: list[float] = []
 
     def reseed(self, seed) -> None:
         """Restart the renderer's capture noise from ``seed`` (passed through to
         ``renderer.reseed``; a no-op for a renderer without one).
 
-        :func:`jaxrecog.campaign.run_campaign` reseeds every rig that has this
-        method with ``(seed, trial, step)`` before each capture, so a campaign
+        The trial driver reseeds every rig with ``(seed, trial, step)`` before
+        each capture, so a campaign
         on the simulated hardware draws the same capture noise as the same
         campaign on the synthetic rig it renders with."""
         reseed = getattr(self.renderer, "reseed", None)
@@ -312,8 +316,9 @@ class SimulatedHardwareRig(HardwareRig):
             raise RigError(f"turn-table reports {math.degrees(reported):.3f} deg for pose {pose}")
         self.renderer.reset(object, got, occluders)
 
-    def capture(self) -> list[np.ndarray]:
-        """Render each camera at the eye the controller reported, once its PTU points at the object."""
+    def capture(self) -> Capture:
+        """Render each camera at the eye the controller reported, once its PTU
+        points at the object; the renderer's true occluded fractions come with it."""
         if not self.in_position:
             raise RigError("capture() before the rig reported in position: call move() first")
         ws = self.table.workspace
@@ -333,8 +338,7 @@ class SimulatedHardwareRig(HardwareRig):
             img, frac = self.renderer.render_at(i, eye)
             images.append(self._checked_image(i, img))
             occl.append(float(frac))
-        self.last_occlusion = occl
-        return images
+        return Capture.of(images, occl)
 
 
 def rig_from_config(config: RigConfig | str, renderer: Renderer | None = None) -> HardwareRig:

@@ -2,21 +2,62 @@
 
 A *configuration* is one position index per camera, ``(v1, v2, ...)``.  The flat
 configuration index used by the planners is row-major over the cameras
-(camera 1 slowest): ``a = np.ravel_multi_index(config, rig.positions)``, so the
-thesis's 32 x 7 grid has ``a = 7 * v1 + v2``.
+(camera 1 slowest): ``a = index_from_config(config, rig.positions)``, so the
+thesis's 32 x 7 grid has ``a = 7 * v1 + v2``.  :func:`index_from_config` and
+:func:`config_from_index` are the one place that mapping is written; they are
+plain integer arithmetic, so the same functions serve Python ints, NumPy
+arrays and traced JAX arrays (the recognizer's jitted step).
 """
 
 from __future__ import annotations
 
-from typing import Protocol, Sequence, runtime_checkable
+import dataclasses
+import math
+import numbers
+from typing import Any, Protocol, Sequence, runtime_checkable
 
 import numpy as np
 
-__all__ = ["Rig", "RigError", "SeededCaptures", "config_from_index", "index_from_config"]
+__all__ = ["Capture", "Rig", "RigError", "SeededCaptures", "config_from_index", "index_from_config"]
 
 
 class RigError(RuntimeError):
     """A rig could not do what was asked (device fault, bad configuration, ...)."""
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Capture:
+    """What one :meth:`Rig.capture` returns: the images and what the rig knows
+    about them.
+
+    Not a sequence on purpose: code written for the old ``list of images``
+    return fails loudly (``capture()[0]`` is a ``TypeError``) instead of
+    silently taking the wrong thing.
+
+    Attributes:
+        images: ``uint8 [n_cameras, H, W]``, camera 1 first.
+        occluded: true occluded fraction of the object per camera where the rig
+            knows it (rendered scenes); ``()`` where it does not (stored or real
+            images) -- empty rather than NaN, so records compare equal.
+    """
+
+    images: np.ndarray
+    occluded: tuple[float, ...]
+
+    def __post_init__(self):
+        images = np.asarray(self.images)
+        if images.ndim != 3:
+            raise RigError(f"a capture holds one 2-D image per camera, got an array of shape {images.shape}")
+        occluded = tuple(float(x) for x in self.occluded)
+        if len(occluded) not in (0, images.shape[0]):
+            raise RigError(f"a capture of {images.shape[0]} image(s) has {len(occluded)} occluded fraction(s)")
+        object.__setattr__(self, "images", images)
+        object.__setattr__(self, "occluded", occluded)
+
+    @classmethod
+    def of(cls, images: Sequence[np.ndarray], occluded: Sequence[float] = ()) -> "Capture":
+        """From a list of per-camera images (``occluded`` empty = unknown)."""
+        return cls(np.stack([np.asarray(im) for im in images]), tuple(occluded))
 
 
 class SeededCaptures:
@@ -31,10 +72,17 @@ class SeededCaptures:
         images do not depend on which trials ran before it or beside it."""
         self._rng = np.random.default_rng(seed)
 
+    def close(self) -> None:
+        """Nothing to release (real rigs close their devices)."""
+
 
 @runtime_checkable
 class Rig(Protocol):
-    """Move cameras, capture one 8-bit gray image per camera."""
+    """Move cameras, capture one 8-bit gray image per camera.
+
+    Everything the trial driver (:mod:`jaxrecog.driver`) uses is declared here;
+    it reads no other attribute of a rig.
+    """
 
     @property
     def positions(self) -> tuple[int, ...]:
@@ -51,20 +99,62 @@ class Rig(Protocol):
         (``None`` = clean scene)."""
         ...
 
+    def reseed(self, seed: Any) -> None:
+        """Restart the random stream of the captures (noise, the choice among
+        stored images) from ``seed``, an int or a sequence of ints; a no-op for
+        a rig whose captures draw nothing."""
+        ...
+
     def move(self, configuration: Sequence[int]) -> None:
         """Move every camera to its position index in ``configuration``."""
         ...
 
-    def capture(self) -> list[np.ndarray]:
-        """One ``uint8`` image of ``image_shape`` per camera, camera 1 first."""
+    def capture(self) -> Capture:
+        """One ``uint8`` image of ``image_shape`` per camera, with what the rig
+        knows about them (:class:`Capture`)."""
+        ...
+
+    def close(self) -> None:
+        """Release the devices (idempotent)."""
         ...
 
 
-def config_from_index(a: int, positions: Sequence[int]) -> tuple[int, ...]:
-    """Flat configuration index -> per-camera position indices (row-major)."""
-    return tuple(int(i) for i in np.unravel_index(int(a), tuple(positions)))
+def _check_config(configuration, positions) -> None:
+    cfg = tuple(int(v) for v in configuration)
+    if len(cfg) != len(positions) or any(not 0 <= v < int(n) for v, n in zip(cfg, positions)):
+        raise ValueError(f"configuration {cfg} does not fit the positions {tuple(positions)}")
 
 
-def index_from_config(configuration: Sequence[int], positions: Sequence[int]) -> int:
-    """Per-camera position indices -> flat configuration index (row-major)."""
-    return int(np.ravel_multi_index(tuple(int(v) for v in configuration), tuple(positions)))
+def index_from_config(configuration, positions: Sequence[int]):
+    """Per-camera position indices -> flat configuration index (row-major,
+    camera 1 slowest): ``a = (...(v_1 V_2 + v_2) V_3 + ...) + v_n``.
+
+    Python ints and NumPy integers are range-checked (``ValueError``) and give
+    an ``int``; a traced JAX array ``[n]`` gives a traced scalar (no check)."""
+    concrete = all(isinstance(v, numbers.Integral) for v in configuration)
+    if concrete:
+        _check_config(configuration, positions)
+    a = 0
+    for i, n in enumerate(positions):
+        a = a * int(n) + configuration[i]
+    return int(a) if concrete else a
+
+
+def config_from_index(a, positions: Sequence[int]):
+    """Flat configuration index -> per-camera position indices (row-major), the
+    inverse of :func:`index_from_config`.
+
+    An ``int`` gives a tuple of ints (``ValueError`` outside ``0 .. A-1``); a
+    traced JAX scalar gives a tuple of traced scalars."""
+    concrete = isinstance(a, numbers.Integral)
+    if concrete:
+        total = math.prod(int(n) for n in positions)
+        if not 0 <= int(a) < total:
+            raise ValueError(f"configuration index {int(a)} is outside 0..{total - 1}")
+        a = int(a)
+    out = []
+    for n in reversed(tuple(int(n) for n in positions)):
+        out.append(a % n)
+        a = a // n
+    out.reverse()
+    return tuple(int(v) for v in out) if concrete else tuple(out)

@@ -25,7 +25,7 @@ import numpy as np
 
 from .occluders import OccluderLayout
 from .positions import CameraTable, default_table
-from .rig import RigError, SeededCaptures
+from .rig import Capture, RigError, SeededCaptures
 from .scene import Intrinsics, Lighting, ObjectSpec, Scene
 
 __all__ = ["Noise", "Perturb", "SyntheticRig"]
@@ -94,7 +94,6 @@ class SyntheticRig(SeededCaptures):
     Attributes:
         fov: ``fov[i][v]``, vertical field of view (degrees) of camera ``i`` at position ``v``.
         radius: bounding radius of the objects about the object centre (m).
-        last_occlusion: true occluded fraction per camera in the last capture.
     """
 
     def __init__(
@@ -122,7 +121,6 @@ class SyntheticRig(SeededCaptures):
         self._layout: OccluderLayout | None = None
         self._config: tuple[int, ...] | None = None
         self._clean_pixels: dict[tuple, int] = {}
-        self.last_occlusion: list[float] = []
 
     # -- Rig protocol
     @property
@@ -165,8 +163,8 @@ class SyntheticRig(SeededCaptures):
                 raise RigError(f"configuration {cfg}: camera {i} position {v} is out of range 0..{n - 1}")
         self._config = cfg
 
-    def capture(self) -> list[np.ndarray]:
-        """One ``uint8 [H, W]`` image per camera; sets ``last_occlusion``."""
+    def capture(self) -> Capture:
+        """One ``uint8 [H, W]`` image per camera and its true occluded fraction."""
         if self._config is None:
             raise RigError("capture() before move(): the cameras have no position yet")
         images, fractions = [], []
@@ -174,8 +172,7 @@ class SyntheticRig(SeededCaptures):
             img, frac = self._render(i, self.table.views[i][v].eye, self.noise)
             images.append(img)
             fractions.append(frac)
-        self.last_occlusion = fractions
-        return images
+        return Capture.of(images, fractions)
 
     # -- extras
     def render_at(self, camera: int, eye: Sequence[float], *, noisy: bool = True) -> tuple[np.ndarray, float]:

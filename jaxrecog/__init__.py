@@ -25,8 +25,34 @@ from .modelfile import (
 )
 from .sensor_model import CameraModel, SensorModel
 from .train import TrainingInfo, train_model
+from .kernels import Belief
+from .planners import PLANNERS, Planner, PlannerSpec, make_planner, planner_names
+from .recognizer import Decision, Recognizer, RecognizerState, StepTrace, restrict_cameras
+from .results import TrialResult, TrialStore
+from .driver import StepRecord, TrialSpec, run_trials
+from .campaign import plan_trials, run_campaign
 
 __all__ = [
+    # recognition: what a control loop or a script uses
+    "Belief",
+    "Decision",
+    "PLANNERS",
+    "Planner",
+    "PlannerSpec",
+    "Recognizer",
+    "RecognizerState",
+    "StepRecord",
+    "StepTrace",
+    "TrialResult",
+    "TrialSpec",
+    "TrialStore",
+    "make_planner",
+    "plan_trials",
+    "planner_names",
+    "restrict_cameras",
+    "run_campaign",
+    "run_trials",
+    # data, models, training
     "AugmentParams",
     "CameraModel",
     "DB1_LEVELS",

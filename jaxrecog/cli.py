@@ -536,8 +536,8 @@ def cmd_plan(args) -> int:
     rec = R.Recognizer(model, planner)
     if imgs is not None:
         state = rec.init(config=args.at)
-        _, dec = rec.step(state, imgs, k_score)
-        scores = np.asarray(dec.scores)
+        _, dec = rec.step(state, imgs, k_score, trace=True)
+        scores = np.asarray(dec.trace.scores)
         print(f"after the images at {_fmt_cfg(args.at)}: best (object, pose) = ({int(dec.object)}, {int(dec.pose)}), "
               f"P = {float(dec.probability):.3f}")
         what = f"belief after images at ({_fmt_cfg(args.at)})"
@@ -612,10 +612,10 @@ def cmd_recognize(args) -> int:
         state = rec.init(key=None if args.start is not None else k_init, config=args.start)
         occl = None
         if args.occluders:
-            from .experiments import _occluder_factory  # the thesis-case boards (first views occluded)
+            from .experiments import occluder_factory  # the thesis-case boards (first views occluded)
 
             start = tuple(int(v) for v in np.asarray(state.config))
-            occl = _occluder_factory(rig)(np.random.default_rng(args.seed), start)
+            occl = occluder_factory(rig)(np.random.default_rng(args.seed), start)
         rig.reset(args.object, args.pose, occl)
         probs = [np.full(model.n_objects, 1.0 / model.n_objects)]
         rows = []
@@ -623,10 +623,10 @@ def cmd_recognize(args) -> int:
         for n in range(args.max_steps):
             cfg = tuple(int(v) for v in np.asarray(state.config))
             rig.move(cfg)
-            imgs = np.stack(rig.capture())
-            state, dec = rec.step(state, imgs, jr.fold_in(k_run, n))
-            probs.append(np.asarray(dec.object_probs, dtype=float))
-            occ = getattr(rig, "last_occlusion", None) or []
+            cap = rig.capture()
+            state, dec = rec.step(state, cap.images, jr.fold_in(k_run, n), trace=True)
+            probs.append(np.asarray(dec.trace.object_probs, dtype=float))
+            occ = cap.occluded
             stop = bool(dec.stop)
             rows.append((n + 1, _fmt_cfg(cfg), int(dec.object), int(dec.pose), f"{float(dec.probability):.3f}",
                          " ".join(f"{100 * x:.0f}%" for x in occ) or "-",

@@ -24,12 +24,12 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Bool, Float, Int
+from jaxtyping import Array, Bool, Float, Int, Shaped
 
 from .eigenspace import unit_energy
 from .sensor_model import SensorModel, CameraModel
 
-__all__ = ["ImageError", "check_image", "project", "project_batch", "project_camera"]
+__all__ = ["ImageError", "check_image", "project", "project_at", "project_batch", "project_camera"]
 
 
 class ImageError(ValueError):
@@ -116,23 +116,24 @@ def project_batch(mean_image: Float[Array, " D"], basis: Float[Array, "D K"],
     return jnp.where(valid[:, None], g, 0.0), valid
 
 
-def _unit_energy(y: Float[Array, "B D"]) -> tuple[Float[Array, "B D"], Bool[Array, " B"]]:
-    """``y / ||y||`` per row (eq. 4.1-4.2) and its validity: rows that are
-    non-finite, negative somewhere, all zero or constant are invalid (and
-    returned as 0).  Each row is divided by its brightest pixel before the norm,
-    so a valid row's norm lies in ``[1, sqrt(D)]``: no overflow (e.g. pixels of
-    1e30, whose squares are inf in float32), no underflow to zero energy."""
-    finite = jnp.all(jnp.isfinite(y), axis=1)
-    nonneg = jnp.all(y >= 0, axis=1)
+def _unit_energy(y: Float[Array, "*B D"]) -> tuple[Float[Array, "*B D"], Bool[Array, " *B"]]:
+    """``y / ||y||`` per image vector (last axis; eq. 4.1-4.2) and its validity:
+    vectors that are non-finite, negative somewhere, all zero or constant are
+    invalid (and returned as 0).  Each vector is divided by its brightest pixel
+    before the norm, so a valid vector's norm lies in ``[1, sqrt(D)]``: no
+    overflow (e.g. pixels of 1e30, whose squares are inf in float32), no
+    underflow to zero energy."""
+    finite = jnp.all(jnp.isfinite(y), axis=-1)
+    nonneg = jnp.all(y >= 0, axis=-1)
     usable = finite & nonneg
-    y = jnp.where(usable[:, None], y, 0.0)
-    peak = jnp.max(y, axis=1)
-    varies = peak > jnp.min(y, axis=1)
+    y = jnp.where(usable[..., None], y, 0.0)
+    peak = jnp.max(y, axis=-1)
+    varies = peak > jnp.min(y, axis=-1)
     valid = usable & (peak > 0) & varies
-    scaled = y / jnp.where(valid, peak, 1.0)[:, None]
-    norm = jnp.linalg.norm(scaled, axis=1)
+    scaled = y / jnp.where(valid, peak, 1.0)[..., None]
+    norm = jnp.linalg.norm(scaled, axis=-1)
     safe = jnp.where(valid, norm, 1.0)
-    return jnp.where(valid[:, None], scaled / safe[:, None], 0.0), valid
+    return jnp.where(valid[..., None], scaled / safe[..., None], 0.0), valid
 
 
 def project_camera(camera: CameraModel, positions: Int[Array, " B"],
@@ -146,3 +147,13 @@ def project_camera(camera: CameraModel, positions: Int[Array, " B"],
     y_hat, valid = _unit_energy(y)
     g = jnp.einsum("bd,bdk->bk", y_hat - mean, basis)
     return jnp.where(valid[:, None], g, 0.0), valid
+
+
+def project_at(camera: CameraModel, position: Int[Array, ""],
+               image: Shaped[Array, "H W"]) -> tuple[Float[Array, " K"], Bool[Array, ""]]:
+    """Pure projection of one image of one camera at ``position`` (traced):
+    ``g = V_v^T (y/||y|| - x_v)`` (eq. 4.1-4.11) and its validity (``g = 0``
+    when the image is unusable, see :func:`_unit_energy`)."""
+    y_hat, valid = _unit_energy(jnp.asarray(image, dtype=camera.basis.dtype).reshape(-1))
+    g = (y_hat - camera.mean_image[position]) @ camera.basis[position]
+    return jnp.where(valid, g, 0.0), valid

@@ -27,13 +27,14 @@ import jax
 import jax.numpy as jnp
 import jax.random as jr
 import numpy as np
-from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
+from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray, Shaped
 
 from . import kernels as K
-from .features import project_camera
+from .features import project_at
+from .hardware.rig import config_from_index, index_from_config
 from .planners import Planner, model_arrays
 
-__all__ = ["Recognizer", "RecognizerState", "Decision", "restrict_cameras", "image_features"]
+__all__ = ["Recognizer", "RecognizerState", "Decision", "StepTrace", "restrict_cameras", "image_features"]
 
 
 class RecognizerState(NamedTuple):
@@ -52,8 +53,27 @@ class RecognizerState(NamedTuple):
     visited: Bool[Array, " A"]
 
 
+class StepTrace(NamedTuple):
+    """What a step computed beyond the decision, returned only when asked
+    (``Recognizer.step(..., trace=True)``): plots, the CLI's ``plan`` and
+    per-step belief traces read it, a control loop does not.
+
+    Attributes:
+        scores: ``[A]`` planner scores of all configurations (higher = better;
+            a failed estimate is ``-inf``).
+        object_probs: ``[M]`` object marginal (summed over poses).
+        class_probs: ``[C]`` (object, pose) marginal.
+        posterior: the belief after this step's images.
+    """
+
+    scores: Float[Array, " A"]
+    object_probs: Float[Array, " M"]
+    class_probs: Float[Array, " C"]
+    posterior: K.Belief
+
+
 class Decision(NamedTuple):
-    """Per-step diagnostics (not carried).
+    """Per-step output (not carried): what a control loop needs.
 
     Attributes:
         object, pose: the best (object, pose) after this step's images.
@@ -62,11 +82,8 @@ class Decision(NamedTuple):
         reached: whether the threshold was reached.
         next_config: ``[n_cameras]`` positions to move to (if not stopping).
         next_index: the flat configuration index of ``next_config``.
-        scores: ``[A]`` planner scores of all configurations (higher = better).
-        object_probs: ``[M]`` object marginal (summed over poses).
-        class_probs: ``[C]`` (object, pose) marginal.
         valid: ``False`` if the images could not be used (belief unchanged).
-        posterior: the belief after this step's images.
+        trace: a :class:`StepTrace` when the step was asked to trace, else ``None``.
     """
 
     object: Int[Array, ""]
@@ -76,11 +93,8 @@ class Decision(NamedTuple):
     reached: Bool[Array, ""]
     next_config: Int[Array, " n"]
     next_index: Int[Array, ""]
-    scores: Float[Array, " A"]
-    object_probs: Float[Array, " M"]
-    class_probs: Float[Array, " C"]
     valid: Bool[Array, ""]
-    posterior: K.Belief
+    trace: StepTrace | None = None
 
 
 def restrict_cameras(model, cameras: Sequence[int]):
@@ -90,20 +104,17 @@ def restrict_cameras(model, cameras: Sequence[int]):
     return eqx.tree_at(lambda m: m.cameras, model, cams)
 
 
-def image_features(model, config: Int[Array, " n"], images: Float[Array, "n H W"]):
-    """Eigenspace features per camera (eq. 4.1-4.11) and a validity flag.
+def image_features(model, config: Int[Array, " n"], images: Shaped[Array, "n H W"]
+                   ) -> tuple[tuple[Float[Array, " K_i"], ...], Bool[Array, ""]]:
+    """Eigenspace features per camera (eq. 4.1-4.11) and one validity flag.
 
-    Returns ``(gs, ok)``: a tuple of ``[K]`` vectors and a scalar bool that is
-    ``False`` when some image is black, constant or not finite
-    (:func:`~jaxrecog.features.project_camera`).
+    Returns ``(gs, ok)``: one ``[K_i]`` vector per camera (each camera has its
+    own eigenspaces, so this is a loop over cameras, unrolled under ``jit``)
+    and a scalar bool that is ``False`` when some image is black, constant or
+    not finite (:func:`~jaxrecog.features.project_at`).
     """
-    gs = []
-    ok = jnp.asarray(True)
-    for i, cam in enumerate(model.cameras):
-        g, valid = project_camera(cam, config[i : i + 1], images[i : i + 1])
-        gs.append(g[0])
-        ok = ok & valid[0]
-    return tuple(gs), ok
+    gs, oks = zip(*(project_at(cam, config[i], images[i]) for i, cam in enumerate(model.cameras)))
+    return tuple(gs), jnp.all(jnp.stack(oks))
 
 
 class Recognizer(eqx.Module):
@@ -147,7 +158,7 @@ class Recognizer(eqx.Module):
                 config = (0,) * len(positions)
             else:
                 a = jr.randint(key, (), 0, self.n_configs)
-                config = jnp.stack(jnp.unravel_index(a, positions)).astype(jnp.int32)
+                config = jnp.stack(config_from_index(a, positions)).astype(jnp.int32)
         config = jnp.asarray(config, jnp.int32)
         if config.shape != (len(positions),):
             raise ValueError(f"config must give one position per camera ({len(positions)}), got shape {config.shape}")
@@ -156,16 +167,18 @@ class Recognizer(eqx.Module):
         return RecognizerState(prior, config, jnp.zeros((), jnp.int32), jnp.zeros((self.n_configs,), bool))
 
     @eqx.filter_jit
-    def step(self, state: RecognizerState, images: Float[Array, "n H W"], key: PRNGKeyArray) -> tuple[RecognizerState, Decision]:
-        """One image set in, the belief updated, the next configuration out."""
+    def step(self, state: RecognizerState, images: Shaped[Array, "n H W"], key: PRNGKeyArray, *,
+             trace: bool = False) -> tuple[RecognizerState, Decision]:
+        """One image set in, the belief updated, the next configuration out.
+
+        ``trace=True`` (static: one compile per value) adds the
+        :class:`StepTrace` (scores, marginals, posterior) to the decision."""
         model = self.model
         positions = self.positions
         mus, vars, chols = model_arrays(model)
-        images = jnp.asarray(images)
-        gs, ok = image_features(model, state.config, images)
+        gs, ok = image_features(model, state.config, jnp.asarray(images))
         logliks = K.camera_log_likelihoods(gs, state.config, mus, vars, chols)
-        logliks = tuple(jnp.where(ok, ll, jnp.nan) for ll in logliks)
-        posterior, info = K.update_with_info(state.prior, logliks)
+        posterior, info = K.update_with_info(state.prior, logliks, valid=ok)
 
         pc = K.class_marginal(posterior)
         best = jnp.argmax(pc)
@@ -174,7 +187,7 @@ class Recognizer(eqx.Module):
         reached = prob >= self.p_threshold
         stop = reached | (steps >= self.max_steps)
 
-        here = jnp.ravel_multi_index(tuple(state.config), positions, mode="clip")
+        here = index_from_config(state.config, positions)
         visited = state.visited.at[here].set(True)
         predicted = K.transition_per_position(posterior, state.config, positions, kind=self.transition, rho=self.rho)
         scores = self.planner.scores(predicted, key)
@@ -186,13 +199,20 @@ class Recognizer(eqx.Module):
         else:
             masked = jnp.where(visited, -jnp.inf, usable)
             scores_for_choice = jnp.where(jnp.all(visited), usable, masked)
-        scores = jnp.where(jnp.isnan(scores), -jnp.inf, scores)
         nxt = jnp.argmax(scores_for_choice)
-        next_config = jnp.stack(jnp.unravel_index(nxt, positions)).astype(jnp.int32)
+        next_config = jnp.stack(config_from_index(nxt, positions)).astype(jnp.int32)
 
         # the prior for the next images: the predicted prior at the chosen positions
         next_prior = K.Belief(predicted.log_pc, tuple(lp[v] for lp, v in zip(predicted.log_pk, next_config)))
         new_state = RecognizerState(next_prior, next_config, steps, visited)
+        step_trace = None
+        if trace:
+            step_trace = StepTrace(
+                scores=jnp.where(jnp.isnan(scores), -jnp.inf, scores),
+                object_probs=K.object_marginal(posterior, model.n_objects, model.n_poses),
+                class_probs=pc,
+                posterior=posterior,
+            )
         decision = Decision(
             object=(best // model.n_poses).astype(jnp.int32),
             pose=(best % model.n_poses).astype(jnp.int32),
@@ -201,10 +221,7 @@ class Recognizer(eqx.Module):
             reached=reached,
             next_config=next_config,
             next_index=nxt.astype(jnp.int32),
-            scores=scores,
-            object_probs=K.object_marginal(posterior, model.n_objects, model.n_poses),
-            class_probs=pc,
-            valid=info.ok & ok,
-            posterior=posterior,
+            valid=info.ok,
+            trace=step_trace,
         )
         return new_state, decision

@@ -91,7 +91,7 @@ def _check_logliks(belief: Belief, logliks) -> None:
 
 
 def update_with_info(
-    belief: Belief, logliks: tuple[Float[Array, "C L_i"], ...]
+    belief: Belief, logliks: tuple[Float[Array, "C L_i"], ...], valid: Bool[Array, ""] | bool = True
 ) -> tuple[Belief, UpdateInfo]:
     """Bayes rule in log space (eq. 3.1) on the factorised belief, with diagnostics.
 
@@ -101,9 +101,10 @@ def update_with_info(
         log P_i'(k|c)   = log P_i(k|c) + l_i[c, k] - m_i[c]
         log P'(c)       = log P(c) + sum_i m_i[c] - log_evidence
 
-    Guard (branch-free): if any log-likelihood is NaN or +inf, or the evidence
-    is zero (every state with non-zero prior has -inf log-likelihood), the
-    belief is returned unchanged and ``info.ok`` is False.  A class whose
+    Guard (branch-free): if ``valid`` is False (the caller could not use the
+    images: black, constant, not finite), if any log-likelihood is NaN or
+    +inf, or if the evidence is zero (every state with non-zero prior has -inf
+    log-likelihood), the belief is returned unchanged and ``info.ok`` is False.  A class whose
     posterior becomes zero keeps its (irrelevant) previous level rows, so no
     NaN ever enters the belief.
 
@@ -111,6 +112,8 @@ def update_with_info(
         belief: the prior (after :func:`transition`).
         logliks: one ``[C, L_i]`` array per camera (see
             :func:`jaxrecog.kernels.camera_log_likelihoods`).
+        valid: a scalar mask; False skips the update (no sentinel values in
+            ``logliks`` needed).
 
     Returns:
         ``(posterior, UpdateInfo)``.
@@ -130,10 +133,10 @@ def update_with_info(
         new_pk.append(row)
         log_pc = log_pc + m
     log_ev = _lse(log_pc, axis=-1)
-    ok = (~bad) & jnp.isfinite(log_ev)
+    ok = (~bad) & jnp.isfinite(log_ev) & jnp.asarray(valid, bool)
     new_pc = jnp.where(ok, log_pc - jnp.where(ok, log_ev, 0.0), belief.log_pc)
     new_pk = tuple(jnp.where(ok, r, lp) for r, lp in zip(new_pk, belief.log_pk))
-    log_ev = jnp.where(bad, jnp.nan, log_ev)
+    log_ev = jnp.where(bad | ~jnp.asarray(valid, bool), jnp.nan, log_ev)
     return Belief(new_pc, new_pk), UpdateInfo(ok, log_ev)
 
 

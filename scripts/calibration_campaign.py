@@ -32,7 +32,7 @@ from jaxrecog.calibration import calibrate_model
 from jaxrecog.calibration_plots import reliability_plot
 from jaxrecog.campaign import run_campaign
 from jaxrecog.database import load_database
-from jaxrecog.experiments import (CASES, OCCLUDER_OFFSET, OCCLUDER_SIZE, Settings, _recognizer, _specs,
+from jaxrecog.experiments import (CASES, OCCLUDER_OFFSET, OCCLUDER_SIZE, Settings, make_recognizer, case_trials,
                                   make_rig, prepare)
 from jaxrecog.hardware import OccluderLayout, random_occluders
 from jaxrecog.hardware.positions import CameraTable
@@ -85,7 +85,7 @@ def main(argv=None) -> int:
     radius = object_radius(default_objects())
 
     def board_in_front(rng, camera, position):
-        """Like the campaigns' first board (experiments._occluder_factory), for a share of the views."""
+        """Like the campaigns' first board (experiments.occluder_factory), for a share of the views."""
         if rng.random() >= args.occluded_fraction:
             return None
         one = CameraTable(table.workspace, tuple((views[position if i == camera else 0],)
@@ -120,8 +120,8 @@ def main(argv=None) -> int:
            f"{f'-front{args.occluded_fraction:g}' if case.occluded else ''}")
     for label, model in models.items():
         rig = make_rig(settings, case.cameras, seed=settings.seed)      # same capture noise for both
-        specs = _specs(case, settings, rig, model.n_objects, model.n_poses)
-        rec = _recognizer(model, args.planner, settings)
+        specs = case_trials(case, settings, rig, model.n_objects, model.n_poses)
+        rec = make_recognizer(model, args.planner, settings)
         store = TrialStore(args.workdir / "trials" / (
             f"calib-{label}-case-{case.name}-{args.planner}-n{args.trials}-seed{args.seed}-v2"
             f"{tag if label == 'calibrated' else ''}.jsonl"))

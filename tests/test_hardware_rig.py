@@ -94,13 +94,14 @@ def test_images_are_rendered_where_the_simulators_put_the_cameras(rig):
     configs = [(v1, (5 * v1) % 7) for v1 in range(32)]
     for cfg in configs:
         rig.move(cfg)
-        imgs = rig.capture()
+        cap = rig.capture()
+        imgs = cap.images
         assert len(imgs) == 2 and all(i.dtype == np.uint8 and i.shape == (H, W) for i in imgs)
         for cam, img in enumerate(imgs):
             assert img[1, 0] == cam
             eye = decode_eye(img)
             assert eye == pytest.approx(table.views[cam][cfg[cam]].eye, abs=LINEAR_RESOLUTION_M)
-        assert rig.last_occlusion == [0.0, 0.1]
+        assert cap.occluded == (0.0, 0.1)
     # the controller executed exactly the planner angles of each configuration
     executed = [e.move for e in rig.controller_sim.executed][1:]  # the first is reset's
     assert [(m.cam1_pan, m.cam1_tilt, m.cam2_pan) for m in executed] == [
@@ -136,7 +137,7 @@ def test_ptu_fault_during_move_is_a_rig_error_and_the_rig_recovers(rig):
         rig.move((9, 6))
     assert not rig.in_position
     rig.move((9, 6))
-    assert decode_eye(rig.capture()[1]) == pytest.approx(rig.table.views[1][6].eye, abs=LINEAR_RESOLUTION_M)
+    assert decode_eye(rig.capture().images[1]) == pytest.approx(rig.table.views[1][6].eye, abs=LINEAR_RESOLUTION_M)
 
 
 def test_silent_controller_is_a_rig_error_and_the_rig_recovers(rig):
@@ -146,7 +147,7 @@ def test_silent_controller_is_a_rig_error_and_the_rig_recovers(rig):
         rig.move((3, 3))
     rig.controller_sim.silent = False
     rig.move((3, 3))
-    assert decode_eye(rig.capture()[0]) == pytest.approx(rig.table.views[0][3].eye, abs=LINEAR_RESOLUTION_M)
+    assert decode_eye(rig.capture().images[0]) == pytest.approx(rig.table.views[0][3].eye, abs=LINEAR_RESOLUTION_M)
 
 
 def test_misaimed_camera_is_caught_at_capture(rig):
@@ -207,13 +208,13 @@ def hardware(request):
 def test_camera_error_becomes_a_rig_error_naming_the_camera(hardware):
     rig, _, _, cams = hardware
     rig.move((3, 2))
-    assert [i.shape for i in rig.capture()] == [(H, W), (H, W)]
+    assert [i.shape for i in rig.capture().images] == [(H, W), (H, W)]
     cams[1].fail = True
     with pytest.raises(RigError, match=r"^camera 2: no usable frame after 4 tries") as e:
         rig.capture()
     assert isinstance(e.value.__cause__, CameraError)
     cams[1].fail = False
-    assert len(rig.capture()) == 2  # the rig is still usable
+    assert len(rig.capture().images) == 2  # the rig is still usable
 
 
 NARROW = dataclasses.replace(default_table().workspace, gantry_x=(-0.05, 0.05))
@@ -262,7 +263,7 @@ def test_example_toml_runs_the_closed_loop_under_network_faults():
         for a in range(0, 224, 17):
             cfg_ = (a // 7, a % 7)
             rig.move(cfg_)
-            imgs = rig.capture()
+            imgs = rig.capture().images
             assert decode_eye(imgs[0]) == pytest.approx(rig.table.views[0][cfg_[0]].eye, abs=LINEAR_RESOLUTION_M)
 
 
@@ -301,7 +302,7 @@ kind = "sequence"
             assert p1.axes["P"].speed == round(100 * 3600 / 185.1428)
             rig.reset(0, 1)
             rig.move((12, 4))
-            imgs = rig.capture()
+            imgs = rig.capture().images
             for f, img in zip(frames, imgs):
                 np.testing.assert_array_equal(img, cv2.resize(f, (W, H), interpolation=cv2.INTER_AREA))
             assert ctl.executed[-1].move.turntable == pytest.approx(math.pi / 2)
@@ -340,7 +341,7 @@ def test_single_camera_table(tmp_path):
     with SimulatedHardwareRig(EyeRenderer(), cfg) as r:
         assert r.positions == (32,)
         r.move((7,))
-        (img,) = r.capture()
+        (img,) = r.capture().images
         assert decode_eye(img) == pytest.approx(r.table.views[0][7].eye, abs=LINEAR_RESOLUTION_M)
 
 

@@ -49,12 +49,18 @@ def test_step_shapes_for_any_number_of_cameras(positions, planner, getkey):
     state = rec.init(getkey())
     images = jr.randint(getkey(), (len(positions), 6, 8), 0, 255).astype(jnp.uint8)
     for _ in range(3):
-        state, dec = rec.step(state, images, getkey())
+        state, dec = rec.step(state, images, getkey(), trace=True)
     a = int(np.prod(positions))
-    assert dec.scores.shape == (a,)
+    assert dec.trace.scores.shape == (a,)
     assert dec.next_config.shape == (len(positions),)
     assert int(np.ravel_multi_index(tuple(np.asarray(dec.next_config)), positions)) == int(dec.next_index)
-    assert dec.class_probs.shape == (6,) and float(jnp.sum(dec.class_probs)) == pytest.approx(1.0, abs=1e-5)
+    assert dec.trace.class_probs.shape == (6,) and float(jnp.sum(dec.trace.class_probs)) == pytest.approx(1.0, abs=1e-5)
+    # without tracing, the decision carries only what a control loop needs
+    k = getkey()
+    _, slim = rec.step(state, images, k)
+    _, full = rec.step(state, images, k, trace=True)
+    assert slim.trace is None
+    assert int(slim.next_index) == int(full.next_index) and float(slim.probability) == float(full.probability)
     assert bool(dec.valid)
     assert int(state.steps) == 3
     # never revisits while unvisited configurations remain
@@ -76,13 +82,13 @@ def test_zero_recompiles_over_50_steps(name, getkey):
     state = rec.init(getkey())
     for i in range(50):
         images = jr.randint(getkey(), (2, 6, 8), 1, 255).astype(jnp.uint8)
-        state, dec = rec.step(state, images, getkey())
+        state, dec = rec.step(state, images, getkey(), trace=True)
         if i == 0:
             jax.block_until_ready(dec)
             n_after_warmup = len(traces)
         if bool(dec.stop):
             state = rec.init(getkey())
-        assert bool(dec.valid) and 0 <= int(dec.next_index) < 12 and dec.scores.shape == (12,)
+        assert bool(dec.valid) and 0 <= int(dec.next_index) < 12 and dec.trace.scores.shape == (12,)
     assert n_after_warmup == 1
     assert len(traces) == 1
 
@@ -92,11 +98,11 @@ def test_bad_images_never_reach_the_belief(getkey):
     rec = Recognizer(model, FixedPlanner(12, 5))
     state = rec.init(config=(1, 2))
     for bad in (jnp.zeros((2, 6, 8)), jnp.full((2, 6, 8), jnp.nan)):
-        new, dec = rec.step(state, bad, getkey())
+        new, dec = rec.step(state, bad, getkey(), trace=True)
         assert not bool(dec.valid)
         for a, b in zip(jax.tree.leaves(new.prior), jax.tree.leaves(state.prior)):
             assert np.array_equal(np.asarray(a), np.asarray(b))
-        assert all(bool(jnp.all(jnp.isfinite(x) | (x == -jnp.inf))) for x in jax.tree.leaves(dec.posterior))
+        assert all(bool(jnp.all(jnp.isfinite(x) | (x == -jnp.inf))) for x in jax.tree.leaves(dec.trace.posterior))
 
 
 def test_stop_rule_and_fixed_planner(getkey):
@@ -259,9 +265,9 @@ def test_trials_are_reproducible_whatever_the_batch(tmp_path):
             super().reseed(seed)
 
         def capture(self):
-            images = super().capture()
-            self.seen[self.key] = b"".join(im.tobytes() for im in images)
-            return images
+            cap = super().capture()
+            self.seen[self.key] = b"".join(im.tobytes() for im in cap.images)
+            return cap
 
     rec = Recognizer(model, RandomPlanner(3), p_threshold=0.999)
     specs = plan_trials(2, 3, (3,), 3, seed=5)

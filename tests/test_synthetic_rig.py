@@ -69,12 +69,15 @@ def test_rig_protocol_and_capture(rig):
     assert rig.image_shape == (120, 160)
     rig.reset(2, 1)
     rig.move((5, 3))
-    images = rig.capture()
+    cap = rig.capture()
+    images = cap.images
     assert len(images) == 2
     for img in images:
         assert img.dtype == np.uint8 and img.shape == (120, 160)
         assert img.std() > 10  # a scene, not a blank frame
-    assert rig.last_occlusion == [0.0, 0.0]
+    assert cap.occluded == (0.0, 0.0)
+    with pytest.raises(TypeError):
+        cap[0]  # a Capture is not the old list of images: old callers fail loudly
     # the capture is the render at the table's eye position
     for i, v in enumerate((5, 3)):
         ref, frac = rig.render_at(i, rig.table.views[i][v].eye, noisy=False)
@@ -117,13 +120,14 @@ def test_any_number_of_cameras():
         assert r3.positions == (3, 2, 2)
         r3.reset(3, 2)
         r3.move((2, 1, 1))
-        imgs = r3.capture()
-        assert len(imgs) == 3 and len(r3.last_occlusion) == 3
+        cap = r3.capture()
+        imgs = cap.images
+        assert len(imgs) == 3 and len(cap.occluded) == 3
         np.testing.assert_array_equal(imgs[2], r3.render_at(2, t.views[0][21].eye, noisy=False)[0])
     with SyntheticRig(t.single_camera(0)) as r1:
         r1.reset(0, 0)
         r1.move((4,))
-        assert len(r1.capture()) == 1
+        assert len(r1.capture().images) == 1
 
 
 def test_missing_pybullet_names_the_extra(monkeypatch):
@@ -240,7 +244,7 @@ def test_random_occluders_are_seeded_and_between_camera_and_object():
 
 
 def test_occluded_fraction_is_measured_from_the_masks(rig):
-    """Oracle: last_occlusion = 1 - |object mask with boards| / |object mask without|."""
+    """Oracle: Capture.occluded = 1 - |object mask with boards| / |object mask without|."""
     layout = random_occluders(np.random.default_rng(3), rig.table, radius=rig.radius, boards_per_camera=2)
     checked = 0
     for m in (1, 4):
@@ -249,7 +253,7 @@ def test_occluded_fraction_is_measured_from_the_masks(rig):
             cfg = [0] * rig.table.n_cameras
             cfg[board.aimed_at[0]] = board.aimed_at[1]
             rig.move(cfg)
-            rig.capture()
+            cap = rig.capture()
             i, v = board.aimed_at
             img_occ, mask_occ = rig.render_clean(i, v)
             rig.reset(m, 2)
@@ -257,7 +261,7 @@ def test_occluded_fraction_is_measured_from_the_masks(rig):
             rig.reset(m, 2, layout)
             assert not (mask_occ & ~mask_clean).any()  # boards only hide object pixels
             expect = 1.0 - mask_occ.sum() / mask_clean.sum()
-            assert rig.last_occlusion[i] == pytest.approx(expect, abs=1e-12)
+            assert cap.occluded[i] == pytest.approx(expect, abs=1e-12)
             checked += expect > 0
             if expect > 0:
                 assert (img_occ != img_clean).any()
@@ -278,13 +282,11 @@ def test_occluded_fractions_span_0_to_30_percent(rig):
             cfg = [0] * rig.table.n_cameras
             cfg[board.aimed_at[0]] = board.aimed_at[1]
             rig.move(cfg)
-            rig.capture()
-            aimed.append(rig.last_occlusion[board.aimed_at[0]])
+            aimed.append(rig.capture().occluded[board.aimed_at[0]])
         if trial < 3:  # every position for a few layouts
             for v in range(max(rig.positions)):
                 rig.move([min(v, n - 1) for n in rig.positions])
-                rig.capture()
-                swept.extend(rig.last_occlusion)
+                swept.extend(rig.capture().occluded)
     aimed, swept = np.array(aimed), np.array(swept)
     allf = np.concatenate([aimed, swept])
     assert ((allf >= 0) & (allf <= 1)).all()
@@ -309,7 +311,7 @@ def test_noise_is_seeded_and_shifts_are_whole_pixels():
     for r in (r1, r2, r3):
         r.reset(3, 1)
         r.move((12, 2))
-    a, b, c = r1.capture(), r2.capture(), r3.capture()
+    a, b, c = r1.capture().images, r2.capture().images, r3.capture().images
     for x, y, z in zip(a, b, c):
         np.testing.assert_array_equal(x, y)
         assert (x != z).any()

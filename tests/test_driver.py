@@ -1,0 +1,226 @@
+"""The one trial driver (jaxrecog.driver), the Rig protocol it talks to, and the
+index <-> configuration helpers."""
+
+from __future__ import annotations
+
+import itertools
+
+import jax
+import jax.numpy as jnp
+import jax.random as jr
+import numpy as np
+import pytest
+
+from jaxrecog import Recognizer, TrialSpec, make_planner, plan_trials, run_trials, train_model
+from jaxrecog.hardware import Capture, Rig, RigError, config_from_index, index_from_config
+from jaxrecog.planners import RandomPlanner
+from jaxrecog.testing import moving_database
+
+import jaxrecog.kernels as K
+
+
+@pytest.fixture(scope="module")
+def moving():
+    db = moving_database()
+    return db, train_model(db, kind="DB1", n_components=2, samples_per_image=10)
+
+
+class StrictRig:
+    """Exactly the Rig protocol and nothing else: the driver may use no other
+    attribute.  Replays the moving database's test images; reports a made-up
+    occluded fraction (0.1 * position) so the record can be checked; logs every call."""
+
+    def __init__(self, db, black_at: set[tuple[int, int]] = frozenset()):
+        self._db, self._black = db, set(black_at)
+        test = np.flatnonzero(db.split == "test")
+        self._rows = {(int(db.camera[r]), int(db.position[r]), int(db.object[r]), int(db.pose[r])): r for r in test}
+        self.calls: list[tuple] = []
+        self._scene = self._config = None
+        self._n = 0
+
+    positions = property(lambda self: (3,))
+    image_shape = property(lambda self: tuple(self._db.images.shape[1:3]))
+
+    def reset(self, object, pose, occluders=None):
+        self.calls.append(("reset", object, pose))
+        self._scene = (object, pose)
+
+    def reseed(self, seed):
+        self.calls.append(("reseed", tuple(seed)))
+        self._trial, self._step = seed[1], seed[2]
+
+    def move(self, configuration):
+        self.calls.append(("move", tuple(configuration)))
+        self._config = tuple(configuration)
+
+    def capture(self):
+        self.calls.append(("capture",))
+        (v,) = self._config
+        img = self._db.images[self._rows[(0, v) + self._scene]]
+        if (self._trial, self._step) in self._black:
+            img = np.zeros_like(img)
+        return Capture(img[None], (0.1 * v,))
+
+    def close(self):
+        self.calls.append(("close",))
+
+
+def test_the_strict_rig_is_a_rig():
+    assert isinstance(StrictRig(moving_database()), Rig)
+
+
+def test_driver_uses_only_the_protocol_and_records_what_the_rig_reports(moving):
+    db, model = moving
+    rec = Recognizer(model, RandomPlanner(3), p_threshold=0.999)
+    specs = plan_trials(2, 3, (3,), 3, seed=1)
+    rig = StrictRig(db)
+    steps = []
+    results = run_trials(rec, rig, specs, key=jr.PRNGKey(0), batch=2, seed=4, on_step=steps.append)
+    assert sorted(r.trial for r in results) == [s.trial for s in specs]
+    assert {c[0] for c in rig.calls} <= {"reset", "reseed", "move", "capture"}
+    for r in results:
+        mine = [s for s in steps if s.spec.trial == r.trial]
+        assert [s.step for s in mine] == list(range(r.steps))
+        assert tuple(s.config for s in mine) == r.configurations
+        # the true occluded fractions come with the images, step by step
+        assert r.occluded_fraction == tuple((0.1 * c[0],) for c in r.configurations)
+        # each next configuration is the previous decision's choice
+        for a, b in itertools.pairwise(mine):
+            assert tuple(int(v) for v in a.decision.next_config) == b.config
+        assert mine[-1].decision.stop and not any(s.decision.stop for s in mine[:-1])
+        assert mine[0].config == next(s.initial for s in specs if s.trial == r.trial)
+    # every capture was preceded by a reseed with (seed, trial, step) and a move
+    for i, c in enumerate(rig.calls):
+        if c[0] == "capture":
+            assert rig.calls[i - 1][0] == "move" and rig.calls[i - 2][0] == "reseed"
+            assert rig.calls[i - 2][1][0] == 4
+
+
+def test_a_rig_per_slot_sets_up_each_scene_once_and_gives_the_same_results(moving):
+    db, model = moving
+    rec = Recognizer(model, RandomPlanner(3), p_threshold=0.999)
+    specs = plan_trials(2, 3, (3,), 4, seed=2)  # 8 trials
+    shared = StrictRig(db)
+    a = run_trials(rec, shared, specs, key=jr.PRNGKey(1), batch=3)
+    pool = [StrictRig(db) for _ in range(3)]
+    b = run_trials(rec, pool, specs, key=jr.PRNGKey(1), batch=3)
+    assert sorted(a, key=lambda r: r.trial) == sorted(b, key=lambda r: r.trial)
+    assert sum(c[0] == "reset" for r in pool for c in r.calls) == len(specs)
+    captures = sum(c[0] == "capture" for c in shared.calls)
+    assert len(specs) <= sum(c[0] == "reset" for c in shared.calls) <= captures
+
+
+def _refill_rounds(lengths, batch):
+    """Oracle: lockstep rounds when a finished slot takes the next trial at the next round."""
+    queue, slots, rounds = list(lengths), [0] * batch, 0
+    while queue or any(slots):
+        slots = [s if s else (queue.pop(0) if queue else 0) for s in slots]
+        rounds += 1
+        slots = [max(s - 1, 0) for s in slots]
+    return rounds
+
+
+def test_slots_refill_so_the_batch_stays_busy(moving, monkeypatch):
+    """A finished slot takes the next trial at once, so B = 2 slots need the
+    refill schedule's rounds, fewer than chunks of 2 run to their longest."""
+    import jaxrecog.driver as D
+
+    db, model = moving
+    rounds = []
+    real = D.batched_step
+
+    def counting(*a, **k):
+        step = real(*a, **k)
+        return lambda *args: (rounds.append(1), step(*args))[1]
+
+    monkeypatch.setattr(D, "batched_step", counting)
+    rec = Recognizer(model, RandomPlanner(3), p_threshold=0.6, max_steps=3)
+    specs = plan_trials(2, 3, (3,), 4, seed=3)
+    results = {r.trial: r for r in run_trials(rec, StrictRig(db), specs, key=jr.PRNGKey(2), batch=2)}
+    lengths = [results[s.trial].steps for s in specs]
+    chunked = sum(max(lengths[i:i + 2]) for i in range(0, len(lengths), 2))
+    assert len(set(lengths)) > 1, lengths  # unequal trials, or the test shows nothing
+    assert len(rounds) == _refill_rounds(lengths, 2) < chunked
+
+
+def test_an_unusable_image_is_counted_and_leaves_the_belief_alone(moving):
+    db, model = moving
+    rec = Recognizer(model, make_planner("mi", model, key=jr.PRNGKey(0), samples=8, min_per_stratum=1), p_threshold=0.999)
+    spec = TrialSpec(0, 1, 2, (0,))
+    seen = []
+    (r,) = run_trials(rec, StrictRig(db, black_at={(0, 0)}), [spec], key=jr.PRNGKey(0), batch=1, trace=True,
+                      on_step=seen.append)
+    assert r.invalid_steps == 1 and not seen[0].decision.valid and all(s.decision.valid for s in seen[1:])
+    # the belief after the black image is still the uniform prior
+    probs = np.asarray(seen[0].decision.trace.object_probs)
+    np.testing.assert_allclose(probs, np.full(2, 0.5), atol=1e-6)
+    for s in seen:
+        for leaf in jax.tree.leaves(s.decision.trace.posterior):
+            assert not np.any(np.isnan(np.asarray(leaf)))
+
+
+def test_driver_rejects_a_rig_of_another_layout_and_duplicate_trials(moving):
+    db, model = moving
+    rec = Recognizer(model, RandomPlanner(3))
+
+    class Other(StrictRig):
+        positions = property(lambda self: (4,))
+
+    with pytest.raises(ValueError, match=r"rig positions \(4,\) differ from the model's \(3,\)"):
+        run_trials(rec, Other(db), [TrialSpec(0, 0, 0, (0,))], key=jr.PRNGKey(0))
+    with pytest.raises(ValueError, match="unique"):
+        run_trials(rec, StrictRig(db), [TrialSpec(0, 0, 0, (0,))] * 2, key=jr.PRNGKey(0))
+    with pytest.raises(ValueError, match="at least one rig"):
+        run_trials(rec, [], [TrialSpec(0, 0, 0, (0,))], key=jr.PRNGKey(0))
+
+
+# ---------------------------------------------------------------- Capture
+
+
+def test_capture_checks_its_parts():
+    img = np.zeros((2, 4, 5), np.uint8)
+    assert Capture(img, (0.0, 0.5)).occluded == (0.0, 0.5)
+    assert Capture.of([img[0], img[1]]).occluded == ()
+    with pytest.raises(RigError, match="2 image.* 1 occluded"):
+        Capture(img, (0.0,))
+    with pytest.raises(RigError, match="one 2-D image per camera"):
+        Capture(img[0], ())
+
+
+# ---------------------------------------------------------------- index <-> configuration
+
+
+@pytest.mark.parametrize("positions", [(32, 7), (5,), (3, 2, 4)])
+def test_index_helpers_agree_with_numpy_and_under_jit(positions):
+    total = int(np.prod(positions))
+    for a in range(total):
+        cfg = config_from_index(a, positions)
+        assert cfg == tuple(int(v) for v in np.unravel_index(a, positions))
+        assert index_from_config(cfg, positions) == a == np.ravel_multi_index(cfg, positions)
+        assert index_from_config(tuple(np.int64(v) for v in cfg), positions) == a
+    to_cfg = jax.jit(lambda a: jnp.stack(config_from_index(a, positions)))
+    to_idx = jax.jit(lambda c: index_from_config(c, positions))
+    a = jnp.arange(total)
+    cfgs = jax.vmap(to_cfg)(a)
+    np.testing.assert_array_equal(cfgs, np.stack(np.unravel_index(np.arange(total), positions), axis=1))
+    np.testing.assert_array_equal(jax.vmap(to_idx)(cfgs), np.arange(total))
+
+
+def test_index_helpers_range_check_concrete_values():
+    with pytest.raises(ValueError, match="outside 0..223"):
+        config_from_index(224, (32, 7))
+    with pytest.raises(ValueError, match=r"\(3, 7\) does not fit the positions \(32, 7\)"):
+        index_from_config((3, 7), (32, 7))
+    with pytest.raises(ValueError, match="does not fit"):
+        index_from_config((1,), (32, 7))
+
+
+def test_update_with_a_false_valid_mask_changes_nothing():
+    b = K.uniform_belief(4, (2, 3))
+    ll = (jnp.arange(8.0).reshape(4, 2), jnp.zeros((4, 3)))
+    out, info = K.update_with_info(b, ll, valid=jnp.asarray(False))
+    assert not bool(info.ok)
+    for x, y in zip(jax.tree.leaves(out), jax.tree.leaves(b)):
+        np.testing.assert_array_equal(x, y)
+    moved, info = K.update_with_info(b, ll, valid=True)
+    assert bool(info.ok) and not np.allclose(moved.log_pc, b.log_pc)
