@@ -112,9 +112,9 @@ def pan_tilt_driver(name: str) -> type:
     try:
         cls = getattr(importlib.import_module(module), attr)
     except (ImportError, AttributeError, ValueError) as e:
-        raise ImportError(f"pan-tilt driver {name!r}: cannot import {entry!r}: {e}") from e
+        raise ImportError(f"cannot import pan-tilt driver {entry!r}: {e}") from e
     if not isinstance(cls, type):
-        raise ImportError(f"pan-tilt driver {name!r}: {entry!r} is not a class")
+        raise ImportError(f"pan-tilt driver {entry!r} is not a class")
     return cls
 
 
