@@ -78,6 +78,17 @@ import serial
 
 from .pan_tilt import PanTiltConnectionError, PanTiltError
 
+try:
+    import termios
+except ImportError:  # not POSIX
+    termios = None  # type: ignore[assignment]
+
+# what a vanished device raises: pyserial's own errors, the OS's, and (from
+# Serial.flush on a pty whose other end closed) termios.error, which is neither
+_IO_ERRORS: tuple[type[BaseException], ...] = (serial.SerialException, OSError) + (
+    (termios.error,) if termios is not None else ()
+)
+
 __all__ = [
     "PTU",
     "PTUError",
@@ -293,7 +304,7 @@ class PTU:
         if self._ser is not None:
             try:
                 self._ser.close()
-            except (serial.SerialException, OSError):
+            except _IO_ERRORS:
                 pass
             self._ser = None
 
@@ -374,12 +385,12 @@ class PTU:
                 if not ser.read(max(1, ser.in_waiting)):
                     break
             ser.reset_input_buffer()
-        except (serial.SerialException, OSError):
+        except _IO_ERRORS:
             pass
         finally:
             try:
                 ser.timeout = old
-            except (serial.SerialException, OSError):
+            except _IO_ERRORS:
                 pass
 
     def _recover(self) -> None:
@@ -394,14 +405,14 @@ class PTU:
             if timeout is not None:
                 ser.timeout = timeout
             line = ser.read_until(b"\n", 256)
-        except (serial.SerialException, OSError) as e:
+        except _IO_ERRORS as e:
             self._unsure = [True, True]  # whatever happened to this command, read the axes back
             raise PTUConnectionError(command, f"serial I/O failed on {self.url!r}: {e}") from e
         finally:
             if timeout is not None and self._ser is not None:
                 try:
                     self._ser.timeout = self.timeout
-                except (serial.SerialException, OSError):
+                except _IO_ERRORS:
                     pass
         line = self._strip_markers(command, line)
         if not line.endswith(b"\n"):
