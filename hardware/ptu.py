@@ -41,8 +41,9 @@ else, with the timeout ``homing_timeout``; :meth:`PTU.reset` waits for the
 reset's ``*`` as long; if either gives up, the next move waits again first.
 Every wait in the driver is bounded: a reply line by ``timeout``, ``A`` by
 the motion time plus ``await_margin`` (or ``homing_timeout``), a drain by a
-fixed number of timeouts; after a failed ``A`` the axes are read back before
-the next move.
+fixed number of timeouts, a write by ``timeout`` (``write_timeout``; the driver
+never calls ``flush()``, whose ``tcdrain`` has no timeout); after a failed
+``A`` the axes are read back before the next move.
 
 Angles in this module's public API are **degrees**; the unit works in
 **positions**, ``positions = round(degrees * 3600 / resolution_arcsec)``.
@@ -400,8 +401,9 @@ class PTU:
         """Send ``command`` and return one raw reply line (with CR LF)."""
         ser = self._port(command)
         try:
+            # (no flush(): tcdrain ignores write_timeout and can block for ever on a
+            # hung adapter; write() already returns within write_timeout)
             ser.write(command.encode("ascii") + b" ")
-            ser.flush()
             if timeout is not None:
                 ser.timeout = timeout
             line = ser.read_until(b"\n", 256)
