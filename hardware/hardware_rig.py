@@ -67,7 +67,7 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 RECONNECT_FIRST_DELAY_S = 0.05
-RECONNECT_MAX_DELAY_S = 1.0
+RECONNECT_MAX_DELAY_S = 0.5
 
 
 @dataclasses.dataclass(frozen=True)
