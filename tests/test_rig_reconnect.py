@@ -123,6 +123,17 @@ def test_hardware_rig_finds_the_unit_again_through_reconnect_glob(tmp_path):
             assert rig.ptus[0].position() == pytest.approx(want, abs=185.1428 / 3600)
 
 
+def test_controller_restart_mid_move_is_one_rig_error_and_the_next_move_works(rig):
+    rig.move((3, 2))
+    rig.controller_sim.inject_restart("after_execute")
+    with pytest.raises(RigError, match=r"^motion controller: move to configuration \(4, 4\) failed: "
+                                       r"motion controller restarted .* not resent"):
+        rig.move((4, 4))
+    assert not rig.in_position and rig.link.stats["controller_restart"] == 1
+    rig.move((4, 4))  # commanded again, on the new session
+    assert rig.in_position and rig.last_move.seq == 1
+
+
 # ---------------------------------------------------------------- the driver registry
 class FakePanTilt:
     """A second pan-tilt driver, as a user would add one: the PanTilt members only."""
