@@ -175,11 +175,16 @@ class ControllerLink:
         self.close()
 
     # ------------------------------------------------------------ receive
-    def _classify(self, data: bytes, seq: int, want: tuple[MsgType, ...], move: Move | None) -> Datagram | None:
+    def _decode(self, data: bytes) -> Datagram | None:
         try:
-            dg = decode(data)
+            return decode(data)
         except DatagramError:
             self.stats["corrupt"] += 1
+            return None
+
+    def _classify(self, data: bytes, seq: int, want: tuple[MsgType, ...], move: Move | None) -> Datagram | None:
+        dg = self._decode(data)
+        if dg is None:
             return None
         if dg.session != self.session:
             self.stats["foreign"] += 1
@@ -198,10 +203,8 @@ class ControllerLink:
         return None
 
     def _classify_welcome(self, data: bytes, nonce: int) -> Datagram | None:
-        try:
-            dg = decode(data)
-        except DatagramError:
-            self.stats["corrupt"] += 1
+        dg = self._decode(data)
+        if dg is None:
             return None
         if dg.type != MsgType.WELCOME:
             self.stats["unexpected_type"] += 1  # e.g. a late reply of the session before
