@@ -15,10 +15,11 @@ from .rig import Capture, Rig, RigError, config_from_index, index_from_config
 from .camera import Camera, CameraError, ImageSequenceCamera, VideoCamera
 from .config import ConfigError, RigConfig, load_config
 from .controller_sim import ControllerSimulator, LinkFaults
-from .hardware_rig import HardwareRig, SimulatedHardwareRig, rig_from_config
-from .ptu import PTU, PTUError, PTUErrorReply, PTUGarbageError, PTULimitError, PTUTimeoutError
+from .hardware_rig import HardwareRig, Reconnect, SimulatedHardwareRig, rig_from_config
+from .pan_tilt import PanTilt, PanTiltConnectionError, PanTiltError, register_pan_tilt
+from .ptu import PTU, PTUError, PTUErrorReply, PTUGarbageError, PTUHomingTimeout, PTULimitError, PTUTimeoutError
 from .ptu_sim import PTUSimulator
-from .udp_link import ControllerLink, ControllerRejected, LinkError, LinkTimeoutError
+from .udp_link import ControllerLink, ControllerRejected, ControllerRestarted, LinkError, LinkTimeoutError
 
 # The synthetic rig renders with pybullet, imported only when a scene is built
 # (scene.require_pybullet), so this package imports without the `sim` extra.
@@ -34,6 +35,7 @@ __all__ = [
     "ConfigError",
     "ControllerLink",
     "ControllerRejected",
+    "ControllerRestarted",
     "ControllerSimulator",
     "HardwareRig",
     "ImageSequenceCamera",
@@ -44,13 +46,19 @@ __all__ = [
     "PTUError",
     "PTUErrorReply",
     "PTUGarbageError",
+    "PTUHomingTimeout",
     "PTULimitError",
     "PTUSimulator",
     "PTUTimeoutError",
+    "PanTilt",
+    "PanTiltConnectionError",
+    "PanTiltError",
+    "Reconnect",
     "RigConfig",
     "SimulatedHardwareRig",
     "VideoCamera",
     "load_config",
+    "register_pan_tilt",
     "rig_from_config",
     "Board",
     "DatasetRig",

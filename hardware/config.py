@@ -16,6 +16,7 @@ import tomllib
 from typing import Any
 
 from .controller_sim import LinkFaults
+from .pan_tilt import DEFAULT_PAN_TILT, pan_tilt_driver
 from .positions import CameraTable, default_table
 
 __all__ = [
@@ -44,6 +45,13 @@ class PTUConfig:
     ``el`` (up positive) are ``pan = pan_sign * wrap(az - pan_zero_deg)`` and
     ``tilt = el - tilt_zero_deg``: ``pan_zero_deg`` / ``tilt_zero_deg`` are the
     azimuth / elevation the camera looks along at PTU position (0, 0).
+
+    ``driver`` names the pan-tilt driver (:mod:`.pan_tilt`; default the
+    PTU-D46).  When the unit's device disappears, the rig tries ``port``
+    and every path matching ``reconnect_glob`` (e.g.
+    ``"/dev/serial/by-id/usb-FTDI_*"``) with a bounded backoff for
+    ``reconnect_s`` seconds (0: fail at once); ``homing_timeout_s`` bounds
+    the wait for a unit that is still homing after a reset or power-up.
     """
 
     port: str = ""
@@ -53,6 +61,10 @@ class PTUConfig:
     tilt_zero_deg: float = 0.0
     pan_sign: int = 1
     speed_deg_s: float | None = None
+    driver: str = DEFAULT_PAN_TILT
+    reconnect_s: float = 10.0
+    reconnect_glob: str = ""
+    homing_timeout_s: float = 30.0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -68,10 +80,13 @@ class CameraConfig:
 
 @dataclasses.dataclass(frozen=True)
 class ControllerConfig:
+    """``max_motion_s`` bounds how long ``MOVING`` replies may extend the wait for one move."""
+
     host: str = "127.0.0.1"
     port: int = 0
     timeout_s: float = 0.25
     retries: int = 5
+    max_motion_s: float = 600.0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -120,8 +135,17 @@ class RigConfig:
                 cam = dataclasses.replace(cam, source=os.path.join(os.fspath(base_dir), cam.source))
             cams.append(cam)
         for i, p in enumerate(ptus):
+            where = f"[[ptu]] #{i + 1}"
             if p.pan_sign not in (1, -1):
-                raise ConfigError(f"[[ptu]] #{i + 1}: pan_sign = {p.pan_sign!r} must be 1 or -1")
+                raise ConfigError(f"{where}: pan_sign = {p.pan_sign!r} must be 1 or -1")
+            if not p.reconnect_s >= 0:
+                raise ConfigError(f"{where}: reconnect_s = {p.reconnect_s!r} must be >= 0 seconds")
+            if not p.homing_timeout_s > 0:
+                raise ConfigError(f"{where}: homing_timeout_s = {p.homing_timeout_s!r} must be > 0 seconds")
+            try:
+                pan_tilt_driver(p.driver)
+            except (KeyError, ImportError) as e:
+                raise ConfigError(f"{where}: driver = {p.driver!r}: {e.args[0]}") from e
         sim_d = dict(top.get("simulation", {}))
         faults_d = sim_d.pop("faults", {})
         faults_d = {k: tuple(v) if isinstance(v, list) else v for k, v in faults_d.items()}
@@ -134,6 +158,8 @@ class RigConfig:
     def validate(self) -> None:
         """Check that the parts fit together (counts, the controller address)."""
         n = self.table.n_cameras
+        if not self.controller.max_motion_s > 0:
+            raise ConfigError(f"[controller] max_motion_s = {self.controller.max_motion_s!r} must be > 0 seconds")
         if n not in (1, 2):
             raise ConfigError(f"[table] describes {n} cameras; the controller protocol drives 1 or 2")
         if self.kind == "hardware":

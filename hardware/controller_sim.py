@@ -10,10 +10,20 @@ encoders: 10 um on the linear axes, 20,000 counts a turn on the turn-table,
 thesis §6.3).  Moves that take longer than ``moving_after_s`` are first
 acknowledged with ``MOVING``.
 
-Per session, a MOVE with the sequence number already executed is answered from
-a cache (idempotent), an older one is ignored (it must never move the rig
-backwards), and a newer one is a new move.  A new session id retires the old
-one.
+Sessions.  A ``HELLO`` opens a session: the controller issues a new session
+id (answering a repeated HELLO -- same nonce -- with the same ``WELCOME``) and
+retires the one before.  Per session, a MOVE with the sequence number already
+executed is answered from a cache (idempotent), an older one is ignored (it
+must never move the rig backwards), and a newer one is a new move.  A MOVE of
+a retired session is ignored; one of a session this controller never issued
+is answered ``REJECTED(UNKNOWN_SESSION)`` and not executed.
+
+Restarts.  :meth:`ControllerSimulator.restart` is a reboot: a new boot id, no
+sessions, no cache, nothing queued in or out (the axes keep their encoder
+positions), deaf for ``down_s`` seconds.  :meth:`ControllerSimulator.inject_restart`
+makes the next new MOVE restart the controller ``"before_execute"`` (it never
+runs) or ``"after_execute"`` (it runs, the reply is never sent) -- a restart
+between request and reply.
 
 Network faults hit both directions alike: every incoming request and every
 outgoing reply goes through the same fault model -- ``loss``, ``duplicate``
@@ -37,8 +47,10 @@ timing).
 controller: ``corrupt`` (failed decoding, dropped), ``new`` (a new seq:
 executed or rejected), ``repeat`` (the seq just executed: answered from the
 cache), ``stale`` (an older seq: ignored), ``retired`` (a retired session:
-ignored), ``duplicate_copy`` (the extra copy of a duplicated request, handled
-like any other).
+ignored), ``unknown_session`` (rejected, not executed), ``hello`` /
+``hello_repeat`` (sessions opened / WELCOMEs resent), ``restart``,
+``request_down`` (arrived while restarting: lost), ``duplicate_copy`` (the
+extra copy of a duplicated request, handled like any other).
 """
 
 from __future__ import annotations
@@ -56,12 +68,14 @@ import time
 from .datagram import (
     Datagram,
     DatagramError,
+    Hello,
     InPosition,
     Move,
     Moving,
     MsgType,
     Rejected,
     RejectCode,
+    Welcome,
     decode,
     encode,
 )
@@ -151,8 +165,14 @@ class ControllerSimulator:
         self.turntable = 0.0
         self.executed: list[ExecutedMove] = []
         self.received = 0
+        self.boots = 0  # restarts so far
+        self._draws: collections.Counter[str] = collections.Counter()
+        self.boot = self._draw("boot")
         self._session: int | None = None
-        self._retired: set[int] = set()
+        self._issued: set[int] = set()  # sessions issued since this boot (the current one and the retired)
+        self._welcome: tuple[int, Datagram] | None = None  # (nonce, WELCOME) of the last HELLO
+        self._restart_on: tuple[str, float] | None = None  # inject_restart()
+        self._down_until = 0.0
         self._last_seq = 0
         self._cache: Datagram | None = None  # reply to the last executed seq
         self._busy_until = 0.0  # wall time the last move finishes
@@ -179,6 +199,36 @@ class ControllerSimulator:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+    def _draw(self, what: str) -> int:
+        """A seeded u32 (boot ids, session ids) that is never 0."""
+        n = self._draws[what]
+        self._draws[what] += 1
+        return random.Random(f"{self.seed}|{what}|{self.boots}|{n}").getrandbits(32) or 1
+
+    def restart(self, down_s: float = 0.0) -> None:
+        """Reboot now: new boot id; sessions, cache and queued datagrams are lost; deaf for ``down_s`` s."""
+        with self._lock:
+            self._restart(down_s)
+
+    def _restart(self, down_s: float) -> None:
+        self.boots += 1
+        self.boot = self._draw("boot")
+        self._session, self._issued, self._welcome = None, set(), None
+        self._last_seq, self._cache = 0, None
+        self._queue.clear()
+        self._inbox.clear()
+        self._busy_until = time.monotonic()
+        self._down_until = time.monotonic() + down_s
+        self._restart_on = None
+        self.stats["restart"] += 1
+
+    def inject_restart(self, when: str = "after_execute", down_s: float = 0.0) -> None:
+        """Restart on the next new MOVE, ``"before_execute"`` or ``"after_execute"`` (its reply lost)."""
+        if when not in ("before_execute", "after_execute"):
+            raise ValueError(f"when must be 'before_execute' or 'after_execute', not {when!r}")
+        with self._lock:
+            self._restart_on = (when, float(down_s))
 
     @property
     def silent(self) -> bool:
@@ -277,6 +327,9 @@ class ControllerSimulator:
         if self.faults.silent:
             self.stats["request_silenced"] += 1
             return
+        if time.monotonic() < self._down_until:
+            self.stats["request_down"] += 1
+            return
         try:
             dg = decode(data)
         except DatagramError:
@@ -293,15 +346,29 @@ class ControllerSimulator:
             self.stats["ping"] += 1
             self._send(Datagram(MsgType.PONG, dg.session, dg.seq), peer)
             return
+        if dg.type == MsgType.HELLO:
+            self._hello(dg, peer)
+            return
         if dg.type != MsgType.MOVE:
             return
+        assert isinstance(dg.payload, Move)
         if dg.session != self._session:
-            if dg.session in self._retired:
+            if dg.session in self._issued:
                 self.stats["retired"] += 1
                 return  # a straggler from an earlier client
-            if self._session is not None:
-                self._retired.add(self._session)
-            self._session, self._last_seq, self._cache = dg.session, 0, None
+            self.stats["unknown_session"] += 1  # issued before a restart, or never: do not run it
+            reason = "unknown session (the controller restarted, or no HELLO)"
+            self._send(Datagram(MsgType.REJECTED, dg.session, dg.seq,
+                                Rejected(dg.payload, RejectCode.UNKNOWN_SESSION, reason)), peer)
+            return
+        if dg.seq > self._last_seq and self._restart_on is not None:
+            when, down_s = self._restart_on
+            if when == "before_execute":
+                self._restart(down_s)
+                return
+            self._execute(dg)
+            self._restart(down_s)
+            return
         if dg.seq < self._last_seq:
             self.stats["stale"] += 1
             return  # stale retransmission: never move backwards
@@ -315,7 +382,6 @@ class ControllerSimulator:
             else:
                 self._send(reply, peer)
             return
-        assert isinstance(dg.payload, Move)
         self.stats["new"] += 1
         self._last_seq = dg.seq
         self._cache = reply = self._execute(dg)
@@ -327,6 +393,22 @@ class ControllerSimulator:
         if self._duration_s > self.moving_after_s:
             self._send(Datagram(MsgType.MOVING, dg.session, dg.seq, Moving(dg.payload, self._duration_s)), peer)
         self._send(reply, peer, not_before=self._busy_until)
+
+    def _hello(self, dg: Datagram, peer: tuple) -> None:
+        hello = dg.payload
+        assert isinstance(hello, Hello)
+        if self._welcome is not None and self._welcome[0] == hello.nonce:
+            self.stats["hello_repeat"] += 1  # a retransmitted HELLO: the same session, not another
+            self._send(self._welcome[1], peer)
+            return
+        session = self._draw("session")
+        while session in self._issued:
+            session = self._draw("session")
+        self._issued.add(session)
+        self._session, self._last_seq, self._cache = session, 0, None  # the one before is retired
+        self._welcome = (hello.nonce, Datagram(MsgType.WELCOME, session, 0, Welcome(hello.nonce, self.boot)))
+        self.stats["hello"] += 1
+        self._send(self._welcome[1], peer)
 
     def _execute(self, dg: Datagram) -> Datagram:
         move = dg.payload

@@ -20,6 +20,10 @@ Payloads (IEEE-754 doubles, radians and metres):
   track y, turntable angle (4 d) -- the capture signal
 * ``REJECTED``    controller -> client: the MOVE echoed (4 d), code (u16), UTF-8 reason
 * ``PING`` / ``PONG``: empty
+* ``HELLO``       client -> controller: nonce (u32); header session 0, seq 0
+* ``WELCOME``     controller -> client: the nonce echoed (u32), the controller's
+  boot id (u32); the header's session is the new session id the controller
+  issued, seq 0
 
 :func:`decode` raises :class:`DatagramError` -- and nothing else -- for any
 input that is not a well-formed datagram of this version.
@@ -45,6 +49,8 @@ __all__ = [
     "Moving",
     "InPosition",
     "Rejected",
+    "Hello",
+    "Welcome",
     "encode",
     "decode",
 ]
@@ -59,6 +65,8 @@ _MOVE = struct.Struct("!4d")
 _MOVING = struct.Struct("!4dd")
 _INPOS = struct.Struct("!8d")
 _REJ = struct.Struct("!4dH")
+_HELLO = struct.Struct("!I")
+_WELCOME = struct.Struct("!II")
 _MAX_REASON = 200
 
 
@@ -69,12 +77,15 @@ class MsgType(enum.IntEnum):
     REJECTED = 4
     PING = 5
     PONG = 6
+    HELLO = 7
+    WELCOME = 8
 
 
 class RejectCode(enum.IntEnum):
     WORKSPACE = 1  # a kinematics / workspace limit
     BAD_REQUEST = 2  # payload the controller cannot act on
     BUSY = 3  # a newer move superseded this one
+    UNKNOWN_SESSION = 4  # a session this controller never issued (it restarted since): not executed
 
 
 class DatagramError(ValueError):
@@ -118,7 +129,23 @@ class Rejected:
     reason: str
 
 
-Payload = Move | Moving | InPosition | Rejected | None
+@dataclasses.dataclass(frozen=True)
+class Hello:
+    """Opens a session: ``nonce`` is the client's random tag for the WELCOME it waits for."""
+
+    nonce: int
+
+
+@dataclasses.dataclass(frozen=True)
+class Welcome:
+    """The controller's answer to a HELLO: the nonce echoed and its boot id (new after
+    every restart); the datagram's ``session`` is the session id it issued."""
+
+    nonce: int
+    boot: int
+
+
+Payload = Move | Moving | InPosition | Rejected | Hello | Welcome | None
 
 _PAYLOAD_TYPE = {
     MsgType.MOVE: Move,
@@ -127,6 +154,8 @@ _PAYLOAD_TYPE = {
     MsgType.REJECTED: Rejected,
     MsgType.PING: type(None),
     MsgType.PONG: type(None),
+    MsgType.HELLO: Hello,
+    MsgType.WELCOME: Welcome,
 }
 
 
@@ -150,6 +179,13 @@ def _pack_payload(dg: Datagram) -> bytes:
         raise DatagramError(f"{dg.type.name} needs a {_PAYLOAD_TYPE[dg.type].__name__} payload, got {type(p).__name__}")
     if p is None:
         return b""
+    if isinstance(p, Hello):
+        _u32(p.nonce, "HELLO nonce")
+        return _HELLO.pack(p.nonce)
+    if isinstance(p, Welcome):
+        _u32(p.nonce, "WELCOME nonce")
+        _u32(p.boot, "WELCOME boot")
+        return _WELCOME.pack(p.nonce, p.boot)
     if isinstance(p, Move):
         vals = p.astuple()
         _finite(vals, "MOVE")
@@ -170,12 +206,15 @@ def _pack_payload(dg: Datagram) -> bytes:
     return _REJ.pack(*p.move.astuple(), p.code) + reason
 
 
+def _u32(v: int, what: str) -> None:
+    if not 0 <= v <= 0xFFFFFFFF:
+        raise DatagramError(f"{what} {v} does not fit in u32")
+
+
 def encode(dg: Datagram) -> bytes:
     """Datagram -> bytes (header, payload, CRC32)."""
     for name in ("session", "seq"):
-        v = getattr(dg, name)
-        if not 0 <= v <= 0xFFFFFFFF:
-            raise DatagramError(f"{name} {v} does not fit in u32")
+        _u32(getattr(dg, name), name)
     payload = _pack_payload(dg)
     head = _HEADER.pack(MAGIC, VERSION, int(dg.type), dg.session, dg.seq, len(payload))
     body = head + payload
@@ -193,6 +232,10 @@ def _unpack_payload(t: MsgType, raw: bytes) -> Payload:
         if raw:
             raise DatagramError(f"{t.name} carries no payload, got {len(raw)} bytes")
         return None
+    if t == MsgType.HELLO:
+        return Hello(*need(_HELLO))
+    if t == MsgType.WELCOME:
+        return Welcome(*need(_WELCOME))
     if t == MsgType.MOVE:
         v = need(_MOVE)
         _finite(v, t.name)

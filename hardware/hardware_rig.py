@@ -6,8 +6,8 @@
   position in the :class:`.positions.CameraTable`, sends camera-1 pan/tilt,
   camera-2 pan and the turn-table angle to the motion controller over UDP
   (:class:`.udp_link.ControllerLink`), waits for ``IN_POSITION`` (the capture
-  signal, §6.6), then points each pan-tilt unit (:class:`.ptu.PTU`) from the
-  *achieved* camera position at the object:
+  signal, §6.6), then points each pan-tilt unit (a :class:`.pan_tilt.PanTilt`,
+  by default :class:`.ptu.PTU`) from the *achieved* camera position at the object:
   ``az = atan2(dx, dy)``, ``el = atan2(dz, hypot(dx, dy))`` with
   ``d = object - eye``, turned into PTU angles by the mount
   (:class:`.config.PTUConfig`).
@@ -15,6 +15,17 @@
   reported in position.
 * ``reset(object, pose)`` turns the turn-table to ``360 deg * pose / n_poses``;
   placing the object is a person's job on a real rig (``on_reset`` callback).
+
+A pan-tilt unit whose device disappears during a move (USB unplug, power
+cycle: :class:`.pan_tilt.PanTiltConnectionError`) is reconnected: the rig tries
+its ``port`` and the paths matching its ``reconnect_glob`` (not those of the
+other units) with a backoff from ``RECONNECT_FIRST_DELAY_S`` doubling up to
+``RECONNECT_MAX_DELAY_S``, for at most the unit's ``reconnect_s``
+(``[[ptu]]`` key) plus the attempt in progress; the driver re-reads the unit
+(resolution, limits, axes; it waits for a homing unit) and the rig re-applies
+the speed and repeats the interrupted pointing once.  Each success is logged
+and recorded in :attr:`HardwareRig.reconnects`; a unit that is not back in
+time, or is lost again in the repeat, fails the move with one ``RigError``.
 
 :class:`SimulatedHardwareRig` runs the same code path against the device
 simulators (:class:`.ptu_sim.PTUSimulator` on ptys,
@@ -27,22 +38,52 @@ checking that the simulated PTU really points at the object.
 
 from __future__ import annotations
 
+import dataclasses
+import glob
 import logging
 import math
+import time
 from typing import Any, Callable, Protocol, Sequence
 
 import numpy as np
 
 from .camera import CameraError, ImageSequenceCamera, VideoCamera
 from .config import ConfigError, RigConfig, load_config
+from .pan_tilt import PanTilt, PanTiltConnectionError, PanTiltError, open_pan_tilt
 from .positions import CameraTable
-from .ptu import PTU, PTUError
 from .rig import Capture, RigError
 from .udp_link import ControllerLink, LinkError, MoveResult
 
-__all__ = ["HardwareRig", "SimulatedHardwareRig", "Renderer", "ptu_angles", "line_of_sight", "rig_from_config"]
+__all__ = [
+    "HardwareRig",
+    "SimulatedHardwareRig",
+    "Reconnect",
+    "Renderer",
+    "ptu_angles",
+    "line_of_sight",
+    "rig_from_config",
+]
 
 log = logging.getLogger(__name__)
+
+RECONNECT_FIRST_DELAY_S = 0.05
+RECONNECT_MAX_DELAY_S = 0.5
+
+
+@dataclasses.dataclass(frozen=True)
+class Reconnect:
+    """One pan-tilt unit brought back: camera (0-based), the port it came back on,
+    seconds from the failed command to the unit answering again, attempts made."""
+
+    camera: int
+    port: str
+    seconds: float
+    attempts: int
+
+
+class _UnitLost(Exception):
+    def __init__(self, camera: int, error: PanTiltConnectionError):
+        self.camera, self.error = camera, error
 
 
 class Renderer(Protocol):
@@ -91,7 +132,8 @@ class HardwareRig:
 
     Args:
         config: a :class:`.config.RigConfig` (``load_config("rig.toml")``) or a path.
-        ptus, link, cameras: ready-made devices (built from ``config`` when omitted).
+        ptus, link, cameras: ready-made devices (built from ``config`` when omitted;
+            the pan-tilt units with the driver each ``[[ptu]] driver`` key names).
         on_reset: called as ``on_reset(object, pose, occluders)`` before the
             turn-table turns (default: log a request to place the object).
     """
@@ -100,7 +142,7 @@ class HardwareRig:
         self,
         config: RigConfig | str,
         *,
-        ptus: Sequence[PTU] | None = None,
+        ptus: Sequence[PanTilt] | None = None,
         link: ControllerLink | None = None,
         cameras: Sequence[Any] | None = None,
         on_reset: Callable[[int, int, Any], None] | None = None,
@@ -114,20 +156,19 @@ class HardwareRig:
         try:
             if link is None:
                 c = config.controller
-                link = ControllerLink((c.host, c.port), timeout=c.timeout_s, retries=c.retries)
+                link = ControllerLink((c.host, c.port), timeout=c.timeout_s, retries=c.retries,
+                                      max_motion_s=c.max_motion_s)
                 self._opened.append(link)
             self.link = link
             if ptus is None:
                 ptus = []
                 for i in range(n):
-                    p = config.ptu(i)
-                    unit = PTU(p.port, baudrate=p.baudrate, timeout=p.timeout_s)
+                    unit = open_pan_tilt(config.ptu(i))
                     self._opened.append(unit)
                     ptus.append(unit)
             self.ptus = list(ptus)
-            for i, (unit, p) in enumerate(zip(self.ptus, (config.ptu(i) for i in range(n)))):
-                if p.speed_deg_s is not None:
-                    unit.set_speed(p.speed_deg_s, p.speed_deg_s)
+            for i, unit in enumerate(self.ptus):
+                self._apply_speed(i, unit)
             if cameras is None:
                 cameras = []
                 for c in config.cameras:
@@ -136,7 +177,7 @@ class HardwareRig:
                     self._opened.append(cam)
                     cameras.append(cam)
             self.cameras = list(cameras)
-        except (PTUError, LinkError, CameraError) as e:
+        except (PanTiltError, LinkError, CameraError) as e:
             self.close()
             raise RigError(f"cannot open the rig: {e}") from e
         except BaseException:
@@ -150,6 +191,12 @@ class HardwareRig:
         self.in_position = False
         self.last_move: MoveResult | None = None
         self.eyes: list[tuple[float, float, float]] = []
+        self.reconnects: list[Reconnect] = []
+
+    def _apply_speed(self, i: int, unit: PanTilt) -> None:
+        s = self.config.ptu(i).speed_deg_s
+        if s is not None:
+            unit.set_speed(s, s)
 
     # ------------------------------------------------------------ Rig
     @property
@@ -184,21 +231,76 @@ class HardwareRig:
         ws = self.table.workspace
         eyes = [(res.gantry_xy[0], res.gantry_xy[1], ws.cam1_z), (ws.cam2_x, res.track_y, ws.cam2_z)]
         self.eyes = eyes[: len(cfg)]
-        i = 0
         try:
-            starts = []
-            for i, unit in enumerate(self.ptus):
-                pan, tilt = ptu_angles(self.eyes[i], ws.object_xyz, self.config.ptu(i))
-                unit.resync()  # after an earlier fault: learn where the unit really is
-                starts.append(unit.target)
-                unit.move_to(pan, tilt, wait=False)  # all units move at once ...
-            for i, (unit, start) in enumerate(zip(self.ptus, starts)):
-                unit.await_motion(start)  # ... then wait for each
-        except PTUError as e:
-            raise RigError(f"pan-tilt unit of camera {i + 1}: {e}") from e
+            self._point()
+        except _UnitLost as lost:  # the device vanished: bring it back, then point once more
+            self._reconnect(lost.camera, lost.error)
+            try:
+                self._point()
+            except _UnitLost as again:
+                raise RigError(f"pan-tilt unit of camera {again.camera + 1}: lost again after reconnecting: "
+                               f"{again.error}") from again.error
         self.last_move = res
         self._configuration = cfg
         self.in_position = True
+
+    def _point(self) -> None:
+        """Point every unit from its eye at the object: all start at once, then each is awaited."""
+        ws = self.table.workspace
+        i = 0
+        try:
+            for i, unit in enumerate(self.ptus):
+                pan, tilt = ptu_angles(self.eyes[i], ws.object_xyz, self.config.ptu(i))
+                unit.move_to(pan, tilt, wait=False)  # (after an earlier fault it reads the unit back first)
+            for i, unit in enumerate(self.ptus):
+                unit.await_motion()
+        except PanTiltConnectionError as e:
+            raise _UnitLost(i, e) from e
+        except PanTiltError as e:
+            raise RigError(f"pan-tilt unit of camera {i + 1}: {e}") from e
+
+    def _ports(self, i: int) -> list[str]:
+        """Where unit ``i`` may come back: its ``port``, then the ``reconnect_glob`` matches
+        (sorted), leaving out the devices the other units hold."""
+        p = self.config.ptu(i)
+        found = [p.port] if p.port else []
+        if p.reconnect_glob:
+            found += sorted(glob.glob(p.reconnect_glob))
+        taken = {getattr(u, "url", None) for j, u in enumerate(self.ptus) if j != i}
+        return [u for u in dict.fromkeys(found) if u not in taken]
+
+    def _reconnect(self, i: int, error: PanTiltConnectionError) -> None:
+        """Reopen unit ``i`` with a bounded backoff; one ``RigError`` if it is not back in time."""
+        unit, limit = self.ptus[i], self.config.ptu(i).reconnect_s
+        log.warning("pan-tilt unit of camera %d lost its device (%s); reconnecting for up to %.3g s", i + 1, error, limit)
+        t0 = time.monotonic()
+        deadline, delay, attempts, last = t0 + limit, RECONNECT_FIRST_DELAY_S, 0, error
+        tried: list[str] = []
+        while True:
+            for url in self._ports(i):
+                attempts += 1
+                tried.append(url)
+                try:
+                    unit.reconnect(url)
+                    self._apply_speed(i, unit)
+                except PanTiltError as e:
+                    last = e
+                    continue
+                done = Reconnect(i, url, time.monotonic() - t0, attempts)
+                self.reconnects.append(done)
+                log.warning("pan-tilt unit of camera %d is back on %s after %.3f s (%d attempts)",
+                            i + 1, url, done.seconds, attempts)
+                return
+            left = deadline - time.monotonic()
+            if left <= 0:
+                unit.close()
+                where = ", ".join(dict.fromkeys(tried)) or "no port to try (set [[ptu]] port or reconnect_glob)"
+                raise RigError(
+                    f"pan-tilt unit of camera {i + 1}: lost its device and it did not come back within "
+                    f"reconnect_s = {limit:.3g} s ({attempts} attempts on {where}); last error: {last}"
+                ) from error
+            time.sleep(min(delay, left))
+            delay = min(2.0 * delay, RECONNECT_MAX_DELAY_S)
 
     def capture(self) -> Capture:
         """One ``uint8 [H, W]`` image per camera, camera 1 first (occluded
@@ -280,11 +382,12 @@ class SimulatedHardwareRig(HardwareRig):
         opened: list[Any] = [self.controller_sim, *self.ptu_sims]
         try:
             c = config.controller
-            link = ControllerLink(self.controller_sim.address, timeout=c.timeout_s, retries=c.retries)
+            link = ControllerLink(self.controller_sim.address, timeout=c.timeout_s, retries=c.retries,
+                                  max_motion_s=c.max_motion_s)
             opened.append(link)
-            ptus: list[PTU] = []
+            ptus: list[PanTilt] = []
             for i, sim in enumerate(self.ptu_sims):
-                ptus.append(PTU(sim.port, timeout=config.ptu(i).timeout_s))
+                ptus.append(open_pan_tilt(config.ptu(i), port=sim.port))
                 opened.append(ptus[-1])
             super().__init__(config, ptus=ptus, link=link, cameras=[])
         except BaseException:
@@ -292,6 +395,11 @@ class SimulatedHardwareRig(HardwareRig):
                 dev.close()
             raise
         self._opened = opened
+
+    def _ports(self, i: int) -> list[str]:
+        """The simulator's current pty (it may come back under a new path), if it is plugged in."""
+        sim = self.ptu_sims[i]
+        return [sim.port] if sim.plugged else []
 
     def reseed(self, seed) -> None:
         """Restart the renderer's capture noise from ``seed`` (passed through to
@@ -327,7 +435,7 @@ class SimulatedHardwareRig(HardwareRig):
             eye = self.eyes[i]
             try:
                 pan, tilt = unit.position()
-            except PTUError as e:
+            except PanTiltError as e:
                 raise RigError(f"pan-tilt unit of camera {i + 1}: {e}") from e
             want = np.asarray(ws.object_xyz, float) - np.asarray(eye, float)
             want /= np.linalg.norm(want)

@@ -25,6 +25,26 @@ Commands used here (pan ``P`` / tilt ``T``):
 ``R``      reset (re-calibrates; answers ``!T!T!P!P*`` or similar, then ``*``)
 =========  ==============================================================
 
+Asynchronous output.  A unit that reaches a limit switch sends ``!P`` or
+``!T`` (two bytes, no line end) at once, whatever is on the line -- also in
+the middle of the reply to another command, and during a reset's sweep.  The
+driver removes every ``!P`` / ``!T`` from a reply before parsing it.  Outside
+a reset or the connect they are *limit events*: counted in
+:attr:`PTU.limit_events` (per axis), logged as a warning, and the axis's
+position is read back before the next move.
+
+Homing.  After a reset or a power-up the unit calibrates (sweeps to its
+limits and home) while still answering commands -- a position command sent
+then is acknowledged and lost.  So :meth:`PTU.connect` sends ``A`` (which
+answers once every motion, the sweep included, is over) before anything
+else, with the timeout ``homing_timeout``; :meth:`PTU.reset` waits for the
+reset's ``*`` as long; if either gives up, the next move waits again first.
+Every wait in the driver is bounded: a reply line by ``timeout``, ``A`` by
+the motion time plus ``await_margin`` (or ``homing_timeout``), a drain by a
+fixed number of timeouts, a write by ``timeout`` (``write_timeout``; the driver
+never calls ``flush()``, whose ``tcdrain`` has no timeout); after a failed
+``A`` the axes are read back before the next move.
+
 Angles in this module's public API are **degrees**; the unit works in
 **positions**, ``positions = round(degrees * 3600 / resolution_arcsec)``.
 Limits are queried from the unit on connect and checked before sending.
@@ -48,12 +68,27 @@ axes back (``PP``, ``TP``).
 
 from __future__ import annotations
 
+import collections
 import dataclasses
+import logging
 import math
 import re
 import time
 
 import serial
+
+from .pan_tilt import PanTiltConnectionError, PanTiltError
+
+try:
+    import termios
+except ImportError:  # not POSIX
+    termios = None  # type: ignore[assignment]
+
+# what a vanished device raises: pyserial's own errors, the OS's, and (from
+# Serial.flush on a pty whose other end closed) termios.error, which is neither
+_IO_ERRORS: tuple[type[BaseException], ...] = (serial.SerialException, OSError) + (
+    (termios.error,) if termios is not None else ()
+)
 
 __all__ = [
     "PTU",
@@ -63,6 +98,7 @@ __all__ = [
     "PTUGarbageError",
     "PTULimitError",
     "PTUConnectionError",
+    "PTUHomingTimeout",
     "PTULimits",
     "parse_reply",
     "ARCSEC_PER_POSITION_D46_17_5",
@@ -72,8 +108,10 @@ __all__ = [
 #: driver always queries the unit instead of trusting this number.
 ARCSEC_PER_POSITION_D46_17_5 = 185.1428
 
+log = logging.getLogger(__name__)
 
-class PTUError(RuntimeError):
+
+class PTUError(PanTiltError):
     """Base class of every PTU failure; ``command`` is the command that failed."""
 
     def __init__(self, command: str, message: str):
@@ -105,8 +143,12 @@ class PTULimitError(PTUError, ValueError):
     """A requested position or speed lies outside the unit's limits (checked before sending)."""
 
 
-class PTUConnectionError(PTUError):
+class PTUConnectionError(PTUError, PanTiltConnectionError):
     """The serial port could not be opened, read or written."""
+
+
+class PTUHomingTimeout(PTUTimeoutError):
+    """The unit was still busy (homing after a reset or power-up) when the wait ran out."""
 
 
 _NUMBER = {
@@ -115,6 +157,7 @@ _NUMBER = {
 }
 _ERROR_LINE = re.compile(rb"![ \t]*[\x20-\x7e]*")
 _RESET_LINE = re.compile(rb"(?:![PT])*\*")
+_LIMIT_MARKER = re.compile(rb"!([PT])")  # asynchronous limit message; never followed by the space of an error
 
 
 def parse_reply(command: str, line: bytes, expect: str) -> int | float | None:
@@ -176,8 +219,14 @@ class PTU:
         timeout: seconds to wait for one reply line.
         await_margin: extra seconds allowed for ``A`` on top of the motion time
             estimated from distance / speed.
-        connect: open and initialise now (``ED``, ``FT``, ``I``, resolution and
-            limit queries).
+        homing_timeout: seconds to wait for a unit that is homing (after a reset
+            or a power-up) before giving up with :class:`PTUHomingTimeout`.
+        connect: open and initialise now (``ED``, ``FT``, ``I``, ``A``,
+            resolution and limit queries).
+
+    Attributes:
+        limit_events: ``Counter`` of the asynchronous limit messages (``"P"``,
+            ``"T"``) seen outside a reset or the connect.
     """
 
     def __init__(
@@ -187,14 +236,23 @@ class PTU:
         baudrate: int = 9600,
         timeout: float = 0.5,
         await_margin: float = 2.0,
+        homing_timeout: float = 30.0,
         connect: bool = True,
     ):
         if timeout <= 0:
             raise ValueError(f"timeout must be > 0 seconds, got {timeout}")
+        if homing_timeout <= 0:
+            raise ValueError(f"homing_timeout must be > 0 seconds, got {homing_timeout}")
         self.url = url
         self.baudrate = int(baudrate)
         self.timeout = float(timeout)
         self.await_margin = float(await_margin)
+        self.homing_timeout = float(homing_timeout)
+        self.limit_events: collections.Counter[str] = collections.Counter()
+        self._homing_markers = 0  # markers seen during a reset or the connect (expected there)
+        self._expect_markers = False
+        self._homing_pending = False  # a reset or the connect gave up waiting: wait before moving
+        self._move_start: tuple[int, int] | None = None
         self._ser: serial.SerialBase | None = None
         self.resolution_arcsec: tuple[float, float] | None = None
         self.limits: PTULimits | None = None
@@ -203,6 +261,16 @@ class PTU:
         self._unsure = [False, False]  # a failed PP/TP/PO/TO left this axis's target unknown
         if connect:
             self.connect()
+
+    @classmethod
+    def from_config(cls, config, port: str | None = None) -> "PTU":
+        """The unit of a ``[[ptu]]`` entry (:class:`.config.PTUConfig`); ``port`` overrides its ``port``."""
+        return cls(
+            config.port if port is None else port,
+            baudrate=config.baudrate,
+            timeout=config.timeout_s,
+            homing_timeout=config.homing_timeout_s,
+        )
 
     # ------------------------------------------------------------ connection
     def connect(self) -> None:
@@ -225,16 +293,19 @@ class PTU:
             self.close()  # a unit that does not answer is not connected; reconnect() retries
             raise
 
-    def reconnect(self) -> None:
-        """Close and reopen the port, then initialise the unit again."""
+    def reconnect(self, url: str | None = None) -> None:
+        """Close and reopen the port (``url`` if given: a device that came back
+        under a new path), then initialise the unit again."""
         self.close()
+        if url is not None:
+            self.url = url
         self.connect()
 
     def close(self) -> None:
         if self._ser is not None:
             try:
                 self._ser.close()
-            except (serial.SerialException, OSError):
+            except _IO_ERRORS:
                 pass
             self._ser = None
 
@@ -248,14 +319,20 @@ class PTU:
         # At power-up the unit echoes input and answers verbosely; the replies to
         # these two mode switches are therefore accepted leniently (a '*' somewhere).
         self._drain()
-        for cmd in ("ED", "FT"):
-            line = self._exchange(cmd)
-            if b"*" not in line:
-                self._recover()
-                if line.lstrip().startswith(b"!"):
-                    raise PTUErrorReply(cmd, line.decode("ascii", "replace").strip())
-                raise PTUGarbageError(cmd, line, "expected a '*' acknowledgement")
-        self.command("I")
+        self._expect_markers = True  # a unit homing after a power-up sends its limit markers now
+        try:
+            for cmd in ("ED", "FT"):
+                line = self._exchange(cmd)
+                if b"*" not in line:
+                    self._recover()
+                    if line.lstrip().startswith(b"!"):
+                        raise PTUErrorReply(cmd, line.decode("ascii", "replace").strip())
+                    raise PTUGarbageError(cmd, line, "expected a '*' acknowledgement")
+            self.command("I")
+            # a unit that answers may still be homing: A answers once every motion is over
+            self._wait_idle()
+        finally:
+            self._expect_markers = False
         self.resolution_arcsec = (self.query_float("PR"), self.query_float("TR"))
         for axis, r in zip("PT", self.resolution_arcsec):
             if not (0.0 < r < 3600.0 * 10):
@@ -269,6 +346,26 @@ class PTU:
         self._speed = (self.query_int("PS"), self.query_int("TS"))
         self._target = (self.query_int("PP"), self.query_int("TP"))
         self._unsure = [False, False]
+        self._move_start = None
+
+    def _wait_idle(self) -> None:
+        """``A`` with the homing timeout: wait for a reset's or power-up's sweep to end.
+
+        After a reset the driver gave up on, the reset's own ``*`` comes at the end
+        of the sweep, together with the answer to this ``A``: the line is drained
+        afterwards so that the second one is not read as the next reply."""
+        expecting, self._expect_markers = self._expect_markers, True  # the sweep's markers are no limit events
+        try:
+            self.command("A", timeout=self.homing_timeout)
+        except PTUTimeoutError as e:
+            self._homing_pending = True
+            raise PTUHomingTimeout("A", f"unit still busy (homing?) after {self.homing_timeout:.3g} s; "
+                                        "no move was sent") from e
+        finally:
+            self._expect_markers = expecting
+        if self._homing_pending:
+            self._drain(quiet=self.timeout, longest=2.0 * self.timeout)
+        self._homing_pending = False
 
     # ------------------------------------------------------------ raw I/O
     def _port(self, command: str) -> serial.SerialBase:
@@ -289,12 +386,12 @@ class PTU:
                 if not ser.read(max(1, ser.in_waiting)):
                     break
             ser.reset_input_buffer()
-        except (serial.SerialException, OSError):
+        except _IO_ERRORS:
             pass
         finally:
             try:
                 ser.timeout = old
-            except (serial.SerialException, OSError):
+            except _IO_ERRORS:
                 pass
 
     def _recover(self) -> None:
@@ -304,19 +401,22 @@ class PTU:
         """Send ``command`` and return one raw reply line (with CR LF)."""
         ser = self._port(command)
         try:
+            # (no flush(): tcdrain ignores write_timeout and can block for ever on a
+            # hung adapter; write() already returns within write_timeout)
             ser.write(command.encode("ascii") + b" ")
-            ser.flush()
             if timeout is not None:
                 ser.timeout = timeout
             line = ser.read_until(b"\n", 256)
-        except (serial.SerialException, OSError) as e:
+        except _IO_ERRORS as e:
+            self._unsure = [True, True]  # whatever happened to this command, read the axes back
             raise PTUConnectionError(command, f"serial I/O failed on {self.url!r}: {e}") from e
         finally:
             if timeout is not None and self._ser is not None:
                 try:
                     self._ser.timeout = self.timeout
-                except (serial.SerialException, OSError):
+                except _IO_ERRORS:
                     pass
+        line = self._strip_markers(command, line)
         if not line.endswith(b"\n"):
             # the reply may only be late: wait for the line to stay quiet for a
             # whole reply timeout, so it cannot be taken for the next answer
@@ -324,6 +424,26 @@ class PTU:
             wait = self.timeout if timeout is None else timeout
             raise PTUTimeoutError(command, f"no complete reply within {wait:.3g} s (got {line[:40]!r})")
         return line
+
+    def _strip_markers(self, command: str, line: bytes) -> bytes:
+        """Remove the asynchronous ``!P`` / ``!T`` limit messages from a reply and account for them."""
+        axes = _LIMIT_MARKER.findall(line)
+        if not axes:
+            return line
+        if self._expect_markers:
+            self._homing_markers += len(axes)
+            log.debug("PTU %s: %d homing limit markers in the reply to %r", self.url, len(axes), command)
+        else:
+            for a in axes:
+                axis = a.decode("ascii")
+                self.limit_events[axis] += 1
+                self._unsure[0 if axis == "P" else 1] = True  # read the axis back before the next move
+                log.warning(
+                    "PTU %s: %s axis reached a limit (asynchronous '!%s' in the reply to %r; %d so far); "
+                    "its position is read back before the next move",
+                    self.url, "pan" if axis == "P" else "tilt", axis, command, self.limit_events[axis],
+                )
+        return _LIMIT_MARKER.sub(b"", line)
 
     def _checked(self, command: str, expect: str, timeout: float | None = None):
         line = self._exchange(command, timeout)
@@ -404,6 +524,7 @@ class PTU:
 
     def _send_moves(self, cmds: list[tuple[int, str]], target: list[int], wait: bool) -> None:
         start = self._target
+        self._move_start = start
         for i, c in cmds:
             try:
                 self.command(c)
@@ -420,7 +541,12 @@ class PTU:
         """After a failed position command: wait for the unit (``A``) and read
         its axes back (``PP``, ``TP``) as the new target.  A no-op otherwise.
 
-        (In slaved mode the ``A`` also starts any queued move.)"""
+        (In slaved mode the ``A`` also starts any queued move.)  When a reset or
+        the connect gave up waiting for the unit to finish homing, it waits for
+        that first (``A``, at most ``homing_timeout``) instead of sending moves."""
+        if self._homing_pending:
+            self._wait_idle()
+            self._unsure = [True, True]
         if not any(self._unsure):
             return
         assert self.limits is not None
@@ -439,13 +565,22 @@ class PTU:
         """``A``: block until the unit reports that every motion has finished.
 
         The reply may take as long as the motion, so the timeout is the estimated
-        motion time (distance / speed from ``start``) plus ``await_margin``."""
+        motion time (distance / speed from ``start``, by default where the last
+        move started) plus ``await_margin``.  If ``A`` fails (a stalled axis never
+        finishes, a lost reply), the axes are read back before the next move."""
+        if start is None:
+            start = self._move_start
         est = 0.0
         if start is not None:
             for i in range(2):
                 speed = max(self._speed[i], 1)
                 est = max(est, abs(self._target[i] - start[i]) / speed)
-        self.command("A", timeout=self.timeout + est + self.await_margin)
+        try:
+            self.command("A", timeout=self.timeout + est + self.await_margin)
+        except PTUError:
+            self._unsure = [True, True]  # where did the motors stop? resync() finds out
+            raise
+        self._move_start = None
 
     def position(self) -> tuple[float, float]:
         """Current (pan, tilt) in degrees, queried (``PP``, ``TP``)."""
@@ -486,8 +621,21 @@ class PTU:
             raise ValueError(f"mode must be 'immediate' or 'slaved', not {mode!r}")
         self.command(cmds[mode])
 
-    def reset(self, timeout: float = 30.0) -> None:
-        """``R``: recalibrate (the unit sweeps to its limits and back to 0, 0)."""
-        self._checked("R", "reset", timeout)
+    def reset(self, timeout: float | None = None) -> None:
+        """``R``: recalibrate (the unit sweeps to its limits and back to 0, 0).
+
+        Waits for the reset's final ``*`` (the ``!P`` / ``!T`` markers of the sweep
+        on the way are expected) at most ``timeout`` seconds (default
+        ``homing_timeout``); if it gives up, the next move first waits for the
+        unit to finish (:meth:`resync`)."""
+        self._expect_markers = True
+        try:
+            self._checked("R", "reset", self.homing_timeout if timeout is None else timeout)
+        except PTUError:
+            self._homing_pending = True
+            self._unsure = [True, True]
+            raise
+        finally:
+            self._expect_markers = False
         self._target = (0, 0)
         self._unsure = [False, False]

@@ -12,35 +12,63 @@ Reliability over a lossy, duplicating, reordering network:
 * after ``timeout`` seconds without an answer the MOVE is resent, at most
   ``retries`` times, then :class:`LinkTimeoutError`;
 * a ``MOVING`` reply extends the wait by the controller's estimate of the
-  motion time (it does not use up a retry);
+  motion time (it does not use up a retry), but never past
+  ``(retries + 1) * timeout + max_motion_s`` after the move was first sent:
+  a controller that keeps answering ``MOVING`` cannot hold the client forever;
 * a reply is accepted only if its CRC, magic, version, session, sequence
   number and echoed angles all match the move in flight.  Corrupt, foreign,
   stale (older seq), duplicated (seq already completed), future and
   mismatched datagrams are dropped and counted in :attr:`ControllerLink.stats`.
+
+Sessions and controller restarts.  Before its first request the link opens a
+session (``HELLO`` with a random nonce -> ``WELCOME``): the controller issues
+the session id (and tells its boot id); sequence numbers start at 1 in every
+session.  A controller that restarted knows no session from before, so it
+answers a request of the old session with ``REJECTED(UNKNOWN_SESSION)``
+without executing it.  The link then counts ``stats["controller_restart"]``,
+logs a warning, opens a new session (new id, seq reset) and fails the move in
+flight with :class:`ControllerRestarted`: the old controller may have run it
+before it went down, so resending it could run it twice -- a move is either
+confirmed (``IN_POSITION``) or failed, never run twice.  The caller may
+command it again.
 """
 
 from __future__ import annotations
 
 import collections
 import dataclasses
+import logging
 import math
 import random
 import socket
 import time
+from typing import Callable
 
 from .datagram import (
     Datagram,
     DatagramError,
+    Hello,
     InPosition,
     Move,
     Moving,
     MsgType,
     Rejected,
+    RejectCode,
+    Welcome,
     decode,
     encode,
 )
 
-__all__ = ["ControllerLink", "LinkError", "LinkTimeoutError", "ControllerRejected", "MoveResult"]
+__all__ = [
+    "ControllerLink",
+    "LinkError",
+    "LinkTimeoutError",
+    "ControllerRejected",
+    "ControllerRestarted",
+    "MoveResult",
+]
+
+log = logging.getLogger(__name__)
 
 
 class LinkError(RuntimeError):
@@ -57,6 +85,18 @@ class ControllerRejected(LinkError):
     def __init__(self, move: Move, code: int, reason: str):
         self.move, self.code, self.reason = move, code, reason
         super().__init__(f"controller rejected move {move.astuple()} (code {code}): {reason}")
+
+
+class ControllerRestarted(LinkError):
+    """The controller restarted while this move was in flight: it was not resent (the
+    controller may have run it before going down); the link has opened a new session."""
+
+    def __init__(self, move: Move, seq: int, note: str):
+        self.move, self.seq = move, seq
+        super().__init__(
+            f"motion controller restarted while move seq {seq} {move.astuple()} was in flight; "
+            f"the move was not resent (it may or may not have run): command it again{note}"
+        )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -79,8 +119,13 @@ class ControllerLink:
         address: (host, port) of the controller.
         timeout: seconds to wait for an answer before resending.
         retries: resends allowed per move (``retries + 1`` transmissions at most).
-        session: 32-bit session id (random if omitted); replies for another
-            session are dropped.
+        max_motion_s: the most seconds ``MOVING`` replies may add to one move's wait.
+
+    Attributes:
+        session: the session id the controller issued (``None`` before the first
+            request, or after a restart until the next handshake succeeds).
+        boot: the controller's boot id from the last ``WELCOME``.
+        stats: counters (see the module docstring and ``docs/protocol.md``).
     """
 
     def __init__(
@@ -89,16 +134,20 @@ class ControllerLink:
         *,
         timeout: float = 0.25,
         retries: int = 5,
-        session: int | None = None,
+        max_motion_s: float = 600.0,
     ):
         if timeout <= 0:
             raise ValueError(f"timeout must be > 0 seconds, got {timeout}")
         if retries < 0:
             raise ValueError(f"retries must be >= 0, got {retries}")
+        if not max_motion_s > 0:
+            raise ValueError(f"max_motion_s must be > 0 seconds, got {max_motion_s}")
         self.address = (str(address[0]), int(address[1]))
         self.timeout = float(timeout)
         self.retries = int(retries)
-        self.session = random.getrandbits(32) if session is None else int(session) & 0xFFFFFFFF
+        self.max_motion_s = float(max_motion_s)
+        self.session: int | None = None
+        self.boot: int | None = None
         self._seq = 0
         self._done = 0  # last seq that completed (accepted or rejected)
         self.stats: collections.Counter[str] = collections.Counter()
@@ -126,11 +175,16 @@ class ControllerLink:
         self.close()
 
     # ------------------------------------------------------------ receive
-    def _classify(self, data: bytes, seq: int, want: tuple[MsgType, ...], move: Move | None) -> Datagram | None:
+    def _decode(self, data: bytes) -> Datagram | None:
         try:
-            dg = decode(data)
+            return decode(data)
         except DatagramError:
             self.stats["corrupt"] += 1
+            return None
+
+    def _classify(self, data: bytes, seq: int, want: tuple[MsgType, ...], move: Move | None) -> Datagram | None:
+        dg = self._decode(data)
+        if dg is None:
             return None
         if dg.session != self.session:
             self.stats["foreign"] += 1
@@ -148,13 +202,54 @@ class ControllerLink:
             return dg
         return None
 
+    def _classify_welcome(self, data: bytes, nonce: int) -> Datagram | None:
+        dg = self._decode(data)
+        if dg is None:
+            return None
+        if dg.type != MsgType.WELCOME:
+            self.stats["unexpected_type"] += 1  # e.g. a late reply of the session before
+        elif dg.seq != 0 or dg.payload.nonce != nonce:  # type: ignore[union-attr]
+            self.stats["foreign"] += 1
+        else:
+            return dg
+        return None
+
+    def _handshake(self) -> None:
+        """HELLO -> WELCOME: a new session issued by the controller; seq starts over."""
+        nonce = random.getrandbits(32)
+        packet = encode(Datagram(MsgType.HELLO, 0, 0, Hello(nonce)))
+        dg, _, _ = self._exchange(packet, lambda data: self._classify_welcome(data, nonce), "WELCOME for HELLO")
+        welcome = dg.payload
+        assert isinstance(welcome, Welcome)
+        if self.boot is not None and welcome.boot != self.boot:
+            log.warning("motion controller %s: new boot id %08x (was %08x)", self.address, welcome.boot, self.boot)
+        self.session, self.boot = dg.session, welcome.boot
+        self._seq = self._done = 0
+        self.stats["handshake"] += 1
+
     def _transact(self, mtype: MsgType, payload: Move | None, want: tuple[MsgType, ...]) -> tuple[Datagram, int, float]:
         if self._sock is None:
             raise LinkError("link is closed")
+        session = self.open_session()
         self._seq = (self._seq + 1) & 0xFFFFFFFF or 1
         seq = self._seq
-        packet = encode(Datagram(mtype, self.session, seq, payload))
+        packet = encode(Datagram(mtype, session, seq, payload))
+        accept = want + (MsgType.MOVING,) if mtype == MsgType.MOVE else want
+        try:
+            return self._exchange(packet, lambda data: self._classify(data, seq, accept, payload),
+                                  f"{'/'.join(w.name for w in want)} for {mtype.name} seq {seq}")
+        finally:
+            self._done = seq  # late replies for this seq are duplicates from now on
+
+    def _exchange(self, packet: bytes, classify: Callable[[bytes], Datagram | None], what: str) -> tuple[Datagram, int, float]:
+        """Send ``packet``, resend after each ``timeout``, until ``classify`` accepts an answer.
+
+        Bounded: at most ``retries + 1`` transmissions, and ``MOVING`` never extends
+        the wait past ``(retries + 1) * timeout + max_motion_s`` from the first send."""
+        if self._sock is None:
+            raise LinkError("link is closed")
         t0 = time.monotonic()
+        hard = t0 + (self.retries + 1) * self.timeout + self.max_motion_s
         attempts = 0
         extra = 0.0
         while attempts <= self.retries:
@@ -166,7 +261,7 @@ class ControllerLink:
                 self._sock.send(packet)
             except OSError:
                 self.stats["send_error"] += 1
-            deadline = time.monotonic() + self.timeout + extra
+            deadline = min(time.monotonic() + self.timeout + extra, hard)
             extra = 0.0
             while True:
                 left = deadline - time.monotonic()
@@ -180,23 +275,25 @@ class ControllerLink:
                 except ConnectionRefusedError:  # ICMP port unreachable: like a loss
                     self.stats["refused"] += 1
                     continue
-                dg = self._classify(data, seq, want + (MsgType.MOVING,) if mtype == MsgType.MOVE else want, payload)
+                dg = classify(data)
                 if dg is None:
                     continue
                 if dg.type == MsgType.MOVING:
                     assert isinstance(dg.payload, Moving)
                     exp = dg.payload.expected_s
-                    # wait for the motion without spending a retry (bounded by sanity)
-                    deadline = max(deadline, time.monotonic() + min(max(exp, 0.0), 600.0) + self.timeout)
+                    # wait for the motion without spending a retry, but never past the hard bound
+                    want_until = time.monotonic() + min(max(exp, 0.0), self.max_motion_s) + self.timeout
+                    deadline = min(max(deadline, want_until), hard)
                     self.stats["moving"] += 1
                     continue
-                self._done = seq
                 return dg, attempts, time.monotonic() - t0
-        self._done = seq  # late replies for this seq are duplicates from now on
+            if time.monotonic() >= hard:
+                self.stats["motion_cap"] += 1
+                break
         raise LinkTimeoutError(
-            f"no valid {'/'.join(w.name for w in want)} for {mtype.name} seq {seq} from {self.address} "
+            f"no valid {what} from {self.address} "
             f"after {attempts} transmissions ({time.monotonic() - t0:.3f} s; timeout {self.timeout} s, "
-            f"retries {self.retries}); dropped so far: {dict(self.stats)}"
+            f"retries {self.retries}, max_motion_s {self.max_motion_s}); dropped so far: {dict(self.stats)}"
         )
 
     # ------------------------------------------------------------ API
@@ -206,7 +303,9 @@ class ControllerLink:
         Raises:
             ValueError: a non-finite angle (nothing is sent).
             ControllerRejected: the controller refused the move.
-            LinkTimeoutError: no valid answer after every retry.
+            ControllerRestarted: the controller restarted while the move was in flight.
+            LinkTimeoutError: no valid answer after every retry (or the session
+                could not be opened).
         """
         move = Move(float(cam1_pan), float(cam1_tilt), float(cam2_pan), float(turntable))
         for name, v in zip(("cam1_pan", "cam1_tilt", "cam2_pan", "turntable"), move.astuple()):
@@ -215,11 +314,37 @@ class ControllerLink:
         dg, attempts, elapsed = self._transact(MsgType.MOVE, move, (MsgType.IN_POSITION, MsgType.REJECTED))
         if dg.type == MsgType.REJECTED:
             assert isinstance(dg.payload, Rejected)
+            if dg.payload.code == RejectCode.UNKNOWN_SESSION:
+                raise self._restarted(move, dg.seq)
             raise ControllerRejected(move, dg.payload.code, dg.payload.reason)
         p = dg.payload
         assert isinstance(p, InPosition)
         self.stats["accepted"] += 1
         return MoveResult(dg.seq, move, (p.gantry_x, p.gantry_y), p.track_y, p.turntable, attempts, elapsed)
+
+    def open_session(self) -> int:
+        """Open a session now (``HELLO`` -> ``WELCOME``) unless one is open; its id.
+
+        Requests open one themselves when needed; this is for checking the link up front."""
+        if self.session is None:
+            self._handshake()
+        assert self.session is not None
+        return self.session
+
+    def _restarted(self, move: Move, seq: int) -> ControllerRestarted:
+        """The controller does not know our session: it restarted.  Re-handshake, report."""
+        self.stats["controller_restart"] += 1
+        old, self.session = self.session, None
+        log.warning("motion controller %s restarted (session %s unknown to it) while move seq %d was in flight; "
+                    "opening a new session; the move is failed, not resent", self.address,
+                    f"{old:08x}" if old is not None else None, seq)
+        note = ""
+        try:
+            self._handshake()
+            note = f" (new session {self.session:08x})"
+        except LinkError as e:
+            note = f" (re-handshake failed: {e}; the next request retries it)"
+        return ControllerRestarted(move, seq, note)
 
     def ping(self) -> float:
         """Round-trip time (seconds) of a PING/PONG exchange."""

@@ -16,11 +16,13 @@ from jaxrecog.hardware.datagram import (
     VERSION,
     Datagram,
     DatagramError,
+    Hello,
     InPosition,
     Move,
     Moving,
     MsgType,
     Rejected,
+    Welcome,
     decode,
     encode,
 )
@@ -35,6 +37,8 @@ payloads = {
     MsgType.REJECTED: st.builds(Rejected, moves, st.integers(0, 65535), st.text(max_size=50)),
     MsgType.PING: st.none(),
     MsgType.PONG: st.none(),
+    MsgType.HELLO: st.builds(Hello, u32),
+    MsgType.WELCOME: st.builds(Welcome, u32, u32),
 }
 datagrams = st.sampled_from(list(MsgType)).flatmap(
     lambda t: st.builds(Datagram, st.just(t), u32, u32, payloads[t])
@@ -53,6 +57,20 @@ def test_move_layout_matches_the_documented_bytes():
     raw = encode(Datagram(MsgType.MOVE, 0xDEADBEEF, 7, m))
     assert raw == by_hand(1, 0xDEADBEEF, 7, struct.pack(">4d", 0.1, 0.5, -0.3, math.pi))
     assert len(raw) == 14 + 32 + 4
+
+
+def test_hello_and_welcome_layout():
+    """HELLO carries the client's nonce; WELCOME the nonce and the controller's boot id,
+    with the issued session in the header (docs/protocol.md)."""
+    hello = encode(Datagram(MsgType.HELLO, 0, 0, Hello(0x01020304)))
+    assert hello == by_hand(7, 0, 0, bytes([1, 2, 3, 4]))
+    welcome = encode(Datagram(MsgType.WELCOME, 0xCAFEF00D, 0, Welcome(0x01020304, 0xB0070001)))
+    assert welcome == by_hand(8, 0xCAFEF00D, 0, bytes([1, 2, 3, 4, 0xB0, 0x07, 0x00, 0x01]))
+    assert decode(welcome).payload == Welcome(0x01020304, 0xB0070001)
+    with pytest.raises(DatagramError, match="HELLO payload is 3 bytes"):
+        decode(by_hand(7, 0, 0, b"abc"))
+    with pytest.raises(DatagramError, match="u32"):
+        encode(Datagram(MsgType.WELCOME, 1, 0, Welcome(1, 2**32)))
 
 
 def test_in_position_layout():

@@ -15,10 +15,20 @@ from jaxrecog.hardware.controller_sim import (
     ControllerSimulator,
     LinkFaults,
 )
-from jaxrecog.hardware.datagram import Datagram, InPosition, Move, MsgType, decode, encode
+from jaxrecog.hardware.datagram import (
+    Datagram,
+    Hello,
+    InPosition,
+    Move,
+    Moving,
+    MsgType,
+    Welcome,
+    decode,
+    encode,
+)
 from jaxrecog.hardware.kinematics import Workspace, camera1_position, camera2_position
 from jaxrecog.hardware.positions import default_table
-from jaxrecog.hardware.udp_link import ControllerLink, ControllerRejected, LinkTimeoutError
+from jaxrecog.hardware.udp_link import ControllerLink, ControllerRejected, ControllerRestarted, LinkTimeoutError
 
 TABLE = default_table()
 
@@ -61,10 +71,10 @@ def test_workspace_violation_is_rejected_not_retried():
         assert e.value.code == 1
         with pytest.raises(ControllerRejected, match="track y"):
             link.move(0.0, math.radians(45), math.radians(80), 0.0)  # track runs out
-        assert link.stats["sent"] == 2 and not sim.executed
+        assert link.stats["sent"] == 1 + 2 and not sim.executed  # the HELLO, then each move once
         with pytest.raises(ValueError, match="cam1_tilt"):
             link.move(0.0, math.nan, 0.0, 0.0)
-        assert link.stats["sent"] == 2
+        assert link.stats["sent"] == 3
 
 
 def test_200_moves_under_loss_duplication_reordering_and_corruption():
@@ -72,7 +82,7 @@ def test_200_moves_under_loss_duplication_reordering_and_corruption():
     faults = LinkFaults(loss=0.2, duplicate=0.2, reorder=0.2, corrupt=0.05, delay_s=(0.0, 0.002), reorder_delay_s=0.012)
     timeout, retries, n = 0.012, 25, 200
     with ControllerSimulator(faults=faults, seed=7, time_scale=0.0005) as sim:
-        with ControllerLink(sim.address, timeout=timeout, retries=retries, session=7) as link:
+        with ControllerLink(sim.address, timeout=timeout, retries=retries) as link:
             t0 = time.monotonic()
             for i in range(n):
                 m = move_of(i)
@@ -129,14 +139,14 @@ def test_held_back_request_copy_is_stale_and_never_moves_the_rig_back():
     has arrived: the controller sees each one late and ignores it."""
     faults = LinkFaults(duplicate=1.0, reorder=0.5, reorder_delay_s=0.03)
     with ControllerSimulator(faults=faults, seed=1, time_scale=0.0001) as sim:
-        with ControllerLink(sim.address, timeout=0.2, retries=3, session=3) as link:
+        with ControllerLink(sim.address, timeout=0.2, retries=3) as link:
             for i in range(20):
                 m = move_of(i)
                 assert_matches(link.move(*m.astuple()), m)
                 time.sleep(0.005)
             time.sleep(0.08)  # let the last held-back copies arrive
     assert [e.move for e in sim.executed] == [move_of(i) for i in range(20)]
-    assert sim.stats["request_duplicated"] == 20 + link.stats["retransmit"]
+    assert sim.stats["request_duplicated"] == 1 + 20 + link.stats["retransmit"]  # the HELLO too
     assert sim.stats["stale"] > 0 and sim.stats["duplicate_copy"] >= sim.stats["stale"]
     assert sim.stats["new"] == 20
 
@@ -173,7 +183,7 @@ def test_long_move_is_acknowledged_with_moving_and_not_retransmitted():
             t0 = time.monotonic()
             assert_matches(link.move(*m.astuple()), m)
             assert time.monotonic() - t0 >= 0.1
-            assert link.stats["moving"] >= 1 and link.stats["sent"] == 1
+            assert link.stats["moving"] >= 1 and link.stats["sent"] == 1 + 1  # the HELLO and the move
 
 
 def test_controller_is_idempotent_and_never_moves_backwards():
@@ -182,21 +192,33 @@ def test_controller_is_idempotent_and_never_moves_backwards():
         c.settimeout(0.5)
         c.connect(sim.address)
 
-        def send(seq, i, session=5):
+        def send(seq, i, session):
             c.send(encode(Datagram(MsgType.MOVE, session, seq, move_of(i))))
             return decode(c.recv(2048))
 
-        assert send(1, 1).type == MsgType.IN_POSITION
-        r2 = send(2, 2)
-        assert send(2, 2) == r2  # duplicate: cached reply, not a second move
-        c.send(encode(Datagram(MsgType.MOVE, 5, 1, move_of(1))))  # stale retransmission
+        a = hello(c, nonce=5)
+        assert hello(c, nonce=5) == a  # a repeated HELLO opens no second session
+        assert send(1, 1, a).type == MsgType.IN_POSITION
+        r2 = send(2, 2, a)
+        assert send(2, 2, a) == r2  # duplicate: cached reply, not a second move
+        c.send(encode(Datagram(MsgType.MOVE, a, 1, move_of(1))))  # stale retransmission
         time.sleep(0.05)
         assert [e.seq for e in sim.executed] == [1, 2]
-        assert send(1, 3, session=6).seq == 1  # a new client session starts over
-        c.send(encode(Datagram(MsgType.MOVE, 5, 3, move_of(4))))  # the retired session is ignored
+        b = hello(c, nonce=6)
+        assert b != a and send(1, 3, b).seq == 1  # a new client session starts over
+        c.send(encode(Datagram(MsgType.MOVE, a, 3, move_of(4))))  # the retired session is ignored
         time.sleep(0.05)
-        assert [(e.session, e.seq) for e in sim.executed] == [(5, 1), (5, 2), (6, 1)]
+        assert [(e.session, e.seq) for e in sim.executed] == [(a, 1), (a, 2), (b, 1)]
+        assert sim.stats["retired"] == 1 and sim.stats["hello"] == 2 and sim.stats["hello_repeat"] == 1
         c.close()
+
+
+def hello(c: socket.socket, nonce: int) -> int:
+    """Open a session on a raw socket: the session id the controller issues."""
+    c.send(encode(Datagram(MsgType.HELLO, 0, 0, Hello(nonce))))
+    dg = decode(c.recv(2048))
+    assert dg.type == MsgType.WELCOME and dg.payload.nonce == nonce
+    return dg.session
 
 
 def test_controller_binds_loopback_only():
@@ -212,7 +234,7 @@ def test_same_seed_same_faults():
         with ControllerSimulator(faults=faults, seed=seed, time_scale=0.001) as sim:
             # the timeout is far above a move's duration (~1 ms), so only the seeded faults
             # (now on requests and replies) cause resends
-            with ControllerLink(sim.address, timeout=0.08, retries=30, session=1) as link:
+            with ControllerLink(sim.address, timeout=0.08, retries=30) as link:
                 for i in range(12):
                     link.move(*move_of(i).astuple())
                 time.sleep(0.01)
@@ -234,7 +256,8 @@ def _flip_last_byte(raw: bytes) -> bytes:
 class HostileController:
     """Answers each MOVE with a burst of wrong replies, then (optionally) the right one."""
 
-    def __init__(self, answer: bool = True):
+    def __init__(self, answer: bool = True, session: int = 0x5E55):
+        self.session = session
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.bind(("127.0.0.1", 0))
         self.sock.settimeout(2.0)
@@ -245,6 +268,10 @@ class HostileController:
 
     def serve(self):
         try:
+            data, peer = self.sock.recvfrom(2048)
+            dg = decode(data)
+            assert dg.type == MsgType.HELLO
+            self.sock.sendto(encode(Datagram(MsgType.WELCOME, self.session, 0, Welcome(dg.payload.nonce, 1))), peer)
             data, peer = self.sock.recvfrom(2048)
         except OSError:
             return
@@ -274,6 +301,7 @@ class HostileController:
 def test_only_the_right_reply_is_accepted():
     srv = HostileController()
     with ControllerLink(srv.address, timeout=0.5, retries=0) as link:
+        link.open_session()  # (the HELLO the hostile controller answers first)
         link._seq = 10
         m = move_of(3)
         res = link.move(*m.astuple())
@@ -293,9 +321,97 @@ def _session_whose_reply_crc_ends_in_zero(m: Move, seq: int) -> int:
 
 @pytest.mark.parametrize("crc_ends_in_zero", [False, True])
 def test_wrong_replies_alone_never_complete_a_move(crc_ends_in_zero):
-    srv = HostileController(answer=False)
-    session = _session_whose_reply_crc_ends_in_zero(move_of(3), 11) if crc_ends_in_zero else None
-    with ControllerLink(srv.address, timeout=0.1, retries=0, session=session) as link, pytest.raises(LinkTimeoutError):
+    session = _session_whose_reply_crc_ends_in_zero(move_of(3), 11) if crc_ends_in_zero else 0x5E55
+    srv = HostileController(answer=False, session=session)
+    with ControllerLink(srv.address, timeout=0.1, retries=0) as link, pytest.raises(LinkTimeoutError):
+        link.open_session()  # (the HELLO the hostile controller answers first)
         link._seq = 10
         link.move(*move_of(3).astuple())
     srv.close()
+
+
+# ---------------------------------------------------------------- controller restarts
+@pytest.mark.parametrize("when", ["before_execute", "after_execute"])
+def test_restart_between_request_and_reply_fails_the_move_and_never_runs_it_twice(when, caplog):
+    """The controller restarts after receiving a MOVE (before or after running it) and
+    never answers it: the link's retransmission meets a controller that does not know
+    the session; the move is failed, not resent, and the link is usable at once."""
+    with ControllerSimulator(time_scale=0.001) as sim, ControllerLink(sim.address, timeout=0.03, retries=5) as link:
+        assert_matches(link.move(*move_of(0).astuple()), move_of(0))
+        old_session, old_boot = link.session, link.boot
+        sim.inject_restart(when)
+        with pytest.raises(ControllerRestarted, match=r"restarted while move seq 2 .* not resent") as e:
+            link.move(*move_of(1).astuple())
+        assert e.value.move == move_of(1)
+        assert link.stats["controller_restart"] == 1 and "restarted" in caplog.text
+        # re-handshaken: a new session issued by the new boot, seq starting over
+        assert link.session not in (None, old_session) and link.boot == sim.boot != old_boot
+        res = link.move(*move_of(2).astuple())
+        assert_matches(res, move_of(2))
+        assert res.seq == 1
+    ran = [move_of(0), move_of(1), move_of(2)] if when == "after_execute" else [move_of(0), move_of(2)]
+    assert [e.move for e in sim.executed] == ran  # move 1 ran at most once
+    assert sim.stats["unknown_session"] >= 1 and sim.stats["restart"] == 1
+
+
+def test_restart_after_the_reply_confirms_the_move_and_the_next_one_finds_out():
+    with ControllerSimulator(time_scale=0.001) as sim, ControllerLink(sim.address, timeout=0.03, retries=5) as link:
+        assert_matches(link.move(*move_of(0).astuple()), move_of(0))  # confirmed
+        sim.restart()
+        with pytest.raises(ControllerRestarted):
+            link.move(*move_of(1).astuple())  # rejected by the new boot: it never ran
+        assert_matches(link.move(*move_of(3).astuple()), move_of(3))
+    assert [e.move for e in sim.executed] == [move_of(0), move_of(3)]
+
+
+def test_restart_under_network_faults_runs_every_move_at_most_once():
+    faults = LinkFaults(loss=0.2, duplicate=0.2, reorder=0.2, delay_s=(0.0, 0.002), reorder_delay_s=0.012)
+    with ControllerSimulator(faults=faults, seed=11, time_scale=0.0005) as sim:
+        with ControllerLink(sim.address, timeout=0.012, retries=25) as link:
+            outcome = []
+            for i in range(40):
+                if i % 10 == 5:
+                    sim.inject_restart("after_execute" if i % 20 == 5 else "before_execute")
+                try:
+                    link.move(*move_of(i).astuple())
+                    outcome.append(True)
+                except ControllerRestarted:
+                    outcome.append(False)
+    ran = [e.move for e in sim.executed]
+    assert len(ran) == len(set(ran))  # never twice
+    assert all(move_of(i) in ran for i, ok in enumerate(outcome) if ok)  # every confirmed move ran
+    assert outcome.count(False) == link.stats["controller_restart"] == 4
+    assert sim.stats["restart"] == 4
+
+
+def test_a_controller_that_answers_moving_forever_cannot_hold_the_link():
+    """Every wait is bounded: MOVING extends the wait, but never past
+    (retries + 1) * timeout + max_motion_s from the first send."""
+    srv = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    srv.bind(("127.0.0.1", 0))
+    srv.settimeout(0.5)
+    stop = threading.Event()
+
+    def serve():
+        data, peer = srv.recvfrom(2048)
+        dg = decode(data)
+        srv.sendto(encode(Datagram(MsgType.WELCOME, 77, 0, Welcome(dg.payload.nonce, 1))), peer)
+        data, peer = srv.recvfrom(2048)
+        dg = decode(data)
+        t_end = time.monotonic() + 4.0
+        while not stop.is_set() and time.monotonic() < t_end:  # "almost there", again and again
+            srv.sendto(encode(Datagram(MsgType.MOVING, 77, dg.seq, Moving(dg.payload, 0.05))), peer)
+            time.sleep(0.02)
+
+    t = threading.Thread(target=serve, daemon=True)
+    t.start()
+    with ControllerLink(srv.getsockname(), timeout=0.05, retries=1, max_motion_s=0.2) as link:
+        t0 = time.monotonic()
+        with pytest.raises(LinkTimeoutError, match="max_motion_s 0.2"):
+            link.move(*move_of(0).astuple())
+        waited = time.monotonic() - t0
+    stop.set()
+    t.join(2.0)
+    srv.close()
+    assert link.stats["moving"] > 5
+    assert waited < 2 * 0.05 + 0.2 + 0.5  # the bound plus slack; without it: the controller's 4 s
