@@ -69,7 +69,7 @@ def test_unit_unplugged_mid_move_is_reconnected_reread_and_the_move_repeated_onc
     moves = [c for c in after if c.startswith("PP") and c != "PP"]  # (a bare PP is the position query)
     assert len(moves) == 2  # the interrupted command, then the repeat, once
     assert sim.stats["lost_while_homing"] == 0  # a power-cycled unit was waited for, not sent moves
-    assert len(rig.capture()) == 2  # and it points at the object (checked through the driver)
+    assert len(rig.capture().images) == 2  # and it points at the object (checked through the driver)
     assert "is back on" in caplog.text
 
 
