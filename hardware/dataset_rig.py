@@ -12,6 +12,7 @@ from typing import Sequence
 
 import numpy as np
 
+from .dbformat import read_folder
 from .rig import Capture, RigError, SeededCaptures
 
 __all__ = ["DatasetRig"]
@@ -21,9 +22,10 @@ class DatasetRig(SeededCaptures):
     """Replay one split of an image database through the ``Rig`` interface.
 
     Args:
-        database: a :class:`jaxrecog.database.ImageDatabase` (or anything with
-            the same ``images``, ``camera``, ``position``, ``object``, ``pose``,
-            ``split`` arrays).
+        database: a :class:`jaxrecog.database.ImageDatabase`, a
+            :class:`~.dbformat.DatabaseColumns`, or anything with the same
+            ``images``, ``camera``, ``position``, ``object``, ``pose``,
+            ``split`` arrays.
         split: which rows to replay (``"test"`` by default).
         seed: when several images exist for one (camera, position, object,
             pose), each capture picks one at random from this seed.
@@ -39,16 +41,17 @@ class DatasetRig(SeededCaptures):
         for r in rows:
             k = (int(database.camera[r]), int(database.position[r]), int(database.object[r]), int(database.pose[r]))
             self._index.setdefault(k, []).append(int(r))
-        self._positions = tuple(int(p) for p in database.positions)
+        camera, position = np.asarray(database.camera), np.asarray(database.position)
+        self._positions = tuple(int(position[camera == i].max()) + 1 if np.any(camera == i) else 0
+                                for i in range(int(camera.max()) + 1))
         self._shape = tuple(int(s) for s in database.images.shape[1:3])
         self._scene: tuple[int, int] | None = None
         self._config: tuple[int, ...] | None = None
 
     @classmethod
     def from_folder(cls, folder, **kwargs) -> "DatasetRig":
-        from jaxrecog.database import load_database
-
-        return cls(load_database(folder), **kwargs)
+        """Read and validate the folder (:func:`~.dbformat.read_folder`) and replay it."""
+        return cls(read_folder(folder), **kwargs)
 
     @property
     def positions(self) -> tuple[int, ...]:

@@ -13,13 +13,13 @@ sensor model's confidence (:mod:`jaxrecog.calibration`).
 
 from __future__ import annotations
 
-import csv
 import os
 from pathlib import Path
 from typing import Callable, Sequence
 
 import numpy as np
 
+from .dbformat import COLUMNS, manifest_text, write_image
 from .occluders import random_occluders
 from .positions import CameraTable
 from .scene import ObjectSpec
@@ -27,14 +27,7 @@ from .synthetic import Noise, Perturb, SyntheticRig
 
 __all__ = ["MANIFEST_COLUMNS", "render_database", "contact_sheet", "lookalike_distances"]
 
-MANIFEST_COLUMNS = ("path", "camera", "position", "object", "pose", "split")
-
-
-def _write_png(path: Path, image: np.ndarray) -> None:
-    import cv2
-
-    if not cv2.imwrite(str(path), image):
-        raise OSError(f"could not write image {path}")
+MANIFEST_COLUMNS = COLUMNS  # the format lives in .dbformat
 
 
 def render_database(
@@ -101,7 +94,7 @@ def render_database(
                     for v in range(n_pos):
                         img, _ = rig.render_clean(i, v)
                         rel = f"train/c{i}/v{v:02d}/m{m}_p{p}.png"
-                        _write_png(out / rel, img)
+                        write_image(out / rel, img)
                         rows.append((rel, i, v, m, p, "train"))
                     if progress is not None:
                         progress(n_pos)
@@ -113,7 +106,7 @@ def render_database(
                             for j in range(test_per_view):
                                 img, _ = rig.render_noisy(i, v, test_noise)
                                 rel = f"test/c{i}/v{v:02d}/m{m}_p{p}_{j}.png"
-                                _write_png(out / rel, img)
+                                write_image(out / rel, img)
                                 rows.append((rel, i, v, m, p, "test"))
                         if progress is not None:
                             progress(n_pos * test_per_view)
@@ -130,7 +123,7 @@ def render_database(
                                     rig.reset(m, p, calib_occluders(calib_rng, i, v))
                                 img, _ = rig.render_perturbed(i, v, calib_perturb, calib_rng)
                                 rel = f"calib/c{i}/v{v:02d}/m{m}_p{p}_{j}.png"
-                                _write_png(out / rel, img)
+                                write_image(out / rel, img)
                                 rows.append((rel, i, v, m, p, "calib"))
                         if progress is not None:
                             progress(n_pos * calib_per_view)
@@ -141,10 +134,7 @@ def render_database(
     order = {"train": 0, "test": 1, "calib": 2}
     rows.sort(key=lambda r: (order[r[5]], r[1], r[2], r[3], r[4], r[0]))
     manifest = out / "manifest.csv"
-    with open(manifest, "w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(MANIFEST_COLUMNS)
-        w.writerows(rows)
+    manifest.write_text(manifest_text(rows))
     return manifest
 
 

@@ -21,6 +21,8 @@ import types
 from pathlib import Path
 from typing import Any, Sequence
 
+from .hardware.problems import problem_message
+
 __all__ = ["main", "build_parser", "CLIError"]
 
 PLANNERS = ("mi", "mi-class", "crlb", "crlb-det", "crlb-eig", "random", "fixed")
@@ -475,10 +477,10 @@ def cmd_inspect(args) -> int:
     if not path.exists() and path.suffix != ".npz":
         raise CLIError(f"{path}: no such model file or database folder")
     if path.is_dir():
-        from .database import load_database
+        from .database import load_database, notes
 
         db = load_database(path)
-        print(_database_summary(db))
+        print("\n".join([_database_summary(db), *notes(db)]))
         if args.plot_dir:
             rows = np.flatnonzero((np.asarray(db.camera) == args.camera) & (np.asarray(db.position) == args.position)
                                   & (np.asarray(db.split) == "train"))
@@ -675,7 +677,7 @@ def _make_settings(ex, values: dict[str, Any], where: str):
     known = _settings_fields(ex.Settings)
     bad = sorted(set(values) - known)
     if bad:
-        raise UsageError(f"{where}: unknown setting(s) {', '.join(bad)} (known: {', '.join(sorted(known))})")
+        raise UsageError(problem_message(f"{where}: unknown setting(s) (known: {', '.join(sorted(known))})", bad))
     return ex.Settings(**values)
 
 
@@ -898,7 +900,7 @@ def cmd_bench(args) -> int:
     print(f"wrote {merged_path}")
     failed = [r[0] for r in rows if r[1] != "ok"]
     if failed:
-        raise CLIError(f"benchmark(s) failed: {', '.join(failed)} (see {merged_path})")
+        raise CLIError(problem_message(f"benchmark(s) failed (see {merged_path})", failed))
     return 0
 
 
@@ -1093,8 +1095,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 130
     except Exception as e:  # noqa: BLE001 - the one place that turns failures into exit code 1
         if args.debug:
+            for problem in getattr(e, "problems", None) or ():  # the full list, then the traceback
+                print(problem, file=sys.stderr)
             raise
-        msg = " ".join(str(e).split()) or type(e).__name__
+        # one line per line of the message: a list of problems stays readable
+        msg = "\n  ".join(" ".join(line.split()) for line in str(e).splitlines() if line.strip()) \
+            or type(e).__name__
         if not isinstance(e, (CLIError, OSError, ValueError)) and type(e).__name__ not in msg:
             msg = f"{type(e).__name__}: {msg}"
         print(f"jaxrecog: error: {msg}", file=sys.stderr)

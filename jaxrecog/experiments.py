@@ -50,6 +50,7 @@ from typing import Callable, Sequence
 import jax.random as jr
 
 from .campaign import TrialSpec, plan_trials, run_campaign
+from .hardware.problems import problem_message
 from .planners import DEFAULT_MIN_PER_STRATUM, make_planner, planner_spec
 from .results import ObjectRow, TrialResult, TrialStore, summarize, table_json, table_markdown
 from .thesis import SINGLE_CAMERA, TABLES
@@ -440,9 +441,9 @@ def _check_database_fits(db, model, folder, model_path) -> None:
             for m in range(model.n_objects) for p in range(model.n_poses)]
     missing = [k for k in need if k not in have]
     if missing:
-        c, v, m, p = missing[0]
-        raise ValueError(f"database {folder}: {len(missing)} of {len(need)} views have no 'test' image to replay "
-                         f"(first: camera {c}, position {v}, object {m}, pose {p})")
+        raise ValueError(problem_message(
+            f"database {folder}: {len(missing)} of {len(need)} views have no 'test' image to replay",
+            [f"camera {c}, position {v}, object {m}, pose {p}" for c, v, m, p in missing], counted=True))
 
 
 def run_dataset(

@@ -29,6 +29,7 @@ from pathlib import Path
 import jax.numpy as jnp
 import numpy as np
 
+from .hardware.problems import problem_message
 from .sensor_model import CameraModel, SensorModel
 
 __all__ = [
@@ -270,7 +271,7 @@ def load_model(path: str | os.PathLike) -> SensorModel:
     known = _FIELDS if meta["format_version"] >= 2 else _FIELDS[:-1]
     extra = set(arrays) - {f"camera{i}.{f}" for i in range(n_cam) for f in known}
     if extra:
-        raise bad(f"unexpected arrays {sorted(extra)}")
+        raise bad(problem_message("unexpected arrays", sorted(extra)))
     return SensorModel(
         cameras=tuple(cameras),
         n_objects=int(meta["n_objects"]),

@@ -104,3 +104,160 @@ def test_any_sizes():
     db = make_database(positions=(1, 2, 3), n_objects=1, n_poses=3, image_shape=(16, 20))
     assert db.n_cameras == 3 and db.positions == (1, 2, 3) and db.n_classes == 3
     assert db.train_images(2).shape == (3, 3, 16, 20)
+
+
+# ---- long problem lists (issue 16 item 3) ----------------------------------------------
+
+def _break_every_row(root):
+    rows = _rows(root)
+    for r in rows[1:]:
+        r[5] = "validate"  # one problem per row
+    _write(root, rows)
+    return len(rows) - 1
+
+
+def test_a_long_problem_list_shows_the_count_ten_lines_and_the_file_with_all(tmp_path):
+    db = make_database(positions=(3, 2), n_objects=2, n_poses=2, image_shape=(12, 16), n_test=1)
+    write_database(tmp_path, db)
+    n = _break_every_row(tmp_path)
+    assert n > 10
+    with pytest.raises(DatabaseError) as e:
+        load_database(tmp_path)
+    lines = str(e.value).splitlines()
+    assert lines[0] == f"invalid image database {tmp_path}: {n} problems"
+    assert [l.strip() for l in lines[1:11]] == [f"row {r}: split 'validate' is not one of train, test, calib"
+                                                for r in range(1, 11)]
+    errors = tmp_path / "manifest-errors.txt"
+    assert lines[11].strip() == f"... {n - 10} more (full list in {errors})" and len(lines) == 12
+    assert e.value.full_list == errors and len(e.value.problems) == n
+    written = errors.read_text().splitlines()
+    assert written[0].endswith(f"{n} problems") and written[1:] == e.value.problems
+
+
+def test_an_unwritable_folder_points_to_debug():
+    from jaxrecog.hardware.dbformat import database_error
+
+    err = database_error("db", [f"row {r}: bad" for r in range(1, 13)], folder="/nonexistent/folder")
+    assert err.full_list is None
+    assert str(err).splitlines()[-1].strip() == "... 2 more (run with --debug to see all)"
+    # ten or fewer problems: no file, nothing left out
+    few = database_error("db", ["row 1: bad", "row 2: worse"], folder="/nonexistent/folder")
+    assert str(few).splitlines() == ["invalid image database db: 2 problems", "  row 1: bad", "  row 2: worse"]
+
+
+def test_one_problem_is_one_line_and_odd_text_stays_on_its_line():
+    from jaxrecog.hardware.problems import LINE_CAP, problem_message
+
+    assert problem_message("model m", ["no such file"]) == "model m: no such file"
+    msg = problem_message("h", ["a\nb\r\x00c", "x" * 10_000])
+    assert msg.splitlines() == ["h: 2 problems", "  a b c", "  " + "x" * (LINE_CAP - 3) + "..."]
+
+
+def test_the_cli_prints_ten_problems_one_per_line_and_debug_prints_all(tmp_path, capsys):
+    from jaxrecog import cli
+
+    db = make_database(positions=(3, 2), n_objects=2, n_poses=2, image_shape=(12, 16), n_test=1)
+    write_database(tmp_path, db)
+    n = _break_every_row(tmp_path)
+    assert cli.main(["inspect", str(tmp_path)]) == 1
+    err = capsys.readouterr().err.splitlines()
+    assert err[0] == f"jaxrecog: error: invalid image database {tmp_path}: {n} problems"
+    assert len(err) == 12 and err[1] == "  row 1: split 'validate' is not one of train, test, calib"
+    assert "manifest-errors.txt" in err[-1]
+    with pytest.raises(DatabaseError):
+        cli.main(["inspect", str(tmp_path), "--debug"])
+    err = capsys.readouterr().err.splitlines()
+    assert err == [f"row {r}: split 'validate' is not one of train, test, calib" for r in range(1, n + 1)]
+
+
+# ---- turntable data (issue 16 item 4) ---------------------------------------------------
+
+def test_one_file_for_several_views_loads_with_a_note(folder):
+    from jaxrecog.database import notes
+
+    root, db = folder
+    rows = _rows(root)
+    # a turntable: the photo of (position 0, pose 1) is also the view of (position 1, pose 0)
+    a = next(i for i, r in enumerate(rows) if r[1:] == ["0", "0", "0", "1", "train"])
+    b = next(i for i, r in enumerate(rows) if r[1:] == ["0", "1", "0", "0", "train"])
+    rows[b][0] = rows[a][0]
+    _write(root, rows)
+    got = load_database(root)
+    assert got.paths[a - 1] == got.paths[b - 1]
+    np.testing.assert_array_equal(got.images[a - 1], got.images[b - 1])
+    assert got.n_rows == db.n_rows
+    assert notes(got) == ["  1 image file(s) are used by more than one row (turntable views: one photo "
+                          "serves several (pose, position) rows)"]
+    assert notes(db) == []
+
+
+def test_inspect_shows_the_turntable_note(folder, capsys):
+    from jaxrecog import cli
+
+    root, _ = folder
+    rows = _rows(root)
+    rows[2][0] = rows[1][0]  # rows 1 and 2 differ in their view, not their file
+    assert rows[1][1:] != rows[2][1:]
+    _write(root, rows)
+    assert cli.main(["inspect", str(root)]) == 0
+    assert "1 image file(s) are used by more than one row (turntable views" in capsys.readouterr().out
+
+
+def test_a_truly_duplicated_row_is_still_an_error(folder):
+    root, _ = folder
+    rows = _rows(root)
+    test_row = next(i for i, r in enumerate(rows) if r[5] == "test")
+    rows.append(list(rows[test_row]))  # same path, camera, position, object, pose and split
+    _write(root, rows)
+    with pytest.raises(DatabaseError) as e:
+        load_database(root)
+    assert e.value.problems == [f"row {len(rows) - 1}: duplicate of row {test_row} (same path "
+                                f"'{rows[test_row][0]}', camera, position, object, pose and split)"]
+
+
+def test_the_same_file_as_two_train_images_of_one_view_is_an_error(folder):
+    root, _ = folder
+    rows = _rows(root)
+    rows.append([rows[2][0], *rows[1][1:]])  # another file claims row 1's train view
+    _write(root, rows)
+    with pytest.raises(DatabaseError, match=f"row {len(rows) - 1}: duplicate train entry"):
+        load_database(root)
+
+
+# ---- the format lives in hardware/ (issue 14 item 4) -----------------------------------
+
+def test_hardware_imports_nothing_from_jaxrecog_outside_its_package():
+    import ast
+    from pathlib import Path
+
+    hw = Path(__file__).resolve().parent.parent / "hardware"
+    files = sorted(hw.glob("*.py"))
+    assert len(files) > 10
+    bad = []
+    for f in files:
+        for node in ast.walk(ast.parse(f.read_text(), str(f))):
+            names = []
+            if isinstance(node, ast.Import):
+                names = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom):
+                if node.level == 0:
+                    names = [node.module or ""]
+                elif node.level > 1:  # `from .. import x` leaves the package
+                    names = ["jaxrecog"]
+            bad += [f"{f.name}:{node.lineno} {n}" for n in names
+                    if (n == "jaxrecog" or n.startswith("jaxrecog.")) and not n.startswith("jaxrecog.hardware")]
+    assert bad == []
+
+
+def test_the_renderer_and_the_loader_share_one_format(tmp_path):
+    from jaxrecog import database
+    from jaxrecog.hardware import dbformat, render_db
+
+    assert render_db.MANIFEST_COLUMNS is dbformat.COLUMNS is database.COLUMNS
+    assert database.DatabaseError is dbformat.DatabaseError
+    db = make_database(positions=(2,), n_objects=1, n_poses=2, image_shape=(8, 8))
+    write_database(tmp_path, db)
+    from jaxrecog.hardware import DatasetRig
+
+    rig = DatasetRig.from_folder(tmp_path, split="train")
+    assert rig.positions == (2,) and rig.image_shape == (8, 8)

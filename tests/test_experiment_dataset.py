@@ -159,5 +159,6 @@ def test_runtime_failures_exit_1_with_one_line(moving, tmp_path):
         db.images[keep], *(getattr(db, f)[keep] for f in ("camera", "position", "object", "pose", "split"))))
     p = run("experiment", "--rig", f"dataset:{tmp_path / 'gappy'}", "--model", moving["model"], "--out", tmp_path)
     assert p.returncode == 1
-    one_error_line(p, "gappy", "3 of 18 views have no 'test' image", "camera 0, position 1, object 1")
+    one_error_line(p, "gappy", "3 of 18 views have no 'test' image")
+    assert "\n  camera 0, position 1, object 1, pose 0\n" in p.stderr, p.stderr  # one view per line
     assert not (tmp_path / "case_dataset.md").exists()

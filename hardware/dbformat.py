@@ -1,0 +1,339 @@
+"""The image-database format: a folder of 8-bit gray images plus ``manifest.csv``.
+
+``manifest.csv`` has exactly the columns :data:`COLUMNS`
+(``path,camera,position,object,pose,split``; 0-based integers; split one of
+:data:`SPLITS`), see ``docs/architecture.md``.  This leaf module (NumPy,
+OpenCV and the standard library only) is the one definition of the format:
+the renderer (:mod:`.render_db`) writes it, :func:`read_folder` reads and
+validates it for the dataset rig and for :func:`jaxrecog.load_database`.
+
+Rules (:func:`check_rows`): indices are non-negative integers below
+:data:`MAX_INDEX`; a row may not repeat another row exactly; one
+(camera, position, object, pose) has at most one ``train`` image.  One image
+file may serve several rows that differ in camera, position, object, pose or
+split: on a turntable one photo is the view of (pose p, position v) and of
+(pose p', position v').  Every problem is reported at once, each with its
+manifest row number (row 1 is the first line after the header); more than
+:data:`~.problems.SHOWN` also go, in full, to :data:`ERRORS_FILE` next to the
+manifest.
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import io
+import os
+import warnings
+from collections import Counter
+from pathlib import Path
+from typing import NamedTuple, Sequence
+
+import numpy as np
+
+from .problems import SHOWN, one_line, problem_message, write_problem_list
+
+__all__ = [
+    "COLUMNS",
+    "SPLITS",
+    "INT_COLUMNS",
+    "MAX_INDEX",
+    "ERRORS_FILE",
+    "DatabaseError",
+    "NonGrayImageWarning",
+    "ManifestRow",
+    "DatabaseColumns",
+    "database_error",
+    "check_rows",
+    "manifest_text",
+    "parse_manifest",
+    "read_gray",
+    "read_folder",
+    "shared_files",
+    "write_image",
+]
+
+COLUMNS = ("path", "camera", "position", "object", "pose", "split")
+SPLITS = ("train", "test", "calib")
+INT_COLUMNS = ("camera", "position", "object", "pose")
+MAX_INDEX = 2**20  # indices must be below this (a typo like 1e9 is not a position)
+ERRORS_FILE = "manifest-errors.txt"
+
+
+class DatabaseError(ValueError):
+    """The image database is invalid; ``problems`` lists every problem found,
+    ``full_list`` is the file that holds them all (``None``: not written)."""
+
+    def __init__(self, where: str, problems: Sequence[str], full_list: str | os.PathLike | None = None):
+        self.problems = list(problems)
+        self.full_list = full_list
+        super().__init__(problem_message(f"invalid image database {where}", self.problems, full_list=full_list))
+
+
+class NonGrayImageWarning(UserWarning):
+    """A colour (or gray+alpha) image was converted to 8-bit gray while loading."""
+
+
+class ManifestRow(NamedTuple):
+    """One manifest line after parsing."""
+
+    path: str
+    camera: int
+    position: int
+    object: int
+    pose: int
+    split: str
+
+
+class DatabaseColumns(NamedTuple):
+    """A validated database as columns (row ``n`` of the manifest is entry ``n``).
+
+    ``images`` ``uint8 [N, H, W]``; ``camera, position, object, pose`` ``int64 [N]``;
+    ``split`` ``str [N]``; ``paths`` relative to the folder; ``manifest_sha256``
+    the hex digest of the manifest bytes.
+    """
+
+    images: np.ndarray
+    camera: np.ndarray
+    position: np.ndarray
+    object: np.ndarray
+    pose: np.ndarray
+    split: np.ndarray
+    paths: tuple[str, ...]
+    manifest_sha256: str
+
+
+def database_error(where: str | os.PathLike, problems: Sequence[str], folder: str | os.PathLike | None = None) -> DatabaseError:
+    """A :class:`DatabaseError`; with more than :data:`~.problems.SHOWN`
+    problems and a writable ``folder``, the full list is written to
+    ``folder/`` :data:`ERRORS_FILE` first and the message names it."""
+    full = None
+    if folder is not None and len(problems) > SHOWN:
+        full = write_problem_list(Path(folder) / ERRORS_FILE, f"invalid image database {where}: "
+                                  f"{len(problems)} problems", problems)
+    return DatabaseError(str(where), problems, full_list=full)
+
+
+def check_rows(rows: Sequence[tuple[int, ManifestRow]]) -> list[str]:
+    """Value checks of parsed rows ``(row number, row)``: negative or too large
+    indices, unknown split, rows that repeat another exactly, two ``train``
+    images of one (camera, position, object, pose).  A path shared by rows
+    that differ otherwise (turntable views) is not a problem."""
+    problems: list[str] = []
+    seen_row: dict[ManifestRow, int] = {}
+    seen_train: dict[tuple, int] = {}
+    for r, row in rows:
+        for name in INT_COLUMNS:
+            val = getattr(row, name)
+            if val < 0:
+                problems.append(f"row {r}: {name} = {val} is negative")
+            elif val >= MAX_INDEX:
+                problems.append(f"row {r}: {name} = {one_line(val, 40)} is too large (must be < {MAX_INDEX})")
+        if row.split not in SPLITS:
+            problems.append(f"row {r}: split '{one_line(row.split, 60)}' is not one of {', '.join(SPLITS)}")
+        if row in seen_row:
+            problems.append(f"row {r}: duplicate of row {seen_row[row]} (same path '{one_line(row.path, 120)}', "
+                            f"camera, position, object, pose and split)")
+        else:
+            seen_row[row] = r
+        key = (row.camera, row.position, row.object, row.pose)
+        if row.split == "train":
+            if key in seen_train:
+                problems.append(
+                    f"row {r}: duplicate train entry camera {row.camera} position {row.position} "
+                    f"object {row.object} pose {row.pose} (first at row {seen_train[key]})"
+                )
+            else:
+                seen_train[key] = r
+    return problems
+
+
+def shared_files(paths: Sequence[str]) -> int:
+    """How many distinct image files are used by more than one row."""
+    return sum(1 for n in Counter(paths).values() if n > 1)
+
+
+def manifest_text(rows: Sequence[Sequence]) -> str:
+    """The manifest for ``rows`` (each ``(path, camera, position, object, pose, split)``)."""
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(COLUMNS)
+    for p, *idx, s in rows:
+        w.writerow([p, *(int(x) for x in idx), s])
+    return buf.getvalue()
+
+
+def parse_manifest(raw: bytes, where: str) -> tuple[list[tuple[int, ManifestRow]], list[str]]:
+    """Parse the bytes of ``manifest.csv``: ``(numbered rows, problems)``.
+
+    Header problems (unknown, repeated, missing columns) and per-row syntax
+    problems (field count, non-integer index, empty or escaping path) are
+    listed; the value checks are :func:`check_rows`.  A manifest that cannot
+    be read at all (not UTF-8, no header, missing columns, broken CSV) raises
+    :class:`DatabaseError` at once.
+    """
+    try:
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError as e:
+        raise DatabaseError(where, [f"manifest.csv is not UTF-8 text ({e.reason} at byte {e.start})"]) from None
+    problems: list[str] = []
+    numbered: list[tuple[int, ManifestRow]] = []
+    n_rows = 0  # lines read after the header, for the row number of a CSV error
+    try:
+        reader = csv.reader(io.StringIO(text, newline=""))
+        header = next(reader, None)
+        if header is None:
+            raise DatabaseError(where, ["manifest.csv is empty (no header)"])
+        header = [h.strip() for h in header]
+        for h in header:
+            if h not in COLUMNS:
+                problems.append(f"header: unknown column '{one_line(h, 60)}'")
+        for h, k in Counter(header).items():
+            if k > 1:
+                problems.append(f"header: column '{h}' appears {k} times")
+        missing = [c for c in COLUMNS if c not in header]
+        if missing:
+            problems.append(f"header: missing column(s) {', '.join(missing)}")
+            raise DatabaseError(where, problems)
+        col = {h: header.index(h) for h in COLUMNS}
+        for r, fields in enumerate(reader, start=1):
+            n_rows = r
+            if not fields or all(not f.strip() for f in fields):
+                continue
+            if len(fields) != len(header):
+                problems.append(f"row {r}: {len(fields)} fields, header has {len(header)}")
+                continue
+            bad = False
+            vals = []
+            for name in INT_COLUMNS:
+                s = fields[col[name]].strip()
+                try:
+                    vals.append(int(s))
+                except ValueError:
+                    problems.append(f"row {r}: {name} '{one_line(s, 40)}' is not an integer")
+                    bad = True
+            path = fields[col["path"]].strip()
+            if not path:
+                problems.append(f"row {r}: empty path")
+                bad = True
+            elif (os.path.isabs(path) or ".." in Path(path).parts or "\\" in path
+                  or not all(ch.isprintable() for ch in path)):
+                problems.append(f"row {r}: path '{one_line(path, 120)}' must be relative, inside the "
+                                f"folder, with '/' separators and printable characters")
+                bad = True
+            if not bad:
+                numbered.append((r, ManifestRow(path, *vals, fields[col["split"]].strip())))
+    except csv.Error as e:
+        problems.append(f"row {n_rows + 1}: broken CSV ({one_line(e, 80)})")
+    if not numbered and not problems:
+        problems.append("manifest.csv has no rows")
+    return numbered, problems
+
+
+def read_gray(file: Path, name: str | None = None) -> tuple[np.ndarray | None, str | None, bool]:
+    """Read one image as uint8 gray: ``(image, problem, converted_from_colour)``;
+    a problem names the file as ``name`` (default: its file name)."""
+    import cv2
+
+    name = one_line(file.name if name is None else name, 120)
+    try:
+        found = file.is_file()
+    except (OSError, ValueError):  # a name too long for the file system
+        found = False
+    if not found:
+        return None, f"missing file '{name}'", False
+    img = cv2.imread(str(file), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        return None, f"cannot read image '{name}' (not an image file?)", False
+    if img.dtype != np.uint8:
+        return None, f"image '{name}' is {img.dtype}, expected 8-bit", False
+    if img.ndim == 2:
+        return img, None, False
+    if img.ndim == 3 and img.shape[2] == 3:
+        return cv2.cvtColor(img, cv2.COLOR_BGR2GRAY), None, True
+    if img.ndim == 3 and img.shape[2] == 4:
+        return cv2.cvtColor(img, cv2.COLOR_BGRA2GRAY), None, True
+    if img.ndim == 3 and img.shape[2] == 1:
+        return img[:, :, 0], None, False
+    return None, f"image '{name}' has unsupported shape {img.shape}", False
+
+
+def write_image(path: Path, image: np.ndarray) -> None:
+    """Write one image file (format from the suffix); :class:`OSError` if OpenCV cannot."""
+    import cv2
+
+    if not cv2.imwrite(str(path), image):
+        raise OSError(f"could not write image '{path}'")
+
+
+def _row_key(msg: str) -> tuple[int, str]:
+    if msg.startswith("row "):
+        try:
+            return (int(msg.split(":")[0].split()[1]), msg)
+        except ValueError:
+            pass
+    return (0, msg)
+
+
+def read_folder(folder: str | os.PathLike) -> DatabaseColumns:
+    """Read and validate a database folder (see the module doc for the rules).
+
+    Also checked: every file exists and is an 8-bit image, and all images have
+    the same size (the most common size is the reference).  Colour images are
+    converted to gray with a :class:`NonGrayImageWarning`.  A file shared by
+    several rows is read once.
+
+    Raises:
+        DatabaseError: listing every problem, each with its row number.
+    """
+    root = Path(folder)
+    manifest = root / "manifest.csv"
+    if not manifest.is_file():
+        raise DatabaseError(str(root), [f"no manifest.csv in '{root}'"])
+    raw = manifest.read_bytes()
+    numbered, problems = parse_manifest(raw, str(root))
+    problems += check_rows(numbered)
+
+    cache: dict[str, tuple[np.ndarray | None, str | None, bool]] = {}
+    images: list[np.ndarray | None] = []
+    colour_rows: list[int] = []
+    for r, row in numbered:
+        if row.path not in cache:
+            cache[row.path] = read_gray(root / row.path, row.path)
+        img, problem, converted = cache[row.path]
+        if problem:
+            problems.append(f"row {r}: {problem}")
+        if converted:
+            colour_rows.append(r)
+        images.append(img)
+
+    shapes = Counter(im.shape for im in images if im is not None)
+    if shapes:
+        ref = shapes.most_common(1)[0][0]
+        for (r, row), im in zip(numbered, images):
+            if im is not None and im.shape != ref:
+                problems.append(
+                    f"row {r}: image '{one_line(row.path, 120)}' is {im.shape[0]}x{im.shape[1]}, "
+                    f"the others are {ref[0]}x{ref[1]}"
+                )
+    problems.sort(key=_row_key)
+    if problems:
+        raise database_error(root, problems, folder=root)
+    if colour_rows:
+        shown = ", ".join(str(r) for r in colour_rows[:SHOWN]) + (" ..." if len(colour_rows) > SHOWN else "")
+        warnings.warn(
+            f"{root}: {len(colour_rows)} colour image(s) converted to gray (rows {shown})",
+            NonGrayImageWarning,
+            stacklevel=3,
+        )
+    rows = [row for _, row in numbered]
+    return DatabaseColumns(
+        images=np.stack(images).astype(np.uint8, copy=False),
+        camera=np.array([p.camera for p in rows], dtype=np.int64),
+        position=np.array([p.position for p in rows], dtype=np.int64),
+        object=np.array([p.object for p in rows], dtype=np.int64),
+        pose=np.array([p.pose for p in rows], dtype=np.int64),
+        split=np.array([p.split for p in rows], dtype=str),
+        paths=tuple(p.path for p in rows),
+        manifest_sha256=hashlib.sha256(raw).hexdigest(),
+    )

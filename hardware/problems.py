@@ -1,0 +1,67 @@
+"""One rule for every error that lists problems: readable at any length.
+
+A message names the count, shows the first :data:`SHOWN` problems one per
+line and says where the full list is (a file, or ``--debug``, which prints
+the exception's ``problems``).  A single problem stays one line.  Every
+problem line is flattened to one line and capped at :data:`LINE_CAP`
+characters, so a stray newline or a 10 kB field in the input cannot blow up
+the message.
+
+This is a leaf module (standard library only): both ``jaxrecog.hardware``
+and ``jaxrecog`` use it, and ``hardware/`` imports nothing from ``jaxrecog``.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Sequence
+
+__all__ = ["SHOWN", "LINE_CAP", "DEBUG_HINT", "one_line", "problem_message", "write_problem_list"]
+
+SHOWN = 10
+LINE_CAP = 240
+DEBUG_HINT = "run with --debug to see all"
+
+
+def one_line(text: object, cap: int = LINE_CAP) -> str:
+    """``text`` with every run of whitespace (newlines included) and every
+    control character as one space, cut to ``cap`` characters (``...`` marks a cut)."""
+    s = "".join(ch if ch.isprintable() else " " for ch in str(text))
+    s = " ".join(s.split())
+    return s if len(s) <= cap else s[: cap - 3] + "..."
+
+
+def problem_message(head: str, problems: Sequence[str], *, full_list: str | os.PathLike | None = None,
+                    shown: int = SHOWN, counted: bool = False) -> str:
+    """The message for ``problems`` found in ``head`` (e.g. ``"invalid image database db/"``).
+
+    One problem: ``"{head}: {problem}"``.  More: ``"{head}: {n} problems"``
+    (``counted=True``: ``head`` states the count itself, e.g. ``"3 of 18 views
+    have no image"``, and stands alone), then the first ``shown`` problems one
+    per line (indented), then, when some were left out, where the rest are:
+    ``full_list`` (a file holding the whole list) or :data:`DEBUG_HINT`.
+    """
+    head = one_line(head, cap=4 * LINE_CAP)
+    probs = [one_line(p) for p in problems]
+    if not probs:
+        return head
+    if len(probs) == 1:
+        return f"{head}: {probs[0]}"
+    lines = [head if counted else f"{head}: {len(probs)} problems", *probs[:shown]]
+    if len(probs) > shown:
+        where = f"full list in {full_list}" if full_list is not None else DEBUG_HINT
+        lines.append(f"... {len(probs) - shown} more ({where})")
+    return "\n  ".join(lines)
+
+
+def write_problem_list(path: str | os.PathLike, head: str, problems: Sequence[str]) -> Path | None:
+    """Write ``head`` and every problem, one per line, to ``path``; the path,
+    or ``None`` when it cannot be written (read-only folder, no such folder)."""
+    p = Path(path)
+    try:
+        p.write_text("\n".join([one_line(head, cap=4 * LINE_CAP), *(one_line(x, cap=4 * LINE_CAP) for x in problems)]) + "\n",
+                     encoding="utf-8")
+    except OSError:
+        return None
+    return p
