@@ -24,12 +24,13 @@ import os
 import tempfile
 import warnings
 import zipfile
+import zlib
 from pathlib import Path
 
 import jax.numpy as jnp
 import numpy as np
 
-from .hardware.problems import problem_message
+from .hardware.problems import one_line, problem_message
 from .sensor_model import CameraModel, SensorModel
 
 __all__ = [
@@ -175,10 +176,12 @@ def _open(path: Path) -> dict[str, np.ndarray]:
     try:
         with np.load(path, allow_pickle=False) as npz:
             return {k: npz[k] for k in npz.files}
-    except (zipfile.BadZipFile, ValueError, OSError, EOFError, KeyError) as e:
+    # NotImplementedError: an unknown compression method; RuntimeError: the
+    # "encrypted" flag; zlib.error: a damaged deflate stream (bit flips)
+    except (zipfile.BadZipFile, ValueError, OSError, EOFError, KeyError, NotImplementedError,
+            RuntimeError, zlib.error) as e:
         kind = type(e).__name__
-        raise ModelFileCorruptError(f"model file {path}: damaged content ({kind}: {e})"
-                                    .replace("\n", " ")) from None
+        raise ModelFileCorruptError(f"model file {path}: damaged content ({kind}: {one_line(e)})") from None
 
 
 def load_model_meta(path: str | os.PathLike) -> dict:
@@ -190,7 +193,11 @@ def _read(path: Path) -> tuple[dict[str, np.ndarray], dict]:
     data = _open(path)
     if "format_version" not in data:
         raise ModelFileCorruptError(f"model file {path}: no format_version entry")
-    version = int(np.asarray(data["format_version"]).reshape(-1)[0])
+    v = np.asarray(data["format_version"])
+    if v.size != 1 or not np.issubdtype(v.dtype, np.integer):
+        raise ModelFileCorruptError(f"model file {path}: format_version is not one integer "
+                                    f"({v.dtype} of shape {v.shape})")
+    version = int(v.reshape(-1)[0])
     if version in _OLD_VERSIONS:
         warnings.warn(
             f"model file {path}: format version {version} (older than {FORMAT_VERSION}); "
@@ -203,8 +210,10 @@ def _read(path: Path) -> tuple[dict[str, np.ndarray], dict]:
         )
     try:
         meta = json.loads(bytes(data["meta"]).decode())
-    except (KeyError, ValueError) as e:
-        raise ModelFileCorruptError(f"model file {path}: unreadable metadata ({e})") from None
+    except (KeyError, ValueError, RecursionError) as e:  # RecursionError: absurdly nested JSON
+        raise ModelFileCorruptError(f"model file {path}: unreadable metadata ({one_line(e)})") from None
+    if not isinstance(meta, dict):
+        raise ModelFileCorruptError(f"model file {path}: metadata is a JSON {type(meta).__name__}, not an object")
     meta["format_version"] = version
     arrays = {k: v for k, v in data.items() if k not in ("format_version", "meta")}
     if _content_hash(arrays) != meta.get("content_sha256"):
@@ -217,26 +226,33 @@ def load_model(path: str | os.PathLike) -> SensorModel:
 
     Raises:
         ModelFileMissingError, ModelFileCorruptError, ModelFileTruncatedError,
-        ModelFileVersionError, ModelFileContentError: one line naming the file.
+        ModelFileVersionError, ModelFileContentError: one line naming the file
+        (unexpected arrays: their count, then the first ten one per line).
+        Nothing else comes out, whatever the bytes (``tests/test_fuzz_loaders.py``).
     """
     path = Path(path)
     arrays, meta = _read(path)
 
     def bad(msg: str):
-        return ModelFileContentError(f"model file {path}: {msg}")
+        return ModelFileContentError(f"model file {path}: {one_line(msg)}")
 
     try:
         n_cam = int(meta["n_cameras"])
         positions = [int(v) for v in meta["positions"]]
-        C = int(meta["n_objects"]) * int(meta["n_poses"])
-        L = len(meta["levels"])
+        n_objects, n_poses = int(meta["n_objects"]), int(meta["n_poses"])
+        levels = tuple(float(x) for x in meta["levels"])
         H, W = (int(x) for x in meta["image_shape"])
         K = int(meta["n_components"])
         cov = meta["covariance"]
-    except (KeyError, TypeError, ValueError) as e:
-        raise bad(f"metadata lacks a valid field ({e})") from None
-    if cov not in ("diag", "full") or len(positions) != n_cam or n_cam < 1:
-        raise bad(f"inconsistent metadata (covariance {cov!r}, positions {positions})")
+    except (KeyError, TypeError, ValueError, OverflowError) as e:  # OverflowError: int(Infinity)
+        raise bad(f"metadata lacks a valid field ({type(e).__name__}: {e})") from None
+    C, L = n_objects * n_poses, len(levels)
+    sizes = (n_cam, *positions, n_objects, n_poses, L, H, W, K)
+    if cov not in ("diag", "full") or len(positions) != n_cam or min(sizes) < 1:
+        raise bad(f"inconsistent metadata (covariance {cov!r}, {n_cam} camera(s), positions {positions}, "
+                  f"{n_objects} objects x {n_poses} poses, {L} levels, image {H}x{W}, K {K})")
+    if not all(0.0 <= lv < 1.0 for lv in levels):
+        raise bad(f"occlusion levels {levels} must be fractions in [0, 1)")
     D = H * W
     cameras = []
     for i, V in enumerate(positions):
@@ -274,9 +290,9 @@ def load_model(path: str | os.PathLike) -> SensorModel:
         raise bad(problem_message("unexpected arrays", sorted(extra)))
     return SensorModel(
         cameras=tuple(cameras),
-        n_objects=int(meta["n_objects"]),
-        n_poses=int(meta["n_poses"]),
-        levels=tuple(float(x) for x in meta["levels"]),
+        n_objects=n_objects,
+        n_poses=n_poses,
+        levels=levels,
         image_shape=(H, W),
         covariance=cov,
     )
