@@ -22,10 +22,9 @@ class DatasetRig(SeededCaptures):
     """Replay one split of an image database through the ``Rig`` interface.
 
     Args:
-        database: a :class:`jaxrecog.database.ImageDatabase`, a
-            :class:`~.dbformat.DatabaseColumns`, or anything with the same
-            ``images``, ``camera``, ``position``, ``object``, ``pose``,
-            ``split`` arrays.
+        database: a :class:`~.dbformat.ImageDatabase` (or anything with the
+            same ``images``, ``camera``, ``position``, ``object``, ``pose``,
+            ``split`` arrays and ``positions``).
         split: which rows to replay (``"test"`` by default).
         seed: when several images exist for one (camera, position, object,
             pose), each capture picks one at random from this seed.
@@ -41,9 +40,7 @@ class DatasetRig(SeededCaptures):
         for r in rows:
             k = (int(database.camera[r]), int(database.position[r]), int(database.object[r]), int(database.pose[r]))
             self._index.setdefault(k, []).append(int(r))
-        camera, position = np.asarray(database.camera), np.asarray(database.position)
-        self._positions = tuple(int(position[camera == i].max()) + 1 if np.any(camera == i) else 0
-                                for i in range(int(camera.max()) + 1))
+        self._positions = tuple(int(p) for p in database.positions)
         self._shape = tuple(int(s) for s in database.images.shape[1:3])
         self._scene: tuple[int, int] | None = None
         self._config: tuple[int, ...] | None = None

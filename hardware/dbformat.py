@@ -3,9 +3,11 @@
 ``manifest.csv`` has exactly the columns :data:`COLUMNS`
 (``path,camera,position,object,pose,split``; 0-based integers; split one of
 :data:`SPLITS`), see ``docs/architecture.md``.  This leaf module (NumPy,
-OpenCV and the standard library only) is the one definition of the format:
-the renderer (:mod:`.render_db`) writes it, :func:`read_folder` reads and
-validates it for the dataset rig and for :func:`jaxrecog.load_database`.
+OpenCV and the standard library only) is the one definition of the format
+and of the in-memory :class:`ImageDatabase`: the renderer (:mod:`.render_db`)
+writes it, :func:`read_folder` reads and validates it for the dataset rig and
+for :func:`jaxrecog.load_database`, :func:`write_folder` writes an
+:class:`ImageDatabase`.
 
 Rules (:func:`check_rows`): indices are non-negative integers below
 :data:`MAX_INDEX`; a row may not repeat another row exactly; one
@@ -21,6 +23,7 @@ manifest.
 from __future__ import annotations
 
 import csv
+import dataclasses
 import hashlib
 import io
 import os
@@ -42,7 +45,7 @@ __all__ = [
     "DatabaseError",
     "NonGrayImageWarning",
     "ManifestRow",
-    "DatabaseColumns",
+    "ImageDatabase",
     "database_error",
     "check_rows",
     "manifest_text",
@@ -50,6 +53,7 @@ __all__ = [
     "read_gray",
     "read_folder",
     "shared_files",
+    "write_folder",
     "write_image",
 ]
 
@@ -85,12 +89,17 @@ class ManifestRow(NamedTuple):
     split: str
 
 
-class DatabaseColumns(NamedTuple):
-    """A validated database as columns (row ``n`` of the manifest is entry ``n``).
+@dataclasses.dataclass(frozen=True, eq=False)
+class ImageDatabase:
+    """A validated image database held in memory.
 
-    ``images`` ``uint8 [N, H, W]``; ``camera, position, object, pose`` ``int64 [N]``;
-    ``split`` ``str [N]``; ``paths`` relative to the folder; ``manifest_sha256``
-    the hex digest of the manifest bytes.
+    Attributes:
+        images: ``uint8 [N, H, W]``, row ``n`` of the manifest.
+        camera, position, object, pose: ``int64 [N]``.
+        split: ``str [N]``, one of :data:`SPLITS`.
+        paths: image paths relative to ``root``.
+        root: the folder (``None`` for an in-memory database).
+        manifest_sha256: hex digest of the manifest text (for model provenance).
     """
 
     images: np.ndarray
@@ -100,7 +109,124 @@ class DatabaseColumns(NamedTuple):
     pose: np.ndarray
     split: np.ndarray
     paths: tuple[str, ...]
+    root: Path | None
     manifest_sha256: str
+
+    # ---- sizes -------------------------------------------------------------
+    @property
+    def n_rows(self) -> int:
+        return int(self.images.shape[0])
+
+    @property
+    def image_shape(self) -> tuple[int, int]:
+        return (int(self.images.shape[1]), int(self.images.shape[2]))
+
+    @property
+    def n_cameras(self) -> int:
+        return int(self.camera.max()) + 1
+
+    @property
+    def positions(self) -> tuple[int, ...]:
+        """Number of positions of each camera (largest index + 1)."""
+        return tuple(
+            int(self.position[self.camera == i].max()) + 1 if np.any(self.camera == i) else 0
+            for i in range(self.n_cameras)
+        )
+
+    @property
+    def n_objects(self) -> int:
+        return int(self.object.max()) + 1
+
+    @property
+    def n_poses(self) -> int:
+        return int(self.pose.max()) + 1
+
+    @property
+    def n_classes(self) -> int:
+        return self.n_objects * self.n_poses
+
+    @property
+    def class_index(self) -> np.ndarray:
+        """``c = object * n_poses + pose`` per row, ``int64 [N]``."""
+        return self.object * self.n_poses + self.pose
+
+    def rows(self, split: str) -> np.ndarray:
+        """Row indices of one split."""
+        return np.flatnonzero(self.split == split)
+
+    def train_images(self, camera: int) -> np.ndarray:
+        """The training images of one camera as ``uint8 [V, C, H, W]``.
+
+        Every (position, class) of the camera must have exactly one ``train``
+        image; otherwise a :class:`DatabaseError` lists the missing ones.
+        """
+        if not 0 <= camera < self.n_cameras:
+            raise ValueError(f"camera {camera} not in database (cameras 0..{self.n_cameras - 1})")
+        n_pos, n_cls = self.positions[camera], self.n_classes
+        sel = np.flatnonzero((self.split == "train") & (self.camera == camera))
+        slots = np.full((n_pos, n_cls), -1, dtype=np.int64)
+        slots[self.position[sel], self.class_index[sel]] = sel
+        missing = np.argwhere(slots < 0)
+        if missing.size:
+            probs = [
+                f"camera {camera} position {v}: no train image of object {c // self.n_poses} "
+                f"pose {c % self.n_poses}"
+                for v, c in missing
+            ]
+            raise database_error(self._where(), probs, folder=self.root)
+        return self.images[slots]
+
+    def _where(self) -> str:
+        return str(self.root) if self.root is not None else "<in memory>"
+
+    # ---- construction ------------------------------------------------------
+    @classmethod
+    def from_arrays(
+        cls,
+        images: np.ndarray,
+        camera: Sequence[int],
+        position: Sequence[int],
+        object: Sequence[int],
+        pose: Sequence[int],
+        split: Sequence[str],
+        paths: Sequence[str] | None = None,
+        root: Path | None = None,
+    ) -> "ImageDatabase":
+        """An in-memory database (e.g. generated); checks the same invariants as
+        :func:`load_database` except file access."""
+        images = np.asarray(images)
+        if images.dtype != np.uint8 or images.ndim != 3:
+            raise ValueError(f"images must be uint8 [N, H, W], got {images.dtype} {images.shape}")
+        n = images.shape[0]
+        cols = {k: np.asarray(v, dtype=np.int64) for k, v in
+                zip(INT_COLUMNS, (camera, position, object, pose))}
+        split_arr = np.asarray(split, dtype=np.str_)
+        if paths is None:
+            paths = [
+                f"cam{c}/pos{v:03d}/obj{m}_pose{p}_{s}_{i}.png"
+                for i, (c, v, m, p, s) in enumerate(zip(*cols.values(), split_arr))
+            ]
+        if any(len(a) != n for a in (*cols.values(), split_arr, paths)):
+            raise ValueError("images, index columns, split and paths must have the same length")
+        if n == 0:
+            raise ValueError("an image database needs at least one row")
+        rows = [ManifestRow(p, *(int(cols[k][i]) for k in INT_COLUMNS), str(split_arr[i]))
+                for i, p in enumerate(paths)]
+        problems = check_rows(list(enumerate(rows, start=1)))
+        if problems:
+            raise DatabaseError("<in memory>", problems)
+        text = manifest_text(rows)
+        return cls(
+            images=images,
+            camera=cols["camera"],
+            position=cols["position"],
+            object=cols["object"],
+            pose=cols["pose"],
+            split=split_arr,
+            paths=tuple(paths),
+            root=root,
+            manifest_sha256=hashlib.sha256(text.encode()).hexdigest(),
+        )
 
 
 def database_error(where: str | os.PathLike, problems: Sequence[str], folder: str | os.PathLike | None = None) -> DatabaseError:
@@ -275,7 +401,7 @@ def _row_key(msg: str) -> tuple[int, str]:
     return (0, msg)
 
 
-def read_folder(folder: str | os.PathLike) -> DatabaseColumns:
+def read_folder(folder: str | os.PathLike) -> "ImageDatabase":
     """Read and validate a database folder (see the module doc for the rules).
 
     Also checked: every file exists and is an 8-bit image, and all images have
@@ -327,7 +453,7 @@ def read_folder(folder: str | os.PathLike) -> DatabaseColumns:
             stacklevel=3,
         )
     rows = [row for _, row in numbered]
-    return DatabaseColumns(
+    return ImageDatabase(
         images=np.stack(images).astype(np.uint8, copy=False),
         camera=np.array([p.camera for p in rows], dtype=np.int64),
         position=np.array([p.position for p in rows], dtype=np.int64),
@@ -335,5 +461,18 @@ def read_folder(folder: str | os.PathLike) -> DatabaseColumns:
         pose=np.array([p.pose for p in rows], dtype=np.int64),
         split=np.array([p.split for p in rows], dtype=str),
         paths=tuple(p.path for p in rows),
+        root=root,
         manifest_sha256=hashlib.sha256(raw).hexdigest(),
     )
+
+
+def write_folder(folder: str | os.PathLike, db: ImageDatabase) -> Path:
+    """Write ``db`` as PNG files plus ``manifest.csv`` under ``folder``."""
+    root = Path(folder)
+    for path, img in zip(db.paths, db.images):
+        f = root / path
+        f.parent.mkdir(parents=True, exist_ok=True)
+        write_image(f, img)
+    rows = zip(db.paths, db.camera, db.position, db.object, db.pose, db.split)
+    (root / "manifest.csv").write_text(manifest_text(list(rows)))
+    return root
