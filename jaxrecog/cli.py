@@ -1046,8 +1046,8 @@ def _apply_config(parser: argparse.ArgumentParser, path: str) -> dict[str, Any]:
     if unknown:
         from .config import ConfigFileError
 
-        raise ConfigFileError(f"settings file {path}: unknown table(s) {', '.join(unknown)} "
-                              f"(known: global, {', '.join(subs)})")
+        raise ConfigFileError(problem_message(f"settings file {path}: unknown table(s) "
+                                              f"(known: global, {', '.join(subs)})", unknown))
     for name, sp in subs.items():
         dests = {a.dest for a in sp._actions if a.option_strings and a.dest not in ("help", "config")}
         values = section(data, name, dests, path)

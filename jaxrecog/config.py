@@ -24,6 +24,8 @@ import tomllib
 from pathlib import Path
 from typing import Any
 
+from .hardware.problems import problem_message
+
 __all__ = ["ConfigFileError", "load_settings", "read_toml", "section"]
 
 
@@ -59,12 +61,12 @@ def load_settings(path: str | os.PathLike) -> dict[str, Any]:
 
 def section(data: dict[str, Any], name: str, known: set[str], where: str) -> dict[str, Any]:
     """The table ``name`` with keys normalised to argparse ``dest`` names
-    (dashes to underscores); unknown keys raise :class:`ConfigFileError`."""
-    out = {}
-    for k, v in data.get(name, {}).items():
-        dest = k.replace("-", "_")
-        if dest not in known:
-            raise ConfigFileError(f"settings file {where}: [{name}] has no option {k!r} "
-                                  f"(known: {', '.join(sorted(x.replace('_', '-') for x in known))})")
-        out[dest] = v
+    (dashes to underscores); unknown keys raise :class:`ConfigFileError`,
+    which lists them all (:func:`~jaxrecog.hardware.problems.problem_message`)."""
+    out = {k.replace("-", "_"): v for k, v in data.get(name, {}).items()}
+    unknown = [repr(k) for k in data.get(name, {}) if k.replace("-", "_") not in known]
+    if unknown:
+        raise ConfigFileError(problem_message(
+            f"settings file {where}: [{name}] has unknown option(s) "
+            f"(known: {', '.join(sorted(x.replace('_', '-') for x in known))})", unknown))
     return out

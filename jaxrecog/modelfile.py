@@ -287,7 +287,10 @@ def load_model(path: str | os.PathLike) -> SensorModel:
     known = _FIELDS if meta["format_version"] >= 2 else _FIELDS[:-1]
     extra = set(arrays) - {f"camera{i}.{f}" for i in range(n_cam) for f in known}
     if extra:
-        raise bad(problem_message("unexpected arrays", sorted(extra)))
+        names = [one_line(k) for k in sorted(extra)]
+        err = ModelFileContentError(f"model file {path}: " + problem_message("unexpected arrays", names))
+        err.problems = names  # all of them, for --debug
+        raise err
     return SensorModel(
         cameras=tuple(cameras),
         n_objects=n_objects,
