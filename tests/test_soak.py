@@ -1,8 +1,9 @@
 """Soak (issue 16 item 7): a long run of the recognizer with bad images mixed
 in, and a campaign killed with SIGKILL and resumed.
 
-1. 10,000 recognizer steps (50 trials in lockstep through
-   :func:`jaxrecog.campaign.batched_step`, a trial restarting when it stops)
+1. 10,000 recognizer steps (50 lockstep slots through
+   :func:`jaxrecog.campaign.batched_step`; a slot whose trial stops starts a
+   new one, inside the step, from the ``fresh`` mask)
    on a small two-camera DB2 model with the MI planner; 5 % of the images are
    bad: all black or NaN (they enter the jitted step, which flags them in
    ``Decision.valid`` and leaves the belief unchanged), or of the wrong size.
@@ -13,8 +14,9 @@ in, and a campaign killed with SIGKILL and resumed.
    every bad view flagged and its belief unchanged, no compile after the
    warm-up, resident memory grows at most 5 % after the warm-up.
 2. A campaign in a subprocess, killed with SIGKILL at random points (some
-   mid-write) and resumed 3 times from its TrialStore, ends with exactly the
-   results of an uninterrupted run.
+   mid-write) and resumed 3 times from its TrialStore (twice in subprocesses
+   killed again, the last time here), ends with exactly the results of an
+   uninterrupted run.
 
 The figures (steps/s, memory before/after, NaN count) are printed (``-s``).
 """
@@ -55,15 +57,6 @@ def _rss_bytes() -> int:
         return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
 
 
-@jax.jit
-def _restart(states, fresh, stop):
-    """Trials that stopped start again from their fresh state."""
-    def pick(x, f):
-        return jnp.where(stop.reshape(stop.shape + (1,) * (x.ndim - 1)), f, x)
-
-    return jax.tree.map(pick, states, fresh)
-
-
 def _leaves_nan(tree) -> int:
     return sum(int(np.isnan(np.asarray(x)).sum()) for x in jax.tree.leaves(tree))
 
@@ -72,7 +65,7 @@ def test_ten_thousand_steps_with_bad_images(capsys):
     db = make_database(positions=(4, 3), n_objects=3, n_poses=2, image_shape=(24, 32), n_test=1)
     model = train_model(db, kind="DB2", n_components=4, samples_per_image=8)
     rec = Recognizer(model, make_planner("mi", model, key=jr.PRNGKey(0), samples=16))
-    step = batched_step(rec)
+    step = batched_step(rec, trace=True)  # the trace carries the posterior checked below
     shape, n_cams, C = model.image_shape, len(rec.positions), model.n_objects * model.n_poses
     # per camera the test image of every (position, class): [V, C, H, W]
     tables = []
@@ -83,15 +76,16 @@ def test_ten_thousand_steps_with_bad_images(capsys):
         tables.append(t)
 
     rng = np.random.default_rng(0)
-    fresh = jax.tree.map(lambda *xs: jnp.stack(xs), *[
-        rec.init(config=tuple(int(rng.integers(V)) for V in rec.positions)) for _ in range(BATCH)])
-    states, cls = fresh, rng.integers(C, size=BATCH)
-    keys = np.asarray(jr.split(jr.PRNGKey(1), (WARMUP_CALLS + CALLS, BATCH)))
+    draw_config = lambda: np.stack([rng.integers(V, size=BATCH) for V in rec.positions], axis=1)  # noqa: E731
+    states = jax.tree.map(lambda x: jnp.stack([x] * BATCH), rec.init(config=(0,) * n_cams))
+    fresh = np.ones(BATCH, bool)                      # every slot starts a trial
+    cfg, cls = draw_config(), rng.integers(C, size=BATCH)
+    trials, steps = np.arange(BATCH), np.zeros(BATCH, np.int64)
+    key = jr.PRNGKey(1)
     figures = dict(bad=0, black=0, nan=0, wrong_size=0, flagged=0, nan_in_beliefs=0, restarts=0)
 
-    def one_call(n):
-        nonlocal states, cls
-        cfg = np.asarray(states.config)
+    def one_call():
+        nonlocal states, fresh, cfg, cls, trials, steps
         images = np.stack([tables[i][cfg[:, i], cls] for i in range(n_cams)], axis=1)
         images += rng.normal(0.0, 2.0, images.shape).astype(np.float32)
         np.clip(images, 0.0, 255.0, out=images)
@@ -110,28 +104,31 @@ def test_ten_thousand_steps_with_bad_images(capsys):
                 images[b, i] = 0.0  # its slot carries a black frame: flagged invalid in the step
         figures["bad"] += int(bad.sum())
         prior = jax.tree.map(np.asarray, states.prior)
-        states, dec = step(states, images, keys[n])
+        states, dec = step(states, fresh, cfg, images, key, trials, steps)
         valid, stop = np.asarray(dec.valid), np.asarray(dec.stop)
         any_bad = bad.any(axis=1)
         assert not valid[any_bad].any(), "a bad image was used"
         assert valid[~any_bad].all(), "a good image set was rejected"
         figures["flagged"] += int((~valid).sum())
-        post = jax.tree.map(np.asarray, dec.posterior)
+        post = jax.tree.map(np.asarray, dec.trace.posterior)
+        kept = any_bad & ~fresh  # (a fresh slot's prior is the uniform belief, set inside the step)
         for p, q in zip(jax.tree.leaves(post), jax.tree.leaves(prior)):
-            np.testing.assert_allclose(p[any_bad], q[any_bad], atol=1e-6)  # belief unchanged
+            np.testing.assert_allclose(p[kept], q[kept], atol=1e-6)  # belief unchanged
         figures["nan_in_beliefs"] += _leaves_nan(states.prior) + _leaves_nan(post)
-        if stop.any():
-            figures["restarts"] += int(stop.sum())
-            states = _restart(states, fresh, jnp.asarray(stop))
-            cls = np.where(stop, rng.integers(C, size=BATCH), cls)
+        # the next call: stopped slots start a new trial (a new scene and start), the others move on
+        figures["restarts"] += int(stop.sum())
+        fresh, steps = stop, np.where(stop, 0, steps + 1)
+        trials = np.where(stop, trials + BATCH, trials)
+        cls = np.where(stop, rng.integers(C, size=BATCH), cls)
+        cfg = np.where(stop[:, None], draw_config(), np.asarray(dec.next_config))
 
-    for n in range(WARMUP_CALLS):
-        one_call(n)
+    for _ in range(WARMUP_CALLS):
+        one_call()
     rss_before = _rss_bytes()
     t0 = time.perf_counter()
     with count_compiles() as compiles:
-        for n in range(WARMUP_CALLS, WARMUP_CALLS + CALLS):
-            one_call(n)
+        for _ in range(CALLS):
+            one_call()
     seconds = time.perf_counter() - t0
     rss_after = _rss_bytes()
     steps = BATCH * CALLS
