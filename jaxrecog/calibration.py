@@ -7,8 +7,9 @@ view.  Calibration inflates its covariance per camera ``i``, position ``v``
 
     Σ'[v, c, k] = s[v, k] · Σ[v, c, k]          (var · s,  chol · sqrt(s))
 
-so the log-likelihood (eq. 4.18-4.19) becomes, with the squared Mahalanobis
-distance ``q = (g - μ)ᵀ Σ⁻¹ (g - μ)`` of the *uncalibrated* model,
+through the likelihood's ``scaled(s)`` (:class:`~jaxrecog.kernels.Likelihood`).
+For the Gaussians the log-likelihood (eq. 4.18-4.19) becomes, with the squared
+Mahalanobis distance ``q = (g - μ)ᵀ Σ⁻¹ (g - μ)`` of the *uncalibrated* model,
 
     log p'(g | c, k, v) = -q / (2 s) - K/2 · log s - ½ log|2π Σ|,
 
@@ -23,12 +24,15 @@ The Gaussian prior on ``θ = log s`` (sd ``σ = prior_sd``) pulls ``s`` toward 1
 so a position with few images stays near uncalibrated and one with none
 stays exactly at 1.  ``J_v`` is minimised with ``optax.lbfgs`` (zoom line
 search) in a ``lax.while_loop``, jitted and ``vmap``-ed over positions; the
-data enter only through ``q [N, C, L]`` and ``log|Σ| [C, L]``, computed once.
+data enter through the likelihood's ``scaling_terms`` (for the Gaussians
+``q [N, C, L]`` and ``log|Σ| [C, L]``), computed once, and its
+``scaled_log_density``.
 
 A calibrated model is an ordinary :class:`~jaxrecog.sensor_model.SensorModel`
-(scaled ``var`` / ``chol``), so every kernel and planner uses it unchanged; the
-factors are kept in ``CameraModel.calibration`` ``[V, L]`` and saved in the
-model file (format version 2).
+(``Likelihood.scaled``; for the Gaussians ``var · s``, ``chol · sqrt(s)``), so
+every kernel and planner uses it unchanged; the factors are kept in
+``CameraModel.calibration`` ``[V, L]`` and saved in the model file (format
+version 2).
 
 Public entry for the CLI: :func:`calibrate_model`.
 """
@@ -47,6 +51,7 @@ import numpy as np
 import optax
 from jaxtyping import Array, Bool, Float, Int
 
+from . import kernels as K
 from .database import ImageDatabase, load_database
 from .features import check_image
 from .sensor_model import CameraModel, SensorModel
@@ -256,29 +261,18 @@ def mahalanobis_terms(mu: Float[Array, "C L K"], var: Float[Array, "C L K"],
                       chol: Float[Array, "C L K K"] | None, g: Float[Array, "N K"]
                       ) -> tuple[Float[Array, "N C L"], Float[Array, "C L"]]:
     """``q[n, c, k] = (g_n - μ)ᵀ Σ⁻¹ (g_n - μ)`` and ``log|2π Σ|[c, k]`` of one
-    position (diagonal ``var`` or, given ``chol``, full covariance via a
-    triangular solve).  ``log p(g|c,k) = -(q + log|2πΣ|) / 2`` (eq. 4.18-4.19)."""
-    K = mu.shape[-1]
-    d = g[:, None, None, :] - mu[None]                                   # [N, C, L, K]
-    if chol is None:
-        q = jnp.sum(d * d / var[None], axis=-1)
-        logdet = jnp.sum(jnp.log(var), axis=-1)
-    else:
-        solve = jax.scipy.linalg.solve_triangular
-        z = jax.vmap(jax.vmap(lambda Lc, dc: solve(Lc, dc.T, lower=True).T, in_axes=(0, 1), out_axes=1),
-                     in_axes=(0, 1), out_axes=1)(chol, d)                 # [N, C, L, K]
-        q = jnp.sum(z * z, axis=-1)
-        logdet = 2.0 * jnp.sum(jnp.log(jnp.diagonal(chol, axis1=-2, axis2=-1)), axis=-1)
-    return q, logdet + K * math.log(2.0 * math.pi)
+    position of a Gaussian (diagonal ``var`` or, given ``chol``, full
+    covariance): its ``scaling_terms``.  ``log p(g|c,k) = -(q + log|2πΣ|) / 2``
+    (eq. 4.18-4.19)."""
+    return K.gaussian(mu, var, chol).scaling_terms(g)
 
 
-def _neg_log_posterior(theta: Float[Array, " P"], q: Float[Array, "N C L"],
-                       logdet: Float[Array, "C L"], true_cls: Int[Array, " N"],
-                       mask: Bool[Array, " N"], K: int) -> Float[Array, " N"]:
-    """``-log p'(c*_n | g_n)`` per image under factors ``exp(theta)`` (broadcast to L)."""
-    L = q.shape[-1]
-    th = jnp.broadcast_to(theta, (L,))
-    ll = -0.5 * (q * jnp.exp(-th)[None, None, :] + K * th[None, None, :] + logdet[None])
+def _neg_log_posterior(theta: Float[Array, " P"], lik: K.Likelihood, terms,
+                       true_cls: Int[Array, " N"], mask: Bool[Array, " N"]) -> Float[Array, " N"]:
+    """``-log p'(c*_n | g_n)`` per image under factors ``exp(theta)`` (broadcast to L),
+    for one position's likelihood ``lik`` and its ``scaling_terms``."""
+    th = jnp.broadcast_to(theta, (lik.n_levels,))
+    ll = lik.scaled_log_density(terms, th)                               # [N, C, L]
     log_c = jax.nn.logsumexp(ll, axis=-1)                                # [N, C]
     log_post = jnp.take_along_axis(log_c, true_cls[:, None], axis=1)[:, 0] - \
         jax.nn.logsumexp(log_c, axis=-1)
@@ -286,23 +280,25 @@ def _neg_log_posterior(theta: Float[Array, " P"], q: Float[Array, "N C L"],
 
 
 @eqx.filter_jit
-def _fit_positions(q, logdet, true_cls, mask, prior_sd, max_iter, tol, log_min, *, n_params: int, K: int):
-    """vmap over positions of the L-BFGS fit: ``(theta [V, P], iters [V],
+def _fit_positions(lik, terms, true_cls, mask, prior_sd, max_iter, tol, log_min, *, n_params: int):
+    """vmap over positions (of the camera's likelihood ``lik`` and its
+    ``scaling_terms``) of the L-BFGS fit: ``(theta [V, P], iters [V],
     converged [V], nll0 [V], nll1 [V])``.  ``prior_sd``, ``max_iter``, ``tol``,
     ``log_min`` are traced scalars (changing them does not recompile).  The
     unconstrained optimum is clipped to ``theta >= log_min`` afterwards (exact
     for one factor per position, where ``J_v`` is unimodal in practice)."""
 
-    def fit_one(q, logdet, true_cls, mask):
-        n = jnp.maximum(jnp.sum(mask), 1).astype(q.dtype)
+    def fit_one(lik, terms, true_cls, mask):
+        dtype = lik.dtype
+        n = jnp.maximum(jnp.sum(mask), 1).astype(dtype)
 
         def loss(theta):
-            nll = _neg_log_posterior(theta, q, logdet, true_cls, mask, K)
+            nll = _neg_log_posterior(theta, lik, terms, true_cls, mask)
             return (jnp.sum(nll) + 0.5 * jnp.sum(theta * theta) / prior_sd**2) / n
 
         opt = optax.lbfgs()   # zoom line search (a backtracking one stalls near the optimum in float32)
         value_and_grad = optax.value_and_grad_from_state(loss)
-        theta0 = jnp.zeros((n_params,), q.dtype)
+        theta0 = jnp.zeros((n_params,), dtype)
 
         def body(carry):
             theta, state, it = carry
@@ -319,11 +315,11 @@ def _fit_positions(q, logdet, true_cls, mask, prior_sd, max_iter, tol, log_min, 
         theta, state, it = jax.lax.while_loop(cond, body, (theta0, opt.init(theta0), jnp.asarray(0)))
         gnorm = jnp.linalg.norm(jax.grad(loss)(theta))
         theta = jnp.maximum(theta, log_min)
-        nll0 = jnp.sum(_neg_log_posterior(theta0, q, logdet, true_cls, mask, K)) / n
-        nll1 = jnp.sum(_neg_log_posterior(theta, q, logdet, true_cls, mask, K)) / n
+        nll0 = jnp.sum(_neg_log_posterior(theta0, lik, terms, true_cls, mask)) / n
+        nll1 = jnp.sum(_neg_log_posterior(theta, lik, terms, true_cls, mask)) / n
         return theta, it, gnorm < tol, nll0, nll1
 
-    return jax.vmap(fit_one)(q, logdet, true_cls, mask)
+    return jax.vmap(fit_one)(lik, terms, true_cls, mask)
 
 
 def fit_factors(camera: CameraModel, features: CameraFeatures, *, per_level: bool = False,
@@ -348,7 +344,8 @@ def fit_factors(camera: CameraModel, features: CameraFeatures, *, per_level: boo
     if not prior_sd > 0 or not max_iter >= 1 or not tol > 0 or not (min_factor is None or min_factor > 0):
         raise ValueError(f"need prior_sd > 0, max_iter >= 1, tol > 0, min_factor > 0 or None "
                          f"(got {prior_sd}, {max_iter}, {tol}, {min_factor})")
-    V, C, L, K = camera.mu.shape
+    lik = camera.likelihood
+    V, L, dim = camera.n_positions, lik.n_levels, lik.dim
     counts = np.bincount(features.position, minlength=V)
     n_max = 1 << max(int(counts.max()) - 1, 0).bit_length()   # power of two: fewer recompiles
     # group by position into padded [V, n_max] slots
@@ -359,15 +356,14 @@ def fit_factors(camera: CameraModel, features: CameraFeatures, *, per_level: boo
     mask = np.zeros((V, n_max), bool)
     idx[pos, slot] = order
     mask[pos, slot] = True
-    dtype = camera.mu.dtype
-    g = jnp.asarray(features.g, dtype)[idx] if features.g.shape[0] else jnp.zeros((V, n_max, K), dtype)
+    dtype = lik.dtype
+    g = jnp.asarray(features.g, dtype)[idx] if features.g.shape[0] else jnp.zeros((V, n_max, dim), dtype)
     cls = jnp.asarray(features.cls[idx] if features.cls.size else np.zeros((V, n_max), np.int64))
-    q, logdet = jax.vmap(mahalanobis_terms, in_axes=(0, 0, None if camera.chol is None else 0, 0))(
-        camera.mu, camera.var, camera.chol, g)
+    terms = jax.vmap(lambda lik_v, g_v: lik_v.scaling_terms(g_v))(lik, g)
     theta, it, conv, nll0, nll1 = _fit_positions(
-        q, logdet, cls, jnp.asarray(mask), jnp.asarray(prior_sd, dtype), jnp.asarray(int(max_iter)),
+        lik, terms, cls, jnp.asarray(mask), jnp.asarray(prior_sd, dtype), jnp.asarray(int(max_iter)),
         jnp.asarray(tol, dtype), jnp.asarray(-jnp.inf if min_factor is None else math.log(min_factor), dtype),
-        n_params=L if per_level else 1, K=K)
+        n_params=L if per_level else 1)
     s = np.broadcast_to(np.exp(np.asarray(theta, np.float64)), (V, L)).astype(np.float32)
     if not np.all(np.isfinite(s)):
         raise FloatingPointError("calibration diverged (non-finite factor)")
@@ -385,7 +381,8 @@ def calibration_factors(model: SensorModel) -> tuple[np.ndarray, ...]:
 
 
 def apply_calibration(model: SensorModel, factors: Sequence) -> SensorModel:
-    """A new model with ``var · s`` and ``chol · sqrt(s)`` per camera.
+    """A new model whose likelihoods are ``scaled(s)`` per position (the
+    Gaussians: ``var · s`` and ``chol · sqrt(s)``) per camera.
 
     ``factors[i]`` is ``[V_i, L]``, ``[V_i]`` or a scalar (broadcast), all > 0.
     The stored ``calibration`` becomes the product with any earlier factors.
@@ -404,11 +401,10 @@ def apply_calibration(model: SensorModel, factors: Sequence) -> SensorModel:
             raise ValueError(f"camera {i}: factors of shape {f.shape}, expected [{V}, {L}]") from None
         if not np.all(np.isfinite(s)) or np.any(s <= 0):
             raise ValueError(f"camera {i}: factors must be finite and > 0")
-        sj = jnp.asarray(s, cam.var.dtype)
-        var = cam.var * sj[:, None, :, None]
-        chol = None if cam.chol is None else cam.chol * jnp.sqrt(sj)[:, None, :, None, None]
+        sj = jnp.asarray(s, cam.likelihood.dtype)
+        lik = jax.vmap(lambda lik_v, s_v: lik_v.scaled(s_v))(cam.likelihood, sj)
         total = sj if cam.calibration is None else cam.calibration * sj
-        cams.append(dataclasses.replace(cam, var=var, chol=chol, calibration=total))
+        cams.append(dataclasses.replace(cam, likelihood=lik, calibration=total))
     return eqx.tree_at(lambda m: m.cameras, model, tuple(cams))
 
 

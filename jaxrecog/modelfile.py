@@ -3,11 +3,16 @@
 Layout (format version :data:`FORMAT_VERSION`): ``format_version`` (int64
 scalar), ``meta`` (UTF-8 JSON as uint8 bytes: sizes, static fields, training
 parameters, sha256 of the manifest, sha256 of the array contents) and per camera
-``camera{i}.{mean_image,basis,eigenvalues,mu,var[,chol][,calibration]}``
-(float32).  Version 2 added the optional ``calibration`` ``[V, L]`` variance
-factors (:mod:`jaxrecog.calibration`) and the ``calibration`` metadata entry;
-version-1 files still load, as uncalibrated models, with a
-:class:`ModelFileVersionWarning`.
+``camera{i}.{mean_image,basis,eigenvalues}``, the likelihood's own arrays
+``camera{i}.{name}`` for every ``name`` of its ``field_shapes`` (the diagonal
+Gaussian: ``mu, var``; the full one: ``mu, var, chol``) and optionally
+``camera{i}.calibration`` (all float32).  The metadata's ``likelihoods`` lists
+each camera's kind (:data:`jaxrecog.kernels.LIKELIHOODS`); ``covariance``, the
+older single entry (``"diag"`` / ``"full"``), is still written and is what
+files without ``likelihoods`` are read by.  Version 2 added the optional
+``calibration`` ``[V, L]`` variance factors (:mod:`jaxrecog.calibration`) and
+the ``calibration`` metadata entry; version-1 files still load, as
+uncalibrated models, with a :class:`ModelFileVersionWarning`.
 
 Saving writes a temporary file in the target folder, fsyncs it, then
 ``os.replace``s it over the target (and fsyncs the folder): a crash at any
@@ -31,6 +36,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .hardware.problems import one_line, problem_message
+from .kernels import likelihood_class
 from .sensor_model import CameraModel, SensorModel
 
 __all__ = [
@@ -49,7 +55,8 @@ __all__ = [
 
 FORMAT_VERSION = 2
 _OLD_VERSIONS = (1,)  # still read, as uncalibrated models, with a warning
-_FIELDS = ("mean_image", "basis", "eigenvalues", "mu", "var", "chol", "calibration")
+_EIGEN = {"mean_image": "V D", "basis": "V D K", "eigenvalues": "V K"}   # every camera, before its likelihood
+_CALIBRATION = {"calibration": "V L"}
 
 
 class ModelFileError(Exception):
@@ -84,8 +91,9 @@ class ModelFileVersionWarning(UserWarning):
 def _arrays(model: SensorModel) -> dict[str, np.ndarray]:
     out = {}
     for i, cam in enumerate(model.cameras):
-        for f in _FIELDS:
-            x = getattr(cam, f)
+        fields = {**{f: getattr(cam, f) for f in _EIGEN}, **cam.likelihood.arrays(),
+                  "calibration": cam.calibration}
+        for f, x in fields.items():
             if x is not None:
                 out[f"camera{i}.{f}"] = np.asarray(x, dtype=np.float32)
     return out
@@ -121,6 +129,7 @@ def save_model(path: str | os.PathLike, model: SensorModel, *, training: dict | 
         "levels": list(model.levels),
         "image_shape": list(model.image_shape),
         "covariance": model.covariance,
+        "likelihoods": list(model.likelihood_kinds),
         "n_components": model.n_components,
         "training": training or {},
         "calibrated": any(c.calibration is not None for c in model.cameras),
@@ -243,49 +252,40 @@ def load_model(path: str | os.PathLike) -> SensorModel:
         levels = tuple(float(x) for x in meta["levels"])
         H, W = (int(x) for x in meta["image_shape"])
         K = int(meta["n_components"])
-        cov = meta["covariance"]
+        kinds = meta.get("likelihoods")           # per camera; files before it: "covariance"
+        kinds = None if kinds is None else [str(k) for k in kinds]
+        common = str(meta["covariance"]) if kinds is None else None
     except (KeyError, TypeError, ValueError, OverflowError) as e:  # OverflowError: int(Infinity)
         raise bad(f"metadata lacks a valid field ({type(e).__name__}: {e})") from None
     C, L = n_objects * n_poses, len(levels)
-    sizes = (n_cam, *positions, n_objects, n_poses, L, H, W, K)
-    if cov not in ("diag", "full") or len(positions) != n_cam or min(sizes) < 1:
-        raise bad(f"inconsistent metadata (covariance {cov!r}, {n_cam} camera(s), positions {positions}, "
-                  f"{n_objects} objects x {n_poses} poses, {L} levels, image {H}x{W}, K {K})")
+    counts = (n_cam, *positions, n_objects, n_poses, L, H, W, K)
+    if len(positions) != n_cam or min(counts) < 1 or (kinds is not None and len(kinds) != n_cam):
+        raise bad(f"inconsistent metadata ({n_cam} camera(s), positions {positions}, likelihoods "
+                  f"{kinds or common}, {n_objects} objects x {n_poses} poses, {L} levels, image {H}x{W}, K {K})")
+    kinds = kinds or [common] * n_cam
     if not all(0.0 <= lv < 1.0 for lv in levels):
         raise bad(f"occlusion levels {levels} must be fractions in [0, 1)")
-    D = H * W
     cameras = []
-    for i, V in enumerate(positions):
-        expect = {
-            "mean_image": (V, D), "basis": (V, D, K), "eigenvalues": (V, K),
-            "mu": (V, C, L, K), "var": (V, C, L, K),
-        }
-        if cov == "full":
-            expect["chol"] = (V, C, L, K, K)
+    known = set()
+    for i, (V, kind) in enumerate(zip(positions, kinds)):
+        try:
+            family = likelihood_class(kind)
+        except ValueError as e:
+            raise bad(f"camera {i}: {e}") from None
+        specs = {**_EIGEN, **family.field_shapes}
         if f"camera{i}.calibration" in arrays and meta["format_version"] >= 2:
-            expect["calibration"] = (V, L)
-        fields = {}
-        for f, shape in expect.items():
-            key = f"camera{i}.{f}"
-            if key not in arrays:
-                raise bad(f"missing array {key}")
-            x = arrays[key]
-            if x.dtype != np.float32:
-                raise bad(f"{key} has dtype {x.dtype}, expected float32")
-            if x.shape != shape:
-                raise bad(f"{key} has shape {x.shape}, expected {shape}")
-            if not np.all(np.isfinite(x)):
-                raise bad(f"{key} contains NaN or infinite values")
-            fields[f] = x
-        if np.any(fields["var"] <= 0):
-            raise bad(f"camera{i}.var has non-positive variances")
-        if cov == "full" and np.any(np.diagonal(fields["chol"], axis1=-2, axis2=-1) <= 0):
-            raise bad(f"camera{i}.chol has a non-positive diagonal")
+            specs.update(_CALIBRATION)
+        sizes = {"V": V, "C": C, "L": L, "K": K, "D": H * W}
+        fields = {f: _checked(arrays, f"camera{i}.{f}", spec, sizes, bad) for f, spec in specs.items()}
+        known |= {f"camera{i}.{f}" for f in specs}
+        lik = family.from_arrays({f: jnp.asarray(fields[f]) for f in family.field_shapes})
+        for f, problem in lik.problems():
+            raise bad(f"camera{i}.{f} {problem}")
         if "calibration" in fields and np.any(fields["calibration"] <= 0):
             raise bad(f"camera{i}.calibration has non-positive factors")
-        cameras.append(CameraModel(**{f: jnp.asarray(x) for f, x in fields.items()}))
-    known = _FIELDS if meta["format_version"] >= 2 else _FIELDS[:-1]
-    extra = set(arrays) - {f"camera{i}.{f}" for i in range(n_cam) for f in known}
+        cal = jnp.asarray(fields["calibration"]) if "calibration" in fields else None
+        cameras.append(CameraModel(*(jnp.asarray(fields[f]) for f in _EIGEN), calibration=cal, likelihood=lik))
+    extra = set(arrays) - known
     if extra:
         names = [one_line(k) for k in sorted(extra)]
         err = ModelFileContentError(f"model file {path}: " + problem_message("unexpected arrays", names))
@@ -297,5 +297,24 @@ def load_model(path: str | os.PathLike) -> SensorModel:
         n_poses=n_poses,
         levels=levels,
         image_shape=(H, W),
-        covariance=cov,
     )
+
+
+def _checked(arrays: dict[str, np.ndarray], key: str, spec: str, sizes: dict[str, int], bad) -> np.ndarray:
+    """``arrays[key]``, checked: present, float32, shape ``spec`` (axis names;
+    a name not in ``sizes`` is bound by its first occurrence), finite."""
+    if key not in arrays:
+        raise bad(f"missing array {key}")
+    x = arrays[key]
+    if x.dtype != np.float32:
+        raise bad(f"{key} has dtype {x.dtype}, expected float32")
+    axes = spec.split()
+    if x.ndim == len(axes):
+        for a, n in zip(axes, x.shape):
+            sizes.setdefault(a, n)
+    shape = tuple(sizes.get(a, "?") for a in axes)
+    if x.shape != shape:
+        raise bad(f"{key} has shape {x.shape}, expected {shape}".replace("'?'", "?"))
+    if not np.all(np.isfinite(x)):
+        raise bad(f"{key} contains NaN or infinite values")
+    return x

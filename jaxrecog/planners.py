@@ -38,7 +38,6 @@ __all__ = [
     "CRLBPlanner",
     "RandomPlanner",
     "FixedPlanner",
-    "model_arrays",
     "make_planner",
     "samples_per_stratum",
     "PLANNERS",
@@ -56,17 +55,8 @@ __all__ = [
 DEFAULT_MIN_PER_STRATUM = 8
 
 
-def model_arrays(model):
-    """``(mus, vars, chols)`` per-camera tuples of a :class:`SensorModel`
-    (``vars`` is ``None`` for full covariance, ``chols`` for diagonal)."""
-    mus = tuple(c.mu for c in model.cameras)
-    if model.covariance == "full":
-        return mus, None, tuple(c.chol for c in model.cameras)
-    return mus, tuple(c.var for c in model.cameras), None
-
-
 def _n_configs(model) -> int:
-    return math.prod(int(c.mu.shape[0]) for c in model.cameras)
+    return math.prod(model.positions)
 
 
 def samples_per_stratum(model, samples: int, min_per_stratum: int = 1) -> int:
@@ -90,9 +80,8 @@ def samples_per_stratum(model, samples: int, min_per_stratum: int = 1) -> int:
 
 def _tables(model, key: PRNGKeyArray, samples: int, store: str, min_per_stratum: int) -> K.MITables:
     """The offline sample tables shared by MI and CRLB (J from :func:`samples_per_stratum`)."""
-    mus, vars, chols = model_arrays(model)
     j = samples_per_stratum(model, samples, min_per_stratum)
-    return K.mi_tables(mus, vars, key=key, samples_per_stratum=j, chols=chols, store=store)
+    return K.mi_tables(model.likelihoods, key=key, samples_per_stratum=j, store=store)
 
 
 class Planner(eqx.Module):

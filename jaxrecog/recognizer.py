@@ -32,7 +32,7 @@ from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray, Shaped
 from . import kernels as K
 from .features import project_at
 from .hardware.rig import config_from_index, index_from_config
-from .planners import Planner, model_arrays
+from .planners import Planner
 
 __all__ = ["Recognizer", "RecognizerState", "Decision", "StepTrace", "restrict_cameras", "image_features"]
 
@@ -143,7 +143,7 @@ class Recognizer(eqx.Module):
 
     @property
     def positions(self) -> tuple[int, ...]:
-        return tuple(int(c.mu.shape[0]) for c in self.model.cameras)
+        return self.model.positions
 
     @property
     def n_configs(self) -> int:
@@ -162,7 +162,7 @@ class Recognizer(eqx.Module):
         config = jnp.asarray(config, jnp.int32)
         if config.shape != (len(positions),):
             raise ValueError(f"config must give one position per camera ({len(positions)}), got shape {config.shape}")
-        dtype = self.model.cameras[0].mu.dtype
+        dtype = self.model.cameras[0].likelihood.dtype
         prior = K.uniform_belief(self.model.n_objects * self.model.n_poses, tuple(len(self.model.levels) for _ in positions), dtype=dtype)
         return RecognizerState(prior, config, jnp.zeros((), jnp.int32), jnp.zeros((self.n_configs,), bool))
 
@@ -175,9 +175,8 @@ class Recognizer(eqx.Module):
         :class:`StepTrace` (scores, marginals, posterior) to the decision."""
         model = self.model
         positions = self.positions
-        mus, vars, chols = model_arrays(model)
         gs, ok = image_features(model, state.config, jnp.asarray(images))
-        logliks = K.camera_log_likelihoods(gs, state.config, mus, vars, chols)
+        logliks = K.camera_log_likelihoods(gs, state.config, model.likelihoods)
         posterior, info = K.update_with_info(state.prior, logliks, valid=ok)
 
         pc = K.class_marginal(posterior)

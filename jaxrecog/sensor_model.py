@@ -1,49 +1,64 @@
-"""The sensor model (thesis §4.2-4.3): eigenspaces plus Gaussian likelihoods.
+"""The sensor model (thesis §4.2-4.3): eigenspaces plus one likelihood per camera.
 
 For camera ``i``, position ``v``, class ``c = object * n_poses + pose`` and
-occlusion level ``k``: ``p(g | c, k, v) = N(g; mu[v, c, k], Σ[v, c, k])``
-(eq. 4.18-4.19, 4.22), fitted by maximum likelihood (eq. 4.23-4.24) from the
-projected augmented samples.  Fitting streams samples through sufficient
-statistics (:class:`GaussianAccumulator`), so the samples are never all held.
+occlusion level ``k`` the likelihood is ``p(g | c, k, v)``, a
+:class:`~jaxrecog.kernels.Likelihood` of a registered kind (thesis: the
+diagonal Gaussian ``N(g; mu[v, c, k], Σ[v, c, k])``, eq. 4.18-4.19, 4.22),
+fitted by maximum likelihood (eq. 4.23-4.24) from the projected augmented
+samples.  Fitting streams samples through sufficient statistics
+(:class:`GaussianAccumulator`), so the samples are never all held; the family
+turns the moments into its parameters (``Likelihood.fit``).
 """
 
 from __future__ import annotations
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from . import kernels as K
 from ._types import Bases, Cholesky, Eigenvalues, MeanImages, Means, Variances
 
 __all__ = ["CameraModel", "SensorModel", "GaussianAccumulator", "fit_gaussians"]
 
 
 class CameraModel(eqx.Module):
-    """Eigenspaces and Gaussians of one camera (arrays over its ``V`` positions).
+    """Eigenspaces and likelihood of one camera (arrays over its ``V`` positions).
 
     Attributes:
         mean_image: ``[V, D]`` mean of the unit-energy training images (eq. 4.4).
         basis: ``[V, D, K]`` orthonormal top-K eigenvectors (eq. 4.10).
         eigenvalues: ``[V, K]`` eigenvalues of ``S Sᵀ`` (eq. 4.9).
-        mu: ``[V, C, L, K]`` ML means (eq. 4.23).
-        var: ``[V, C, L, K]`` ML variances, floored (eq. 4.24); with a full
-            covariance, the diagonal of the floored covariance.
-        chol: ``[V, C, L, K, K]`` lower Cholesky factor of the floored full
-            covariance, or ``None`` (diagonal model).
+        likelihood: p(g | c, k, v), a :class:`~jaxrecog.kernels.Likelihood`
+            over the ``V`` positions (thesis: the diagonal Gaussian, eq. 4.18-4.24).
         calibration: ``[V, L]`` variance inflation factors ``s`` already
-            applied to ``var`` (and ``sqrt(s)`` to ``chol``) by
+            applied to the likelihood (``Likelihood.scaled``) by
             :func:`jaxrecog.calibration.apply_calibration`, kept so they can be
             reported; ``None`` = uncalibrated (all factors 1).
+
+    ``CameraModel(mean_image, basis, eigenvalues, mu, var[, chol])`` (the
+    Gaussian array form) builds the Gaussian likelihood; ``mu``, ``var`` and
+    ``chol`` read a Gaussian's arrays back (``chol`` is ``None`` for a diagonal one).
     """
 
     mean_image: MeanImages
     basis: Bases
     eigenvalues: Eigenvalues
-    mu: Means
-    var: Variances
-    chol: Cholesky | None = None
-    calibration: Float[Array, "V L"] | None = None
+    likelihood: K.Likelihood
+    calibration: Float[Array, "V L"] | None
+
+    def __init__(self, mean_image: MeanImages, basis: Bases, eigenvalues: Eigenvalues,
+                 mu: Means | None = None, var: Variances | None = None, chol: Cholesky | None = None,
+                 calibration: Float[Array, "V L"] | None = None, *, likelihood: K.Likelihood | None = None):
+        if (likelihood is None) == (mu is None):
+            raise TypeError("CameraModel: give either `likelihood` or the Gaussian arrays `mu`, `var` (, `chol`)")
+        self.mean_image = mean_image
+        self.basis = basis
+        self.eigenvalues = eigenvalues
+        self.likelihood = K.gaussian(mu, var, chol) if likelihood is None else likelihood
+        self.calibration = calibration
 
     @property
     def n_positions(self) -> int:
@@ -53,16 +68,46 @@ class CameraModel(eqx.Module):
     def n_components(self) -> int:
         return int(self.basis.shape[2])
 
+    @property
+    def mu(self) -> Means:
+        """A Gaussian likelihood's means."""
+        return self.likelihood.mu
+
+    @property
+    def var(self) -> Variances:
+        """A Gaussian likelihood's variances (diagonal of the covariance)."""
+        return self.likelihood.var
+
+    @property
+    def chol(self) -> Cholesky | None:
+        """A full-covariance Gaussian's Cholesky factors (``None`` otherwise)."""
+        return getattr(self.likelihood, "chol", None)
+
 
 class SensorModel(eqx.Module):
-    """The trained model: one :class:`CameraModel` per camera plus static sizes."""
+    """The trained model: one :class:`CameraModel` per camera plus static sizes.
+
+    ``SensorModel(cameras, n_objects, n_poses, levels, image_shape[, covariance])``:
+    the optional last argument (the older name of the likelihood kind, e.g.
+    ``"diag"``) is checked against the cameras' likelihoods, not stored.
+    """
 
     cameras: tuple[CameraModel, ...]
     n_objects: int = eqx.field(static=True)
     n_poses: int = eqx.field(static=True)
     levels: tuple[float, ...] = eqx.field(static=True)
     image_shape: tuple[int, int] = eqx.field(static=True)
-    covariance: str = eqx.field(static=True, default="diag")
+
+    def __init__(self, cameras, n_objects, n_poses, levels, image_shape, covariance: str | None = None):
+        self.cameras = tuple(cameras)
+        self.n_objects = n_objects
+        self.n_poses = n_poses
+        self.levels = levels
+        self.image_shape = image_shape
+        for i, cam in enumerate(self.cameras):
+            if covariance is not None and cam.likelihood.kind != covariance:
+                raise ValueError(f"SensorModel: covariance {covariance!r}, but camera {i} has a "
+                                 f"{cam.likelihood.kind!r} likelihood")
 
     @property
     def n_cameras(self) -> int:
@@ -84,6 +129,22 @@ class SensorModel(eqx.Module):
     def n_components(self) -> int:
         return self.cameras[0].n_components
 
+    @property
+    def likelihoods(self) -> tuple[K.Likelihood, ...]:
+        """One likelihood per camera: what the kernels take."""
+        return tuple(c.likelihood for c in self.cameras)
+
+    @property
+    def likelihood_kinds(self) -> tuple[str, ...]:
+        return tuple(lik.kind for lik in self.likelihoods)
+
+    @property
+    def covariance(self) -> str:
+        """The cameras' common likelihood kind (``"mixed"`` if they differ); the
+        older name, from when the kind was the Gaussian's covariance form."""
+        kinds = set(self.likelihood_kinds)
+        return kinds.pop() if len(kinds) == 1 else "mixed"
+
     def summary(self) -> str:
         """A few human-readable lines: sizes, levels and feature statistics."""
         H, W = self.image_shape
@@ -92,12 +153,12 @@ class SensorModel(eqx.Module):
             f"{self.n_objects} objects x {self.n_poses} poses = {self.n_classes} classes",
             f"  images {H}x{W} (D={H * W}), K={self.n_components} components, "
             f"{self.n_levels} occlusion level(s) {tuple(round(x, 2) for x in self.levels)}, "
-            f"covariance {self.covariance}",
+            f"likelihood {self.covariance}",
         ]
         for i, cam in enumerate(self.cameras):
             lam = np.asarray(cam.eigenvalues)
             energy = lam.sum(axis=1)
-            sd = np.sqrt(np.asarray(cam.var))
+            sd = np.sqrt(np.asarray(jax.vmap(lambda lik: lik.variance())(cam.likelihood)))
             lines.append(
                 f"  camera {i}: {cam.n_positions} eigenspaces, eigenvalue sum "
                 f"{energy.min():.3g}..{energy.max():.3g}, feature sd "
@@ -110,8 +171,8 @@ class SensorModel(eqx.Module):
                     f"  camera {i} calibration: variance factors {f.min():.3g}..{f.max():.3g} "
                     f"(median {np.median(f):.3g}) over {f.shape[0]} positions x {f.shape[1]} level(s)"
                 )
-        n_gauss = sum(c.n_positions for c in self.cameras) * self.n_classes * self.n_levels
-        lines.append(f"  {n_gauss} Gaussians (positions x classes x levels)")
+        n_comp = sum(c.n_positions for c in self.cameras) * self.n_classes * self.n_levels
+        lines.append(f"  {n_comp} likelihood components (positions x classes x levels)")
         return "\n".join(lines)
 
 
@@ -152,29 +213,36 @@ class GaussianAccumulator:
         sq = d[:, :, None] * d[:, None, :] if self.full else d * d
         self.s2[c, l] += np.add.reduceat(sq, starts, axis=0)
 
-    def finalize(self, var_floor: float | np.ndarray = 0.0):
-        """ML estimates (eq. 4.23-4.24, divisor ``n``): ``(mu, var, chol)``.
-
-        ``var_floor`` (scalar or per class/level ``[C, L]``) keeps every Gaussian
-        proper: diagonal ``var = max(var_ML, floor)``; full
-        ``Σ = Σ_ML + floor·I``, ``chol = cholesky(Σ)``, ``var = diag(Σ)``.
-        """
+    def moments(self) -> tuple[np.ndarray, np.ndarray]:
+        """ML moments (divisor ``n``): means ``[C, L, K]`` and variances ``[C, L, K]``
+        (diag) or symmetrised covariances ``[C, L, K, K]`` (full)."""
         if np.any(self.n < 2):
             raise ValueError("every (class, level) needs at least two samples")
         n = self.n[..., None]
         m = self.s1 / n
         mu = self.ref + m
-        floor = np.broadcast_to(np.asarray(var_floor, np.float64), self.n.shape)[..., None]
         if not self.full:
-            var = np.maximum(self.s2 / n - m * m, floor)
-            return mu, var, None
+            return mu, self.s2 / n - m * m
         cov = self.s2 / n[..., None] - m[..., :, None] * m[..., None, :]
-        cov = 0.5 * (cov + np.swapaxes(cov, -1, -2))
-        k = cov.shape[-1]
-        cov = cov + floor[..., None] * np.eye(k)
-        chol = np.linalg.cholesky(cov)
-        var = np.diagonal(cov, axis1=-2, axis2=-1).copy()
-        return mu, var, chol
+        return mu, 0.5 * (cov + np.swapaxes(cov, -1, -2))
+
+    def fit(self, family: type[K.Likelihood], var_floor: float | np.ndarray = 0.0) -> K.Likelihood:
+        """One position's likelihood of ``family`` (eq. 4.23-4.24) from the moments;
+        ``var_floor`` (scalar or per class/level ``[C, L]``) keeps every component proper."""
+        want = "full" if self.full else "diag"
+        if family.second_moments != want:
+            raise ValueError(f"the {family.kind!r} likelihood needs {family.second_moments!r} second moments, "
+                             f"this accumulator holds {want!r}")
+        floor = np.broadcast_to(np.asarray(var_floor, np.float64), self.n.shape)
+        return family.fit(*self.moments(), floor)
+
+    def finalize(self, var_floor: float | np.ndarray = 0.0):
+        """ML Gaussians (eq. 4.23-4.24): ``(mu, var, chol)`` of :meth:`fit` with the
+        diagonal (``chol = None``) or full Gaussian: diagonal ``var = max(var_ML,
+        floor)``; full ``Σ = Σ_ML + floor·I``, ``chol = cholesky(Σ)``, ``var = diag(Σ)``.
+        """
+        lik = self.fit(K.FullGaussian if self.full else K.DiagonalGaussian, var_floor)
+        return lik.mu, lik.var, getattr(lik, "chol", None)
 
 
 def fit_gaussians(g: np.ndarray, classes: np.ndarray, levels: np.ndarray, n_classes: int,

@@ -1,10 +1,11 @@
-"""Training: image database -> eigenspaces -> augmented samples -> Gaussians.
+"""Training: image database -> eigenspaces -> augmented samples -> likelihoods.
 
 :func:`train_model` is the public entry.  For every camera position it builds
 the eigenspace of the clean training images (:mod:`jaxrecog.eigenspace`), then
 streams the augmented samples of every (class, level) through
 :class:`~jaxrecog.sensor_model.GaussianAccumulator` in batches — the samples
-are never all held.
+are never all held — and fits the chosen likelihood family from their moments
+(``Likelihood.fit``; default the thesis's diagonal Gaussian).
 
 Speed: the projection is linear, so the expensive part per sample is one row
 of a matmul of the (shifted, occluded) clean image ``z = m ⊙ S_d x`` with
@@ -33,12 +34,14 @@ import os
 import time
 from typing import Callable
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
 from .augment import AugmentParams, SamplePlan, ShiftWindows, apply_geometry, draw_plan, levels_for, occluder_bank, plan_rng
 from .database import ImageDatabase, load_database
 from .eigenspace import choose_n_components, position_eigenspace
+from .kernels import likelihood_class
 from .sensor_model import CameraModel, GaussianAccumulator, SensorModel
 
 __all__ = ["train_model", "TrainingInfo"]
@@ -64,6 +67,7 @@ def train_model(
     n_components: int | float = 20,
     samples_per_image: int = 100,
     covariance: str = "diag",
+    likelihood: str | None = None,
     seed: int = 0,
     progress: Callable[[int, int], None] | None = None,
     augment: AugmentParams | None = None,
@@ -81,7 +85,11 @@ def train_model(
             in (0, 1]); one K for all positions, see
             :func:`~jaxrecog.eigenspace.choose_n_components`.
         samples_per_image: augmented samples per training image and level.
-        covariance: ``"diag"`` (default) or ``"full"``.
+        covariance: the likelihood kind when ``likelihood`` is not given
+            (its older name: ``"diag"``, the default, or ``"full"``).
+        likelihood: a registered likelihood kind
+            (:data:`jaxrecog.kernels.LIKELIHOODS`) that can be fitted from
+            sample moments; overrides ``covariance``.
         seed: everything random derives from it.
         progress: called as ``progress(done, total)`` after each position.
         augment: augmentation settings (``samples_per_image`` overrides its field).
@@ -94,8 +102,11 @@ def train_model(
         The :class:`SensorModel` (float32 arrays), and the info if asked.
     """
     t0 = time.perf_counter()
-    if covariance not in ("diag", "full"):
-        raise ValueError(f"covariance must be 'diag' or 'full', got {covariance!r}")
+    lik_kind = covariance if likelihood is None else likelihood
+    try:
+        family = likelihood_class(lik_kind)
+    except ValueError as e:
+        raise ValueError(f"likelihood / covariance: {e}") from None
     levels = levels_for(kind)
     params = dataclasses.replace(augment or AugmentParams(), samples_per_image=samples_per_image)
     db = database if isinstance(database, ImageDatabase) else load_database(database)
@@ -112,28 +123,24 @@ def train_model(
     done = 0
     cameras = []
     for i, cam_spaces in enumerate(spaces):
-        fields = {k: [] for k in ("mean_image", "basis", "eigenvalues", "mu", "var", "chol")}
+        eigen, liks = [], []
         for v, space in enumerate(cam_spaces):
             mean, basis, lam = space.truncate(K)
-            mu, var, chol = _fit_position(
+            liks.append(_fit_position(
                 train[i][v], mean, basis, lam, levels, params, bank, seed, i, v,
-                full=covariance == "full", var_floor=var_floor, batch_size=batch_size,
-            )
-            for k, x in zip(fields, (mean, basis, lam, mu, var, chol)):
-                fields[k].append(x)
+                family=family, var_floor=var_floor, batch_size=batch_size,
+            ))
+            eigen.append((mean, basis, lam))
             done += 1
             if progress is not None:
                 progress(done, total)
-        stacked = {k: (None if x[0] is None else jnp.asarray(np.stack(x).astype(np.float32)))
-                   for k, x in fields.items()}
-        cameras.append(CameraModel(**stacked))
+        cameras.append(CameraModel(*(_stack(*x) for x in zip(*eigen)), likelihood=jax.tree.map(_stack, *liks)))
     model = SensorModel(
         cameras=tuple(cameras),
         n_objects=db.n_objects,
         n_poses=db.n_poses,
         levels=tuple(float(x) for x in levels),
         image_shape=(H, W),
-        covariance=covariance,
     )
     if not return_info:
         return model
@@ -143,7 +150,8 @@ def train_model(
             "n_components": n_components,
             "K": K,
             "samples_per_image": samples_per_image,
-            "covariance": covariance,
+            "covariance": lik_kind,
+            "likelihood": lik_kind,
             "seed": seed,
             "var_floor": var_floor,
             "augment": {k: (list(x) if isinstance(x, tuple) else x)
@@ -159,9 +167,15 @@ def train_model(
     return model, info
 
 
+def _stack(*per_position):
+    """``[V, ...]`` float32 JAX array of per-position float64 arrays."""
+    return jnp.asarray(np.stack(per_position).astype(np.float32))
+
+
 def _fit_position(images, mean, basis, lam, levels, params, bank, seed, camera, position, *,
-                  full, var_floor, batch_size):
-    """Gaussians ``[C, L, K]`` of one camera position from streamed samples."""
+                  family, var_floor, batch_size):
+    """The ``family`` likelihood (``[C, L]`` components) of one camera position
+    from streamed samples."""
     C, H, W = images.shape
     D, K = basis.shape
     s = params.max_shift
@@ -171,7 +185,7 @@ def _fit_position(images, mean, basis, lam, levels, params, bank, seed, camera, 
     vt_mean = mean @ basis                                                         # Vᵀx̄ [K]
     flat = images.reshape(C, D).astype(np.float64)
     g_clean = (flat / np.linalg.norm(flat, axis=1, keepdims=True) - mean) @ basis  # [C, K]
-    acc = GaussianAccumulator(C, len(levels), K, full=full,
+    acc = GaussianAccumulator(C, len(levels), K, full=family.second_moments == "full",
                               ref=np.broadcast_to(g_clean[:, None, :], (C, len(levels), K)))
 
     win = ShiftWindows(images, s)
@@ -216,7 +230,7 @@ def _fit_position(images, mean, basis, lam, levels, params, bank, seed, camera, 
                                 vt1, vt_mean, D)
             acc.add(g, p.image, k)
     floor = var_floor * lam.sum() / (K * C)
-    return acc.finalize(floor)
+    return acc.fit(family, floor)
 
 
 def _noisy_features(pz, qz, b, alpha, beta, gamma, vt1, vt_mean, D):

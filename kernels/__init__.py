@@ -2,8 +2,11 @@
 Cramér-Rao), each with a plain NumPy reference in :mod:`jaxrecog.kernels.reference`.
 
 Nothing here imports from ``jaxrecog`` proper or ``jaxrecog.hardware``.
-Per-camera arrays come as tuples (``mus = (mu_0, mu_1, ...)``, ``mu_i [V_i, C, L_i, K_i]``);
-configurations are the row-major product of the cameras' positions.
+Per-camera values come as tuples, one entry per camera: likelihoods
+(:class:`Likelihood`, each over its ``V_i`` positions), log-likelihood arrays
+``[C, L_i]``, sample tables; configurations are the row-major product of the
+cameras' positions.  Likelihood families register in :data:`LIKELIHOODS`
+(importing a family's module registers it: one line below per built-in kind).
 """
 
 from .belief import (
@@ -24,23 +27,42 @@ from .belief import (
     update_with_info,
 )
 from .fisher import DEFAULT_SIGMA_S, FisherDraws, crlb_criterion, fisher_draws, fisher_information
-from .likelihood import camera_log_likelihoods, log_likelihood, log_likelihood_full
+from .gaussian_diag import DiagonalGaussian, log_likelihood
+from .gaussian_full import FullGaussian, log_likelihood_full
+from .likelihood import (
+    LIKELIHOODS,
+    Likelihood,
+    as_likelihoods,
+    camera_log_likelihoods,
+    gaussian,
+    gaussian_likelihoods,
+    likelihood_class,
+    register_likelihood,
+)
 from .mutual_information import MITables, mi_tables, mutual_information, samples_per_configuration
 
 __all__ = [
     "Belief",
     "DEFAULT_SIGMA_S",
+    "DiagonalGaussian",
     "FisherDraws",
+    "FullGaussian",
+    "LIKELIHOODS",
+    "Likelihood",
     "MITables",
     "UpdateInfo",
+    "as_likelihoods",
     "camera_log_likelihoods",
     "class_marginal",
     "crlb_criterion",
     "entropy",
     "fisher_draws",
     "fisher_information",
+    "gaussian",
+    "gaussian_likelihoods",
     "joint",
     "level_marginal",
+    "likelihood_class",
     "log_joint",
     "log_likelihood",
     "log_likelihood_full",
@@ -49,6 +71,7 @@ __all__ = [
     "object_marginal",
     "object_pose_marginal",
     "pose_marginal",
+    "register_likelihood",
     "samples_per_configuration",
     "transition",
     "transition_per_position",

@@ -1,67 +1,297 @@
-"""Gaussian observation log-likelihoods (thesis eq. 4.17-4.22).
+"""The sensor-model seam: one likelihood interface per camera, the registry of
+its kinds, and the per-camera log-likelihood arrays of one step (thesis
+eq. 4.17-4.22).
 
-For one camera at one position v, the sensor model is
-``p(g | c, k, v) = N(g; mu[v, c, k], Sigma[v, c, k])`` (eq. 4.18/4.19, 4.22);
+For camera i at position v the sensor model is a density p(g | c, k, v) of the
+eigenspace features g for every class c and occlusion level k (eq. 4.18-4.19);
 cameras are conditionally independent given the state, so the joint
-log-likelihood is the sum over cameras (eq. 4.17).  Everything is in log space.
+log-likelihood is the sum over cameras (eq. 4.17).  Everything the estimation
+code needs from a family is, per camera and position:
+
+- ``log_density(g)``: log p(g | c, k, v) for every (c, k), ``[..., C, L]``;
+- ``sample(z)``: g ~ p(g | c, k, v) from standard-normal draws z (the
+  planners' common random numbers);
+- ``mean()`` / ``covariance()``: the per-component moments;
+- ``bhattacharyya()``: the closed-form pairwise divergence between components
+  where the family has one (for deterministic pairwise-distance MI);
+- ``scaled(factor)``: the family with its dispersion scaled per level (what
+  calibration fits).
+
+As in dynamax (inference takes log-likelihood arrays; emissions are their own
+class), the kernels take *arrays*: :func:`jaxrecog.kernels.update` takes the
+tuple of ``[C, L_i]`` arrays of :func:`camera_log_likelihoods`, the planners
+take the sample tables :func:`jaxrecog.kernels.mi_tables` builds with
+``sample`` and ``log_density``.  No formula is written outside a family's own
+file (``gaussian_diag.py``: the thesis's diagonal Gaussian; ``gaussian_full.py``:
+the full-covariance option).
+
+Layout: a camera's likelihood holds all its positions, every array field with
+a leading position axis ``V`` (``field_shapes`` names the axes).  ``lik.at(v)``
+is the component set of one position (arrays ``[C, L, ...]``); the methods act
+on one position (``jax.vmap`` / ``lax.map`` over a camera's likelihood maps
+over its positions).
+
+Registry: :data:`LIKELIHOODS` maps a kind name (recorded in the model file)
+to its class; a family registers itself with ``@register_likelihood``.  A new
+family is one file (a :class:`Likelihood` subclass with the decorator) plus the
+import that registers it (``kernels/__init__.py`` for the built-in ones); the
+model file saves and loads its arrays generically from ``field_shapes``.
 """
 
 from __future__ import annotations
 
-import math
+import abc
+from typing import ClassVar
 
+import equinox as eqx
+import jax
 import jax.numpy as jnp
-from jax.scipy.linalg import solve_triangular
+import numpy as np
 from jaxtyping import Array, Float, Int
 
-_LOG_2PI = math.log(2.0 * math.pi)
+__all__ = [
+    "LIKELIHOODS",
+    "Likelihood",
+    "as_likelihoods",
+    "camera_log_likelihoods",
+    "gaussian",
+    "gaussian_likelihoods",
+    "likelihood_class",
+    "register_likelihood",
+]
+
+LIKELIHOODS: dict[str, type["Likelihood"]] = {}
+"""Kind name -> :class:`Likelihood` subclass (filled by :func:`register_likelihood`)."""
 
 
-def log_likelihood(
-    g: Float[Array, " K"], mu: Float[Array, "C L K"], var: Float[Array, "C L K"]
-) -> Float[Array, "C L"]:
-    """Diagonal-covariance log N(g; mu[c, k], diag(var[c, k])) for every class and level.
+class Likelihood(eqx.Module):
+    """p(g | c, k, v) of one camera: the interface every sensor-model family implements.
 
-    Eq. 4.22 with a diagonal Sigma:
-    ``-1/2 sum_d [(g_d - mu_d)^2 / var_d + log(2 pi var_d)]``.
-
-    Args:
-        g: feature vector of one camera image, ``[K]``.
-        mu: means at the camera's current position, ``[C, L, K]``.
-        var: variances (strictly positive), ``[C, L, K]``.
-
-    Returns:
-        ``[C, L]`` log-densities.
+    Class attributes (per family):
+        kind: the registry name, recorded in the model file.
+        field_shapes: array field name -> its axes in a camera's likelihood,
+            e.g. ``{"mu": "V C L K", "var": "V C L K"}`` (``V`` positions,
+            ``C`` classes, ``L`` levels, ``K`` feature dimension; other
+            letters are the family's own sizes).  The model file saves exactly
+            these arrays and checks their shapes on load.
+        second_moments: what training accumulates for :meth:`fit`: ``"diag"``
+            (per-dimension second moments) or ``"full"`` (``K x K``).
     """
-    d = g[None, None, :] - mu
-    return -0.5 * jnp.sum(d * d / var + jnp.log(var) + _LOG_2PI, axis=-1)
+
+    kind: ClassVar[str]
+    field_shapes: ClassVar[dict[str, str]]
+    second_moments: ClassVar[str] = "diag"
+
+    def __check_init__(self):
+        self.sizes()  # consistent axes across fields (raises otherwise)
+
+    # ------------------------------------------------------------ sizes and layout
+
+    def sizes(self) -> dict[str, int]:
+        """Axis name -> size, read from the fields (aligned from the right, so a
+        one-position set simply has no ``V``)."""
+        out: dict[str, int] = {}
+        for name, spec in self.field_shapes.items():
+            axes = spec.split()
+            shape = tuple(np.shape(getattr(self, name)))
+            if len(shape) not in (len(axes), len(axes) - 1):
+                raise ValueError(f"{type(self).__name__}: {name} has shape {shape}, expected [{spec}] "
+                                 f"(or one position, without V)")
+            for a, s in zip(reversed(axes), reversed(shape)):
+                if out.setdefault(a, s) != s:
+                    raise ValueError(f"{type(self).__name__}: {name} has {a} = {s}, another field has {a} = {out[a]}")
+        return out
+
+    @property
+    def n_positions(self) -> int:
+        """V (a camera's likelihood; a one-position set has none)."""
+        sizes = self.sizes()
+        if "V" not in sizes:
+            raise ValueError(f"{type(self).__name__}: a one-position component set has no position axis")
+        return sizes["V"]
+
+    @property
+    def n_classes(self) -> int:
+        return self.sizes()["C"]
+
+    @property
+    def n_levels(self) -> int:
+        return self.sizes()["L"]
+
+    @property
+    def dim(self) -> int:
+        """K, the feature dimension."""
+        return self.sizes()["K"]
+
+    @property
+    def dtype(self):
+        return jnp.result_type(getattr(self, next(iter(self.field_shapes))))
+
+    @property
+    def noise_dim(self) -> int:
+        """Standard-normal numbers per draw that :meth:`sample` takes (default K)."""
+        return self.dim
+
+    def at(self, v: Int[Array, ""] | int) -> "Likelihood":
+        """The component set of position ``v`` (may be traced): every field indexed by ``v``."""
+        return jax.tree.map(lambda x: x[v], self)
+
+    def arrays(self) -> dict[str, Array]:
+        """The arrays the model file stores (``field_shapes`` order)."""
+        return {name: getattr(self, name) for name in self.field_shapes}
+
+    @classmethod
+    def from_arrays(cls, arrays: dict[str, Array]) -> "Likelihood":
+        """The inverse of :meth:`arrays` (the model file's generic load)."""
+        return cls(**arrays)
+
+    def problems(self) -> list[tuple[str, str]]:
+        """Host-side checks of the values, as ``(field, what is wrong)`` pairs
+        (e.g. ``("var", "has non-positive variances")``); shapes, dtype and
+        finiteness are checked by the model file.  Default: none."""
+        return []
+
+    # ------------------------------------------------------------ the family (one position)
+
+    @abc.abstractmethod
+    def log_density(self, g: Float[Array, "*B K"]) -> Float[Array, "*B C L"]:
+        """log p(g | c, k) for every class c and level k, for each of the
+        feature vectors ``g`` (any leading batch axes ``B``)."""
+
+    @abc.abstractmethod
+    def sample(self, z: Float[Array, "C L J Z"]) -> Float[Array, "C L J K"]:
+        """Draw j of component (c, k) from the standard-normal numbers
+        ``z[c, k, j]`` (``Z = noise_dim``): g[c, k, j] ~ p(g | c, k)."""
+
+    @abc.abstractmethod
+    def mean(self) -> Float[Array, "C L K"]:
+        """E[g | c, k]."""
+
+    @abc.abstractmethod
+    def covariance(self) -> Float[Array, "C L K K"]:
+        """Cov[g | c, k]."""
+
+    @abc.abstractmethod
+    def scaled(self, factor: Float[Array, " L"]) -> "Likelihood":
+        """The same family with its dispersion scaled so that the covariance of
+        every component of level k is ``factor[k]`` times the present one
+        (calibration's variance inflation)."""
+
+    def variance(self) -> Float[Array, "C L K"]:
+        """The diagonal of :meth:`covariance`."""
+        return jnp.diagonal(self.covariance(), axis1=-2, axis2=-1)
+
+    def bhattacharyya(self) -> Float[Array, "C L C L"]:
+        """D_B(c, k; c', k') = -log ∫ sqrt(p(g|c,k) p(g|c',k')) dg for every pair
+        of components (closed form where the family has one).
+
+        Raises:
+            NotImplementedError: the family has no closed form (the default); a
+                pairwise-distance planner then needs a documented approximation.
+        """
+        raise NotImplementedError(f"the {self.kind!r} likelihood has no closed-form Bhattacharyya distance")
+
+    def scaling_terms(self, g: Float[Array, "N K"]):
+        """Whatever :meth:`scaled_log_density` needs from the features ``g``,
+        computed once (calibration evaluates many factors on the same ``g``).
+        Default: ``g`` itself."""
+        return g
+
+    def scaled_log_density(self, terms, log_factor: Float[Array, " L"]) -> Float[Array, "N C L"]:
+        """``scaled(exp(log_factor)).log_density(g)`` from ``terms = scaling_terms(g)``
+        (default: exactly that; a family may override it with a cheaper form)."""
+        return self.scaled(jnp.exp(log_factor)).log_density(terms)
+
+    @classmethod
+    def fit(cls, mean: np.ndarray, second: np.ndarray, floor: np.ndarray) -> "Likelihood":
+        """Fit one position from the training samples' moments (eq. 4.23-4.24).
+
+        Args:
+            mean: ``[C, L, K]`` sample means.
+            second: ``[C, L, K]`` sample variances (``second_moments="diag"``)
+                or ``[C, L, K, K]`` sample covariances (``"full"``).
+            floor: ``[C, L]`` variance floor that keeps every component proper.
+
+        Raises:
+            NotImplementedError: the family cannot be fitted from moments (the default).
+        """
+        raise NotImplementedError(f"the {cls.kind!r} likelihood cannot be trained from sample moments")
 
 
-def log_likelihood_full(
-    g: Float[Array, " K"], mu: Float[Array, "C L K"], chol: Float[Array, "C L K K"]
-) -> Float[Array, "C L"]:
-    """Full-covariance log N(g; mu[c, k], S S^T) with S = ``chol[c, k]`` lower triangular.
+def register_likelihood(cls: type[Likelihood]) -> type[Likelihood]:
+    """Add ``cls`` to :data:`LIKELIHOODS` under ``cls.kind`` (usable as a class decorator)."""
+    if not (isinstance(cls, type) and issubclass(cls, Likelihood)):
+        raise TypeError(f"register_likelihood: {cls!r} is not a Likelihood subclass")
+    kind = getattr(cls, "kind", None)
+    if not isinstance(kind, str) or not kind:
+        raise ValueError(f"register_likelihood: {cls.__name__} has no `kind` name")
+    if LIKELIHOODS.get(kind, cls) is not cls:
+        raise ValueError(f"register_likelihood: kind {kind!r} is already {LIKELIHOODS[kind].__name__}")
+    LIKELIHOODS[kind] = cls
+    return cls
 
-    Eq. 4.22 evaluated with a triangular solve ``z = S^{-1}(g - mu)`` (never an
-    explicit inverse): ``-1/2 |z|^2 - sum log diag S - K/2 log 2 pi``.
 
-    Args:
-        g: ``[K]``; mu: ``[C, L, K]``; chol: ``[C, L, K, K]`` lower Cholesky factors.
+def likelihood_class(kind: str) -> type[Likelihood]:
+    """The registered class of ``kind``; a ``ValueError`` naming the known kinds otherwise."""
+    try:
+        return LIKELIHOODS[kind]
+    except (KeyError, TypeError):
+        raise ValueError(f"unknown likelihood {kind!r}; registered: {', '.join(sorted(LIKELIHOODS))}") from None
 
-    Returns:
-        ``[C, L]`` log-densities.
-    """
-    k = g.shape[-1]
-    d = g[None, None, :] - mu
-    z = solve_triangular(chol, d[..., None], lower=True)[..., 0]
-    logdet = jnp.sum(jnp.log(jnp.diagonal(chol, axis1=-2, axis2=-1)), axis=-1)
-    return -0.5 * jnp.sum(z * z, axis=-1) - logdet - 0.5 * k * _LOG_2PI
+
+def gaussian(mu, var=None, chol=None) -> Likelihood:
+    """The thesis's Gaussian from its arrays: ``"diag"`` from ``var``, or
+    ``"full"`` from the lower Cholesky factor ``chol`` (then ``var``, if given,
+    is the diagonal of the covariance).  The array form of older callers."""
+    if chol is None:
+        return likelihood_class("diag")(mu, var)
+    return likelihood_class("full")(mu, chol, var)
+
+
+def gaussian_likelihoods(mus, vars=None, chols=None, *, where: str = "likelihoods") -> tuple[Likelihood, ...]:
+    """Per-camera Gaussians from ``mus`` and exactly one of ``vars`` (diagonal)
+    or ``chols`` (full covariance), shapes checked (``where`` prefixes the errors)."""
+    if (vars is None) == (chols is None):
+        raise ValueError(f"{where}: give exactly one of `vars` (diagonal) or `chols` (full)")
+    other = vars if vars is not None else chols
+    if len(other) != len(mus) or len(mus) == 0:
+        raise ValueError(f"{where}: {len(mus)} mean arrays but {len(other)} covariance arrays")
+    c = mus[0].shape[1] if mus[0].ndim == 4 else None
+    for i, mu in enumerate(mus):
+        if mu.ndim != 4 or mu.shape[1] != c:
+            raise ValueError(f"{where}: mus[{i}] must be [V, C={c}, L, K], got {mu.shape}")
+        want = mu.shape if vars is not None else mu.shape + mu.shape[-1:]
+        if other[i].shape != want:
+            raise ValueError(f"{where}: covariance of camera {i} has shape {other[i].shape}, want {want}")
+    if vars is not None:
+        return tuple(gaussian(m, v) for m, v in zip(mus, vars))
+    return tuple(gaussian(m, chol=ch) for m, ch in zip(mus, chols))
+
+
+def as_likelihoods(likelihoods, vars=None, chols=None, *, where: str = "likelihoods") -> tuple[Likelihood, ...]:
+    """A tuple of per-camera :class:`Likelihood` s (each over its positions), or
+    the Gaussian array form ``(mus, vars | chols)`` converted by
+    :func:`gaussian_likelihoods`; every camera must have the same classes."""
+    items = tuple(likelihoods)
+    if items and all(isinstance(x, Likelihood) for x in items):
+        if vars is not None or chols is not None:
+            raise ValueError(f"{where}: `vars` / `chols` belong to the array form; likelihoods carry their own parameters")
+        liks = items
+    else:
+        liks = gaussian_likelihoods(items, vars, chols, where=where)
+    c = liks[0].n_classes
+    for i, lik in enumerate(liks):
+        if "V" not in lik.sizes():
+            raise ValueError(f"{where}: camera {i}'s likelihood has no position axis (give the camera's, not lik.at(v))")
+        if lik.n_classes != c:
+            raise ValueError(f"{where}: camera {i} has C = {lik.n_classes}, camera 0 has C = {c}")
+    return liks
 
 
 def camera_log_likelihoods(
     gs: tuple[Float[Array, " K_i"], ...],
     config: Int[Array, " n"] | tuple[int, ...],
-    mus: tuple[Float[Array, "V_i C L_i K_i"], ...],
+    likelihoods,
     vars: tuple[Float[Array, "V_i C L_i K_i"], ...] | None = None,
     chols: tuple[Float[Array, "V_i C L_i K_i K_i"], ...] | None = None,
 ) -> tuple[Float[Array, "C L_i"], ...]:
@@ -69,19 +299,11 @@ def camera_log_likelihoods(
 
     The joint log-likelihood of a state is the sum of these over cameras
     (eq. 4.17); :func:`jaxrecog.kernels.update` consumes the tuple directly.
-    Give exactly one of ``vars`` (diagonal) or ``chols`` (full covariance).
-    ``config`` may be a traced integer array (no recompilation per position).
+    ``likelihoods``: one :class:`Likelihood` per camera, or the Gaussian array
+    form ``mus`` with exactly one of ``vars`` / ``chols``.  ``config`` may be a
+    traced integer array (no recompilation per position).
     """
-    if (vars is None) == (chols is None):
-        raise ValueError("camera_log_likelihoods: give exactly one of `vars` or `chols`")
-    n = len(mus)
-    if len(gs) != n:
-        raise ValueError(f"camera_log_likelihoods: {len(gs)} feature vectors for {n} cameras")
-    out = []
-    for i in range(n):
-        v = config[i]
-        if vars is not None:
-            out.append(log_likelihood(gs[i], mus[i][v], vars[i][v]))
-        else:
-            out.append(log_likelihood_full(gs[i], mus[i][v], chols[i][v]))
-    return tuple(out)
+    liks = as_likelihoods(likelihoods, vars, chols, where="camera_log_likelihoods")
+    if len(gs) != len(liks):
+        raise ValueError(f"camera_log_likelihoods: {len(gs)} feature vectors for {len(liks)} cameras")
+    return tuple(lik.at(config[i]).log_density(g) for i, (lik, g) in enumerate(zip(liks, gs)))

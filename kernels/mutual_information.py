@@ -8,14 +8,16 @@ p(g|a) is exact over the discrete states; the expectation over g is Monte
 Carlo, *stratified*: every state stratum (c, k_0, k_1, ...) gets J samples, so
 the outer expectation over the discrete state is exact (weights
 P(c) prod_i P_i(k_i|c) / J).  Noise is shared across positions (common random
-numbers): camera i's sample j of stratum (c, k) at position v is
+numbers): camera i's sample j of stratum (c, k) at position v is drawn by its
+likelihood (:meth:`~jaxrecog.kernels.Likelihood.sample`) from the same
+standard-normal numbers z_i[c, k, j] at every position, e.g. for the Gaussian
 
     g_i(v, c, k, j) = mu_i[v, c, k] + sqrt(var_i[v, c, k]) * z_i[c, k, j].
 
 Offline (:func:`mi_tables`, once per model and key) each camera gets the
-component log-density table
+component log-density table (:meth:`~jaxrecog.kernels.Likelihood.log_density`)
 
-    LD_i[v, c, k, j, c', k'] = log N(g_i(v, c, k, j); mu_i[v, c', k'], Sigma_i[v, c', k']).
+    LD_i[v, c, k, j, c', k'] = log p(g_i(v, c, k, j) | c', k', v).
 
 Online (:func:`mutual_information`) with the belief:
 
@@ -53,13 +55,11 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import jax.random as jr
-from jax.scipy.linalg import solve_triangular
 from jaxtyping import Array, Float, PRNGKeyArray
 
 from ._grid import floor_log_probs, grid_mixture, lse, weights
 from .belief import Belief
-
-_LOG_2PI = math.log(2.0 * math.pi)
+from .likelihood import Likelihood, as_likelihoods
 
 
 class MITables(NamedTuple):
@@ -72,7 +72,8 @@ class MITables(NamedTuple):
             sample under its own component (the diagonal of LD_i).
         t_uniform: per camera ``[V_i, C, L_i, J, C]``,
             logsumexp_k' LD_i - log L_i (``None`` with ``store="full"``).
-        z: per camera ``[C, L_i, J, K_i]`` the standard-normal draws.
+        z: per camera ``[C, L_i, J, Z_i]`` the standard-normal draws
+            (``Z_i`` = the likelihood's ``noise_dim``, K_i for a Gaussian).
         ld_max: per camera ``[V_i, C, L_i, J, C]``, M_i = max_k' LD_i (0 where
             that is not finite); ``None`` when built with ``store="uniform"``.
         ld_exp: per camera ``[V_i, C', L_i', C, L_i, J]`` (this axis order makes
@@ -97,45 +98,14 @@ def samples_per_configuration(tables: MITables) -> int:
     return c * j * math.prod(t.shape[2] for t in tables.ld_self)
 
 
-def _check_model(mus, vars, chols):
-    if (vars is None) == (chols is None):
-        raise ValueError("mi_tables: give exactly one of `vars` (diagonal) or `chols` (full)")
-    other = vars if vars is not None else chols
-    if len(other) != len(mus) or len(mus) == 0:
-        raise ValueError(f"mi_tables: {len(mus)} mean arrays but {len(other)} covariance arrays")
-    c = mus[0].shape[1]
-    for i, mu in enumerate(mus):
-        if mu.ndim != 4 or mu.shape[1] != c:
-            raise ValueError(f"mi_tables: mus[{i}] must be [V, C={c}, L, K], got {mu.shape}")
-        want = mu.shape if vars is not None else mu.shape + mu.shape[-1:]
-        if other[i].shape != want:
-            raise ValueError(f"mi_tables: covariance of camera {i} has shape {other[i].shape}, want {want}")
-
-
-def _camera_ld(mu, var, chol, z):
-    """LD [V, C, L, J, C', L'] for one camera (lax.map over positions)."""
-    def one(args):
-        if chol is None:
-            mu_v, var_v = args
-            g = mu_v[:, :, None, :] + jnp.sqrt(var_v)[:, :, None, :] * z  # [C,L,J,K]
-            d = g[:, :, :, None, None, :] - mu_v[None, None, None]
-            return -0.5 * jnp.sum(
-                d * d / var_v[None, None, None] + jnp.log(var_v)[None, None, None] + _LOG_2PI, -1
-            )
-        mu_v, chol_v = args
-        g = mu_v[:, :, None, :] + jnp.einsum("clkm,cljm->cljk", chol_v, z)
-        c, l, j, k = g.shape
-        d = g.reshape(1, 1, c * l * j, k) - mu_v[:, :, None, :]  # [C',L',N,K]
-        w = solve_triangular(chol_v, jnp.swapaxes(d, -1, -2), lower=True)  # [C',L',K,N]
-        logdet = jnp.sum(jnp.log(jnp.diagonal(chol_v, axis1=-2, axis2=-1)), -1)
-        ld = -0.5 * jnp.sum(w * w, -2) - logdet[..., None] - 0.5 * k * _LOG_2PI  # [C',L',N]
-        return jnp.moveaxis(ld.reshape(ld.shape[:2] + (c, l, j)), (0, 1), (3, 4))
-
-    return jax.lax.map(one, (mu, var if chol is None else chol))
+def _camera_ld(lik: Likelihood, z):
+    """LD [V, C, L, J, C', L'] for one camera: every sample of every component
+    under every component of the same position (``lax.map`` over positions)."""
+    return jax.lax.map(lambda lik_v: lik_v.log_density(lik_v.sample(z)), lik)
 
 
 def mi_tables(
-    mus: tuple[Float[Array, "V C L K"], ...],
+    likelihoods,
     vars: tuple[Float[Array, "V C L K"], ...] | None = None,
     *,
     key: PRNGKeyArray,
@@ -147,25 +117,27 @@ def mi_tables(
     and :func:`jaxrecog.kernels.fisher_information`.
 
     Args:
-        mus: per camera ``[V_i, C, L_i, K_i]`` means.
-        vars: per camera diagonal variances (same shapes), or give ``chols``.
+        likelihoods: one :class:`~jaxrecog.kernels.Likelihood` per camera (over
+            its positions), or the Gaussian array form: per camera
+            ``[V_i, C, L_i, K_i]`` means with exactly one of ``vars`` (diagonal
+            variances, same shapes) or ``chols`` (``[V_i, C, L_i, K_i, K_i]``
+            lower Cholesky factors).
         key: PRNG key; camera i uses ``fold_in(key, i)``.
         samples_per_stratum: J (static; fixes the shapes).
-        chols: per camera ``[V_i, C, L_i, K_i, K_i]`` lower Cholesky factors.
         store: ``"full"`` (LD tables, any belief), ``"uniform"`` (only the
             belief-free uniform-level tables T_i), or ``"both"``.
     """
-    _check_model(mus, vars, chols)
+    liks = as_likelihoods(likelihoods, vars, chols, where="mi_tables")
     if store not in ("full", "uniform", "both"):
         raise ValueError(f"mi_tables: store must be 'full', 'uniform' or 'both', got {store!r}")
     j = int(samples_per_stratum)
     if j < 1:
         raise ValueError(f"mi_tables: samples_per_stratum must be >= 1, got {samples_per_stratum}")
     lds, selfs, tus, zs, mxs, exs = [], [], [], [], [], []
-    for i, mu in enumerate(mus):
-        _, c, l, k = mu.shape
-        z = jr.normal(jr.fold_in(key, i), (c, l, j, k), mu.dtype)
-        ld = _camera_ld(mu, None if vars is None else vars[i], None if chols is None else chols[i], z)
+    for i, lik in enumerate(liks):
+        c, l = lik.n_classes, lik.n_levels
+        z = jr.normal(jr.fold_in(key, i), (c, l, j, lik.noise_dim), lik.dtype)
+        ld = _camera_ld(lik, z)
         # diagonal LD[v, c, k, j, c, k]
         d1 = jnp.diagonal(ld, axis1=1, axis2=4)  # [V, L, J, L', C]
         d2 = jnp.diagonal(d1, axis1=1, axis2=3)  # [V, J, C, L]

@@ -44,6 +44,22 @@ def log_likelihood_full_ref(g, mu, chol):
     return out
 
 
+def bhattacharyya_ref(mu, cov):
+    """D_B between every pair of Gaussian components N(mu[c, l], cov[c, l]) -> [C, L, C, L]:
+    1/8 d^T S^-1 d + 1/2 log(det S / sqrt(det S_1 det S_2)), S = (S_1 + S_2) / 2,
+    one pair at a time with ``numpy.linalg`` (``cov``: ``[C, L, K, K]``)."""
+    mu, cov = np.asarray(mu, float), np.asarray(cov, float)
+    c, l = mu.shape[:2]
+    out = np.empty((c, l, c, l))
+    for a in np.ndindex(c, l):
+        for b in np.ndindex(c, l):
+            s = 0.5 * (cov[a] + cov[b])
+            d = mu[a] - mu[b]
+            logdet = [np.linalg.slogdet(x)[1] for x in (s, cov[a], cov[b])]
+            out[a + b] = 0.125 * d @ np.linalg.solve(s, d) + 0.5 * (logdet[0] - 0.5 * (logdet[1] + logdet[2]))
+    return out
+
+
 # --- full joint-state belief (eq. 3.1, 3.7-3.9) ------------------------------------------------
 
 
