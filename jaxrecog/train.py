@@ -41,7 +41,7 @@ import numpy as np
 from .augment import AugmentParams, SamplePlan, ShiftWindows, apply_geometry, draw_plan, levels_for, occluder_bank, plan_rng
 from .database import ImageDatabase, load_database
 from .eigenspace import choose_n_components, position_eigenspace
-from .kernels import likelihood_class
+from .kernels import Likelihood, likelihood_class
 from .sensor_model import CameraModel, GaussianAccumulator, SensorModel
 
 __all__ = ["train_model", "TrainingInfo"]
@@ -107,6 +107,8 @@ def train_model(
         family = likelihood_class(lik_kind)
     except ValueError as e:
         raise ValueError(f"likelihood / covariance: {e}") from None
+    if family.fit.__func__ is Likelihood.fit.__func__:
+        raise ValueError(f"likelihood {lik_kind!r} cannot be trained from sample moments (no fit)")
     levels = levels_for(kind)
     params = dataclasses.replace(augment or AugmentParams(), samples_per_image=samples_per_image)
     db = database if isinstance(database, ImageDatabase) else load_database(database)
