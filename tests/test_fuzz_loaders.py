@@ -180,7 +180,7 @@ _VERSIONS = [np.array(1), np.array(3), np.array([], np.int64), np.array("2"), np
              np.array(2.5), np.array(2**40)]
 _CHANGES = ["nan", "neg", "float64", "int32", "bool", "flat", "empty", "huge"]
 _META_KEYS = ["n_cameras", "positions", "n_objects", "n_poses", "levels", "image_shape", "covariance",
-              "n_components", "calibrated", "content_sha256", "format_version"]
+              "likelihoods", "n_components", "calibrated", "content_sha256", "format_version"]
 
 _OPS = st.lists(st.one_of(
     st.tuples(st.just("meta"), st.sampled_from(_META_KEYS),

@@ -249,7 +249,7 @@ def _run(model, planner, n_steps=2, seed=0):
     images = np.random.default_rng(seed + 1).integers(1, 255, (n_steps, 3) + _HW).astype(np.uint8)
     out = []
     for t in range(n_steps):
-        state, dec = rec.step(state, jnp.asarray(images[t]), jr.fold_in(key, t))
+        state, dec = rec.step(state, jnp.asarray(images[t]), jr.fold_in(key, t), trace=True)
         out.append(dec)
     return out
 
@@ -275,8 +275,8 @@ def test_third_family_and_camera_through_the_recognizer(x64):
     assert mixed.likelihood_kinds == ("test-isotropic", "full", "diag") and mixed.covariance == "mixed"
     for a, b in zip(_run(mixed, "mi-class"), _run(plain, "mi-class")):
         assert bool(a.valid) and int(a.next_index) == int(b.next_index)
-        np.testing.assert_allclose(a.scores, b.scores, rtol=1e-8, atol=1e-10)
-        for x, y in zip(jax.tree.leaves(a.posterior), jax.tree.leaves(b.posterior)):
+        np.testing.assert_allclose(a.trace.scores, b.trace.scores, rtol=1e-8, atol=1e-10)
+        for x, y in zip(jax.tree.leaves(a.trace.posterior), jax.tree.leaves(b.trace.posterior)):
             np.testing.assert_allclose(x, y, rtol=1e-10, atol=1e-10)
 
 
