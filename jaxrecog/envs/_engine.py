@@ -1,0 +1,104 @@
+"""The environments' one contact with the rig and the recognizer's belief.
+
+Everything :mod:`jaxrecog.envs` needs from the ``Rig`` protocol and from the
+recognizer's belief arithmetic lives in this file, so a change of either API
+is adapted here only:
+
+- :func:`check_layout`: the model and the rig agree on cameras, positions and
+  image shape;
+- :func:`capture`: one image set of a scene at a configuration, with the true
+  occluded fractions, exactly as a campaign takes it (``reset`` the scene,
+  ``reseed`` the capture noise, ``move``, ``capture``);
+- :func:`observe` / :func:`belief_from_features`: the recognizer's Bayes update
+  (eq. 3.1, 4.17-4.19) from images or from eigenspace features;
+- :func:`move_prior`: the level transition for the cameras that move
+  (eq. 3.7-3.9).
+"""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Bool, Float, Int
+
+from .. import kernels as K
+from ..campaign import TrialSpec
+from ..planners import model_arrays
+from ..recognizer import image_features
+
+__all__ = ["check_layout", "capture", "observe", "belief_from_features", "move_prior", "uniform_prior", "FEATURE_BOUND"]
+
+#: |g_k| <= ||y_hat - x_bar|| <= sqrt(2): unit-energy images with non-negative
+#: pixels and a mean of such images (eq. 4.1-4.11); an unusable image gives 0.
+FEATURE_BOUND = 2.0
+
+
+def check_layout(model, rig) -> None:
+    """A clear ``ValueError`` when the rig cannot serve the model: number of
+    cameras, positions per camera, image shape."""
+    rig_pos, model_pos = tuple(int(p) for p in rig.positions), tuple(int(p) for p in model.positions)
+    if rig_pos != model_pos:
+        raise ValueError(f"model/rig layout mismatch: the rig has positions {rig_pos} per camera, "
+                         f"the model {model_pos}")
+    rig_shape, model_shape = tuple(int(s) for s in rig.image_shape), tuple(int(s) for s in model.image_shape)
+    if rig_shape != model_shape:
+        raise ValueError(f"model/rig layout mismatch: the rig captures {rig_shape} images, "
+                         f"the model expects {model_shape}")
+
+
+def capture(rig, scene: TrialSpec, config: Sequence[int], noise_seed) -> tuple[np.ndarray, np.ndarray]:
+    """One image set of ``scene`` at ``config`` (as :func:`~jaxrecog.campaign.run_campaign`
+    takes it: the scene is reset and the capture noise reseeded with
+    ``noise_seed`` before every capture, so a trial's images depend only on
+    its scene and step).
+
+    Returns ``(images uint8 [n, H, W], occluded fraction float64 [n])`` (the
+    fraction is 0 where the rig does not know it, e.g. stored images).
+    """
+    rig.reset(scene.object, scene.pose, scene.occluders)
+    reseed = getattr(rig, "reseed", None)
+    if reseed is not None:
+        reseed(noise_seed)
+    rig.move(tuple(int(v) for v in config))
+    images = np.stack([np.asarray(im, np.uint8) for im in rig.capture()])
+    occluded = np.asarray(getattr(rig, "last_occlusion", None) or [0.0] * len(images), np.float64)
+    return images, occluded
+
+
+def uniform_prior(model) -> K.Belief:
+    """The uniform belief of section 3.3 over the model's classes and levels."""
+    dtype = model.cameras[0].mu.dtype
+    return K.uniform_belief(model.n_classes, tuple(model.n_levels for _ in model.cameras), dtype=dtype)
+
+
+def belief_from_features(model, prior: K.Belief, config: Int[Array, " n"],
+                         features: tuple[Float[Array, " K_i"], ...]) -> tuple[K.Belief, Bool[Array, ""]]:
+    """Bayes update with log p(g_i | c, k_i, v_i) per camera (eq. 3.1, 4.17):
+    ``(posterior, ok)``; ``ok`` is false (and the belief unchanged) on
+    unusable evidence."""
+    mus, vars, chols = model_arrays(model)
+    logliks = K.camera_log_likelihoods(features, config, mus, vars, chols)
+    posterior, info = K.update_with_info(prior, logliks)
+    return posterior, info.ok
+
+
+@eqx.filter_jit
+def observe(model, prior: K.Belief, config: Int[Array, " n"], images: Float[Array, "n H W"]):
+    """Features g_i = V_iᵀ(y_i/‖y_i‖ − x̄_i) (eq. 4.1-4.11) and the Bayes update:
+    ``(posterior, features, ok)``.  An unusable image (black, constant, not
+    finite) leaves the belief unchanged and sets ``ok = False``."""
+    gs, usable = image_features(model, config, jnp.asarray(images))
+    gs = tuple(jnp.where(usable, g, 0.0) for g in gs)
+    posterior, ok = belief_from_features(model, prior, config, tuple(jnp.where(usable, g, jnp.nan) for g in gs))
+    return posterior, gs, ok & usable
+
+
+def move_prior(posterior: K.Belief, config: Int[Array, " n"], next_config: Int[Array, " n"],
+               kind: str = "uniform", rho: float = 0.9) -> K.Belief:
+    """The prior of the images at ``next_config``: cameras that move get the
+    level transition, cameras that stay keep their levels (eq. 3.7-3.9)."""
+    moved = jnp.asarray(next_config) != jnp.asarray(config)
+    return K.transition(posterior, moved, kind=kind, rho=rho)

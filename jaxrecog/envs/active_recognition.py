@@ -1,0 +1,373 @@
+"""``ActiveRecognitionEnv``: the rig, a trained model and the recognizer's
+belief as a Gymnasium environment, in the conventions of ap-gym's
+``ActivePerceptionEnv`` (TimSchneider42/active-perception-gym).
+
+Episode.  ``reset`` places an object in a pose (and, ``case="occluded"``,
+cardboard occluders) and takes the first image set at a random initial
+configuration.  Each ``step`` receives ``{"action": configuration,
+"prediction": ...}``: the prediction is the agent's guess of the class
+c = object * n_poses + pose from the images so far; the agent *declares* when
+its prediction reaches ``p_threshold`` (thesis P_th = 0.95): the episode
+terminates.  Otherwise, after ``max_steps`` image sets it is truncated;
+otherwise the cameras move to the configuration and the next image set is
+returned.  The number of steps of an episode is its number of views.
+
+Reward (ap-gym): ``r = base_reward - loss`` with ``base_reward = -step_cost``
+and the prediction loss normalised so that a blind guess scores 1,
+``loss = -log p(target) / log C`` (cross entropy; for an index prediction the
+0-1 loss).  ``info["base_reward"]``, ``info["prediction"]["target"]`` and
+``info["prediction"]["loss"]`` carry them.
+
+Prediction forms (``prediction=``):
+
+- ``"probabilities"`` (default): ``Box(0, 1, (C,))`` class weights, normalised
+  by the env (all zero = uniform).  ap-gym's logits have unbounded ``Box``
+  bounds, which ``gymnasium.utils.env_checker.check_env`` warns about; this
+  form carries the same information within bounds.
+- ``"logits"``: ap-gym's ``Box(-inf, inf, (C,))``, ``p = softmax(logits)``.
+- ``"index"``: ``Discrete(C + 1)``; ``i < C`` declares class ``i`` (ends the
+  episode), ``C`` means "not yet" (loss 1 for that step).
+
+Observation (``Dict``): ``images`` ``uint8 [n_cameras, H, W]`` (the model's
+image shape), ``configuration`` (the current one, in the action's form), and
+with ``features=True`` the eigenspace features per camera, with
+``belief=True`` the recognizer's class marginal P(c) after these images.
+
+``info``: the true ``object``, ``pose``, ``occluded_fraction`` per camera
+(measured by the renderer; 0 where unknown), ``views``, the belief's best
+``belief_class`` and ``belief_probability``, ``valid`` (the images could be
+used), and with ``scores=("mi", ...)`` each planner's scores of all
+configurations under the predicted prior (``info["scores"][name]``, ``[A]``).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Sequence
+
+import equinox as eqx
+import gymnasium as gym
+import jax.numpy as jnp
+import jax.random as jr
+import numpy as np
+
+from .. import kernels as K
+from ..campaign import TrialSpec
+from . import _engine as E
+from .rigs import build_rig, load_env_model
+
+__all__ = ["ActiveRecognitionEnv", "ACTION_FORMS", "PREDICTION_FORMS"]
+
+ACTION_FORMS = ("flat", "per-camera")
+PREDICTION_FORMS = ("probabilities", "logits", "index")
+#: the smallest probability a loss is computed from (keeps the reward finite)
+_P_FLOOR = 1e-12
+
+
+@eqx.filter_jit
+def _scores(planner, predicted: K.Belief, key):
+    return planner.scores(predicted, key)
+
+
+def _choice(name: str, value: str, allowed: Sequence[str]) -> str:
+    if value not in allowed:
+        raise ValueError(f"{name} must be one of {', '.join(map(repr, allowed))}, got {value!r}")
+    return value
+
+
+class ActiveRecognitionEnv(gym.Env):
+    """Active multi-camera recognition of an object on the turn-table (module doc).
+
+    Args:
+        model: a :class:`~jaxrecog.SensorModel`, a model file, or ``None``
+            (synthetic rigs: the case's model from
+            :func:`jaxrecog.experiments.prepare` with ``settings``).
+        rig: ``"synthetic"``, ``"dataset:FOLDER"``, ``"hardware-sim"`` or a
+            ``Rig`` object (:mod:`jaxrecog.envs.rigs`).
+        case: ``"clean"`` or ``"occluded"`` (cardboard occluders per episode,
+            placed as in the thesis campaigns).
+        settings: :class:`jaxrecog.experiments.Settings`: the synthetic rig's
+            table (``stride``), capture noise and work folder, and the
+            defaults of ``p_threshold``, ``max_steps``, ``transition`` and the
+            planners' Monte Carlo sizes (``samples``, ``min_per_stratum``,
+            tables seeded by ``seed``).
+        cameras: a subset of the cameras (e.g. ``(0,)``: single camera).
+        action: ``"flat"`` (``Discrete(A)``, row-major index) or
+            ``"per-camera"`` (``MultiDiscrete(V_1, ..., V_n)``).
+        prediction: ``"probabilities"``, ``"logits"`` or ``"index"``.
+        features, belief: add the features / the class belief to the observation.
+        scores: planner names (:func:`jaxrecog.planners.make_planner`) whose
+            scores of all configurations go into ``info["scores"]``.
+        step_cost: the cost of one step (one image set); ``base_reward = -step_cost``.
+        p_threshold, max_steps, transition, rho: the stop rule and the level
+            transition (defaults from ``settings``; ``rho`` for ``"sticky"``).
+        render_mode: ``None`` or ``"rgb_array"`` (the cameras' current images
+            side by side).
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 2}
+
+    def __init__(
+        self,
+        model: Any = None,
+        rig: Any = "synthetic",
+        *,
+        case: str = "clean",
+        settings=None,
+        cameras: Sequence[int] | None = None,
+        action: str = "flat",
+        prediction: str = "probabilities",
+        features: bool = False,
+        belief: bool = False,
+        scores: Sequence[str] = (),
+        step_cost: float = 0.0,
+        p_threshold: float | None = None,
+        max_steps: int | None = None,
+        transition: str | None = None,
+        rho: float = 0.9,
+        render_mode: str | None = None,
+    ):
+        from ..experiments import Settings
+
+        self.settings = settings if settings is not None else Settings()
+        cams = None if cameras is None else tuple(int(c) for c in cameras)
+        self.action_form = _choice("action", action, ACTION_FORMS)
+        self.prediction_form = _choice("prediction", prediction, PREDICTION_FORMS)
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+        self.render_mode = render_mode
+        self.p_threshold = float(self.settings.p_threshold if p_threshold is None else p_threshold)
+        self.max_steps = int(self.settings.max_steps if max_steps is None else max_steps)
+        self.transition = self.settings.transition if transition is None else transition
+        _choice("transition", self.transition, ("uniform", "sticky"))
+        self.rho = float(rho)
+        if not 0.0 < self.p_threshold <= 1.0 or self.max_steps < 1:
+            raise ValueError(f"need 0 < p_threshold <= 1 and max_steps >= 1, got {self.p_threshold}, {self.max_steps}")
+        if not math.isfinite(step_cost):
+            raise ValueError(f"step_cost must be finite, got {step_cost}")
+        self.step_cost = float(step_cost)
+
+        self.model = load_env_model(model, rig, case, self.settings, cams)
+        self.rig, self._occluders = build_rig(rig, case, self.settings, cams)
+        E.check_layout(self.model, self.rig)
+        self.case = case
+        self.positions = tuple(int(p) for p in self.model.positions)
+        self.n_configs = int(np.prod(self.positions))
+        self.n_classes = int(self.model.n_classes)
+        self._planners = {n: self.make_planner(n) for n in scores}
+
+        cfg_space = gym.spaces.Discrete(self.n_configs) if action == "flat" else gym.spaces.MultiDiscrete(self.positions)
+        C = self.n_classes
+        pred_space = {
+            "probabilities": gym.spaces.Box(0.0, 1.0, (C,), np.float32),
+            "logits": gym.spaces.Box(-np.inf, np.inf, (C,), np.float32),
+            "index": gym.spaces.Discrete(C + 1),
+        }[prediction]
+        self.action_space = gym.spaces.Dict({"action": cfg_space, "prediction": pred_space})
+        self.prediction_target_space = gym.spaces.Discrete(C)
+        H, W = self.model.image_shape
+        obs = {
+            "images": gym.spaces.Box(0, 255, (len(self.positions), H, W), np.uint8),
+            "configuration": cfg_space,
+        }
+        if features:
+            obs["features"] = gym.spaces.Tuple(
+                [gym.spaces.Box(-E.FEATURE_BOUND, E.FEATURE_BOUND, (c.n_components,), np.float32) for c in self.model.cameras])
+        if belief:
+            obs["belief"] = gym.spaces.Box(0.0, 1.0, (C,), np.float32)
+        self.observation_space = gym.spaces.Dict(obs)
+        self._scene: TrialSpec | None = None
+        self._done = True
+
+    @property
+    def configuration(self) -> tuple[int, ...]:
+        """The cameras' current positions."""
+        return tuple(int(v) for v in self._config)
+
+    # -- construction helpers -------------------------------------------------
+
+    def make_planner(self, name: str):
+        """The planner ``name`` over the env's model, built as the campaigns
+        build it (tables from ``PRNGKey(settings.seed)``, ``settings.samples``,
+        ``settings.min_per_stratum``)."""
+        from ..planners import make_planner
+
+        s = self.settings
+        return make_planner(name, self.model, key=jr.PRNGKey(s.seed), samples=s.samples, min_per_stratum=s.min_per_stratum)
+
+    # -- the episode ----------------------------------------------------------
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        """A new scene and its first image set.
+
+        ``options={"trial": TrialSpec, "capture_seed": s}`` replays a campaign
+        trial (:func:`jaxrecog.campaign.plan_trials`): its object, pose,
+        initial configuration and occluders, and the capture noise of
+        :func:`~jaxrecog.campaign.run_campaign` run with ``seed=s``.
+        Otherwise the scene is drawn from the env's generator."""
+        super().reset(seed=seed)
+        options = dict(options or {})
+        unknown = set(options) - {"trial", "capture_seed"}
+        if unknown:
+            raise ValueError(f"unknown reset options {sorted(unknown)}; known: 'trial', 'capture_seed'")
+        self._done = True  # stays so until the first image set is in
+        if "trial" in options:
+            scene = options["trial"]
+            if not isinstance(scene, TrialSpec):
+                raise ValueError(f"options['trial'] must be a jaxrecog.campaign.TrialSpec, got {type(scene).__name__}")
+            self._check_scene(scene)
+            noise = (int(options.get("capture_seed", self.settings.seed)), scene.trial)
+        else:
+            rng = self.np_random
+            obj, pose = int(rng.integers(self.model.n_objects)), int(rng.integers(self.model.n_poses))
+            initial = tuple(int(rng.integers(v)) for v in self.positions)
+            occ = self._occluders(rng, initial) if self._occluders is not None else None
+            scene = TrialSpec(-1, obj, pose, initial, occ)
+            noise = (int(rng.integers(2**62)),)
+        self._scene, self._noise = scene, noise
+        self._config = np.asarray(scene.initial, np.int32)
+        self._views = 0
+        self._posterior = E.uniform_prior(self.model)
+        self._take_images(self._posterior)
+        self._done = False
+        return self._obs(), self._info()
+
+    def _check_scene(self, s: TrialSpec) -> None:
+        if not (0 <= s.object < self.model.n_objects and 0 <= s.pose < self.model.n_poses):
+            raise ValueError(f"trial {s.trial}: object {s.object} / pose {s.pose} outside the model's "
+                             f"{self.model.n_objects} x {self.model.n_poses}")
+        if len(s.initial) != len(self.positions) or any(not 0 <= v < n for v, n in zip(s.initial, self.positions)):
+            raise ValueError(f"trial {s.trial}: initial configuration {s.initial} outside the positions {self.positions}")
+
+    def _take_images(self, prior: K.Belief) -> None:
+        """Capture at ``self._config`` and update the belief from ``prior``."""
+        images, occluded = E.capture(self.rig, self._scene, self._config, self._noise + (self._views,))
+        posterior, feats, ok = E.observe(self.model, prior, jnp.asarray(self._config), images)
+        self._images, self._occluded = images, occluded
+        self._posterior, self._features, self._valid = posterior, feats, bool(ok)
+        self._views += 1
+
+    def step(self, action):
+        if self._scene is None:
+            raise gym.error.ResetNeeded("call reset() before step()")
+        if self._done:
+            raise gym.error.ResetNeeded("the episode has ended (terminated or truncated); call reset() before step()")
+        config = self._parse_configuration(action)
+        probs, declared = self._parse_prediction(action)
+        target = self._target
+        if self.prediction_form == "index":
+            loss = 0.0 if int(action["prediction"]) == target else 1.0
+        else:
+            loss = -math.log(max(float(probs[target]), _P_FLOOR)) / (math.log(self.n_classes) if self.n_classes > 1 else 1.0)
+        terminated = bool(declared)
+        truncated = not terminated and self._views >= self.max_steps
+        if not (terminated or truncated):
+            prior = E.move_prior(self._posterior, jnp.asarray(self._config), jnp.asarray(config), self.transition, self.rho)
+            self._config = config
+            self._take_images(prior)
+        self._done = terminated or truncated
+        base = -self.step_cost
+        info = self._info()
+        info["base_reward"] = base
+        info["prediction"] = {"target": target, "loss": float(loss)}
+        return self._obs(), float(base - loss), terminated, truncated, info
+
+    # -- input checks (nothing changes before they pass) ----------------------
+
+    def _parse_configuration(self, action) -> np.ndarray:
+        if not isinstance(action, dict) or set(action) != {"action", "prediction"}:
+            got = sorted(action) if isinstance(action, dict) else type(action).__name__
+            raise gym.error.InvalidAction(f"an action is a dict with keys 'action' and 'prediction', got {got}")
+        a = action["action"]
+        space = self.action_space["action"]
+        if self.action_form == "flat":
+            if np.ndim(a) != 0 or not np.issubdtype(np.asarray(a).dtype, np.integer) or not 0 <= int(a) < self.n_configs:
+                raise gym.error.InvalidAction(f"action['action'] = {a!r} is outside {space} (a configuration index)")
+            return np.asarray(np.unravel_index(int(a), self.positions), np.int32)
+        arr = np.asarray(a)
+        if arr.shape != (len(self.positions),) or not np.issubdtype(arr.dtype, np.integer) or not space.contains(arr.astype(space.dtype)):
+            raise gym.error.InvalidAction(f"action['action'] = {a!r} is outside {space} (one position per camera)")
+        return arr.astype(np.int32)
+
+    def _parse_prediction(self, action) -> tuple[np.ndarray | None, bool]:
+        """``(class probabilities or None, declared)``."""
+        p = action["prediction"]
+        C = self.n_classes
+        if self.prediction_form == "index":
+            if np.ndim(p) != 0 or not np.issubdtype(np.asarray(p).dtype, np.integer) or not 0 <= int(p) <= C:
+                raise gym.error.InvalidAction(f"action['prediction'] = {p!r} is outside Discrete({C + 1}) "
+                                              f"(a class index, or {C} for 'not yet')")
+            return None, int(p) < C
+        x = np.asarray(p, np.float64)
+        if x.shape != (C,):
+            raise gym.error.InvalidAction(f"action['prediction'] must have shape ({C},) (one entry per class), got {x.shape}")
+        if self.prediction_form == "logits":
+            if np.any(np.isnan(x)) or np.any(x == np.inf):
+                raise gym.error.InvalidAction("action['prediction'] logits must not be NaN or +inf")
+            probs = np.exp(x - x.max()) if np.isfinite(x.max()) else np.full(C, 1.0)
+        else:
+            if not np.all(np.isfinite(x)):
+                raise gym.error.InvalidAction("action['prediction'] must lie in [0, 1] (class weights), got NaN or inf")
+            if np.any(x < 0) or np.any(x > 1):
+                raise gym.error.InvalidAction(f"action['prediction'] must lie in [0, 1] (class weights), "
+                                              f"got values in [{x.min()}, {x.max()}]")
+            probs = x if x.sum() > 0 else np.full(C, 1.0)
+        probs = probs / probs.sum()
+        return probs, bool(probs.max() >= self.p_threshold)
+
+    # -- what the agent and the logs see --------------------------------------
+
+    @property
+    def _target(self) -> int:
+        return int(self._scene.object * self.model.n_poses + self._scene.pose)
+
+    def _configuration_obs(self):
+        if self.action_form == "flat":
+            return np.int64(np.ravel_multi_index(tuple(int(v) for v in self._config), self.positions))
+        return self._config.astype(np.int64)
+
+    def _class_probs(self) -> np.ndarray:
+        return np.clip(np.asarray(K.class_marginal(self._posterior), np.float32), 0.0, 1.0)
+
+    def _obs(self) -> dict:
+        obs = {"images": self._images.copy(), "configuration": self._configuration_obs()}
+        if "features" in self.observation_space.spaces:
+            obs["features"] = tuple(np.clip(np.asarray(g, np.float32), -E.FEATURE_BOUND, E.FEATURE_BOUND) for g in self._features)
+        if "belief" in self.observation_space.spaces:
+            obs["belief"] = self._class_probs()
+        return obs
+
+    def _info(self) -> dict:
+        pc = self._class_probs()
+        best = int(np.argmax(pc))
+        info = {
+            "object": int(self._scene.object),
+            "pose": int(self._scene.pose),
+            "occluded_fraction": self._occluded.copy(),
+            "views": int(self._views),
+            "belief_class": best,
+            "belief_probability": float(pc[best]),
+            "valid": self._valid,
+            "prediction": {"target": self._target},
+        }
+        if self._planners:
+            predicted = K.transition_per_position(self._posterior, jnp.asarray(self._config), self.positions,
+                                                  kind=self.transition, rho=self.rho)
+            key = jr.fold_in(jr.PRNGKey(self.settings.seed), self._views)
+            info["scores"] = {n: np.asarray(_scores(p, predicted, key)) for n, p in self._planners.items()}
+        return info
+
+    def render(self):
+        """The current images, cameras side by side, as ``uint8 [H, n W, 3]``
+        (``render_mode="rgb_array"``; ``None`` otherwise)."""
+        if self.render_mode != "rgb_array" or self._scene is None:
+            return None
+        row = np.concatenate(list(self._images), axis=1)
+        return np.repeat(row[:, :, None], 3, axis=2)
+
+    def close(self):
+        close = getattr(self.rig, "close", None)
+        if close is not None and not getattr(self, "_closed", False):
+            close()
+        self._closed = True
+        super().close()

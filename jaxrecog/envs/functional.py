@@ -1,0 +1,243 @@
+"""A pure JAX functional form of the recognition environment (gymnax style),
+for fast rollouts on eigenspace features where no rendering is needed.
+
+    state, obs = env.reset(key)
+    state, obs, reward, done, info = env.step(state, action, key)
+
+Both are pure functions of arrays (``jax.jit`` / ``jax.vmap`` over keys and
+states; the env itself is an ``eqx.Module``).  The observation of a step is
+drawn from a :class:`FeatureBank`: for every camera, position and class,
+``S`` feature vectors of held-out images (:func:`bank_from_database`, the
+``test`` split of an image database) or of rendered captures
+(:func:`bank_from_rig`).  Each camera's draw is independent given the class,
+as the sensor model assumes (eq. 4.17); real captures of one scene are not.
+
+**This form is for policy research.**  The recognition results we report
+(:mod:`jaxrecog.experiments`, :class:`~jaxrecog.envs.ActiveRecognitionEnv`)
+come from rendered images of each trial's scene, never from a feature bank.
+
+The dynamics are those of :class:`~jaxrecog.envs.ActiveRecognitionEnv` with
+``prediction="probabilities"`` and ``action="flat"``: the belief update is the
+recognizer's (eq. 3.1, 4.17-4.19, the same
+:func:`~jaxrecog.envs._engine.belief_from_features`), the level transition
+for the cameras that move (eq. 3.7-3.9); the agent declares when its
+normalised prediction reaches ``p_threshold``; reward
+``-step_cost - (-log p(target) / log C)``.  When an episode ends
+(``done``), ``step`` returns the state and observation of a fresh episode
+(gymnax's auto-reset); ``info`` describes the step that ended.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import jax.random as jr
+import numpy as np
+from jaxtyping import Array, Float, Int, PRNGKeyArray
+
+from .. import kernels as K
+from ..campaign import TrialSpec
+from ..features import project_camera
+from ..recognizer import image_features
+from . import _engine as E
+
+__all__ = ["FeatureBank", "FunctionalState", "FunctionalEnv", "bank_from_database", "bank_from_rig"]
+
+_P_FLOOR = 1e-12
+
+
+class FeatureBank(eqx.Module):
+    """Per camera ``i``, ``features[i]``: ``[V_i, C, S, K_i]`` feature vectors
+    of held-out (or rendered) images of class ``c`` at position ``v``."""
+
+    features: tuple[Float[Array, "V C S K"], ...]
+
+    @property
+    def samples(self) -> int:
+        return int(self.features[0].shape[2])
+
+
+_project = eqx.filter_jit(image_features)
+_project_batch = eqx.filter_jit(project_camera)
+
+
+def _bank(model, cells: list[dict], what: str) -> FeatureBank:
+    """Equal-sized cells: the first ``S = min count`` vectors of each."""
+    out = []
+    for i, cam in enumerate(model.cameras):
+        counts = [len(cells[i].get((v, c), ())) for v in range(cam.n_positions) for c in range(model.n_classes)]
+        if min(counts) == 0:
+            v, c = next((v, c) for v in range(cam.n_positions) for c in range(model.n_classes) if not cells[i].get((v, c)))
+            raise ValueError(f"{what}: no usable image of camera {i}, position {v}, class {c} (object "
+                             f"{c // model.n_poses}, pose {c % model.n_poses})")
+        s = min(counts)
+        arr = np.stack([np.stack([np.stack(cells[i][(v, c)][:s]) for c in range(model.n_classes)])
+                        for v in range(cam.n_positions)])
+        out.append(jnp.asarray(arr, cam.mu.dtype))
+    return FeatureBank(tuple(out))
+
+
+def bank_from_database(model, database, split: str = "test") -> FeatureBank:
+    """Project every ``split`` image of an :class:`~jaxrecog.ImageDatabase`
+    into its position's eigenspace (eq. 4.1-4.11); ``S`` is the smallest
+    number of usable images of any (camera, position, class)."""
+    rows = np.flatnonzero(np.asarray(database.split) == split)
+    if tuple(int(p) for p in database.positions) != tuple(model.positions):
+        raise ValueError(f"database positions {tuple(database.positions)} differ from the model's {tuple(model.positions)}")
+    cells: list[dict] = [{} for _ in model.cameras]
+    for i, cam in enumerate(model.cameras):
+        mine = rows[np.asarray(database.camera)[rows] == i]
+        if mine.size == 0:
+            continue
+        gs, ok = _project_batch(cam, jnp.asarray(np.asarray(database.position)[mine], jnp.int32),
+                                jnp.asarray(np.asarray(database.images)[mine]))
+        gs, ok = np.asarray(gs), np.asarray(ok)
+        for j, r in enumerate(mine):
+            if ok[j]:
+                c = int(database.object[r]) * model.n_poses + int(database.pose[r])
+                cells[i].setdefault((int(database.position[r]), c), []).append(gs[j])
+    return _bank(model, cells, f"the database's '{split}' split")
+
+
+def bank_from_rig(model, rig, samples: int, *, occluders=None, seed: int = 0) -> FeatureBank:
+    """Render ``samples`` captures of every class at every position of every
+    camera (cameras move together: capture ``v`` puts camera ``i`` at
+    ``min(v, V_i - 1)``).  ``occluders``: a campaign's occluder factory
+    (``(rng, configuration) -> layout``), drawn afresh per capture."""
+    if samples < 1:
+        raise ValueError(f"samples must be >= 1, got {samples}")
+    E.check_layout(model, rig)
+    positions = tuple(model.positions)
+    cells: list[dict] = [{} for _ in model.cameras]
+    for c in range(model.n_classes):
+        obj, pose = divmod(c, model.n_poses)
+        for s in range(samples):
+            for v in range(max(positions)):
+                config = tuple(min(v, n - 1) for n in positions)
+                rng = np.random.default_rng([seed, c, s, v])
+                occ = occluders(rng, config) if occluders is not None else None
+                images, _ = E.capture(rig, TrialSpec(-1, obj, pose, config, occ), config, (seed, c, s, v))
+                gs, ok = _project(model, jnp.asarray(config, jnp.int32), jnp.asarray(images))
+                if bool(ok):
+                    for i, g in enumerate(gs):
+                        if config[i] == v:
+                            cells[i].setdefault((v, c), []).append(np.asarray(g))
+    return _bank(model, cells, "the rig's captures")
+
+
+class FunctionalState(NamedTuple):
+    """The carried state of one episode.
+
+    Attributes:
+        target: the true class c = object * n_poses + pose.
+        config: ``[n]`` the cameras' current positions.
+        belief: the recognizer's belief after the current features.
+        features: the current features per camera.
+        views: feature sets taken so far in this episode.
+    """
+
+    target: Int[Array, ""]
+    config: Int[Array, " n"]
+    belief: K.Belief
+    features: tuple[Float[Array, " K_i"], ...]
+    views: Int[Array, ""]
+
+
+class FunctionalEnv(eqx.Module):
+    """The functional environment (module doc).
+
+    Attributes:
+        model: the sensor model (its Gaussians give the likelihoods).
+        bank: where the observations are drawn from.
+        p_threshold, max_steps: declare at P_th; truncate after ``max_steps``.
+        transition, rho: the level transition (``"uniform"`` or ``"sticky"``).
+        step_cost: ``base_reward = -step_cost``.
+    """
+
+    model: object
+    bank: FeatureBank
+    p_threshold: float = eqx.field(static=True, default=0.95)
+    max_steps: int = eqx.field(static=True, default=7)
+    transition: str = eqx.field(static=True, default="uniform")
+    rho: float = eqx.field(static=True, default=0.9)
+    step_cost: float = eqx.field(static=True, default=0.0)
+
+    def __check_init__(self):
+        pos = tuple(int(f.shape[0]) for f in self.bank.features)
+        if pos != tuple(self.model.positions) or any(int(f.shape[1]) != self.model.n_classes for f in self.bank.features):
+            raise ValueError(f"feature bank [V, C, S, K] shapes {[tuple(f.shape) for f in self.bank.features]} do not fit "
+                             f"the model's positions {tuple(self.model.positions)} and {self.model.n_classes} classes")
+
+    @property
+    def positions(self) -> tuple[int, ...]:
+        return tuple(int(p) for p in self.model.positions)
+
+    @property
+    def n_configs(self) -> int:
+        return math.prod(self.positions)
+
+    def _draw(self, target, config, key) -> tuple[Float[Array, " K_i"], ...]:
+        keys = jr.split(key, len(self.bank.features))
+        return tuple(f[config[i], target, jr.randint(keys[i], (), 0, f.shape[2])] for i, f in enumerate(self.bank.features))
+
+    def _obs(self, state: FunctionalState) -> dict:
+        return {
+            "features": state.features,
+            "configuration": jnp.ravel_multi_index(tuple(state.config), self.positions, mode="clip"),
+            "belief": K.class_marginal(state.belief),
+            "views": state.views,
+        }
+
+    def init(self, target: Int[Array, ""], config: Int[Array, " n"], key: PRNGKeyArray) -> tuple[FunctionalState, dict]:
+        """An episode of class ``target`` starting at ``config``: the uniform
+        prior updated with the first features."""
+        target = jnp.asarray(target, jnp.int32)
+        config = jnp.asarray(config, jnp.int32)
+        feats = self._draw(target, config, key)
+        belief, _ = E.belief_from_features(self.model, E.uniform_prior(self.model), config, feats)
+        state = FunctionalState(target, config, belief, feats, jnp.ones((), jnp.int32))
+        return state, self._obs(state)
+
+    def reset(self, key: PRNGKeyArray) -> tuple[FunctionalState, dict]:
+        """A uniformly random class and initial configuration."""
+        k_class, k_config, k_obs = jr.split(key, 3)
+        target = jr.randint(k_class, (), 0, self.model.n_classes)
+        a = jr.randint(k_config, (), 0, self.n_configs)
+        config = jnp.stack(jnp.unravel_index(a, self.positions)).astype(jnp.int32)
+        return self.init(target, config, k_obs)
+
+    def step(self, state: FunctionalState, action: dict, key: PRNGKeyArray):
+        """``action = {"action": flat configuration index, "prediction": [C]
+        class weights}`` -> ``(state, obs, reward, done, info)``."""
+        n_classes = self.model.n_classes
+        w = jnp.clip(jnp.asarray(action["prediction"], state.belief.log_pc.dtype), 0.0, 1.0)
+        total = jnp.sum(w)
+        p = jnp.where(total > 0, w / jnp.where(total > 0, total, 1.0), 1.0 / n_classes)
+        loss = -jnp.log(jnp.maximum(p[state.target], _P_FLOOR)) / (math.log(n_classes) if n_classes > 1 else 1.0)
+        declared = jnp.max(p) >= self.p_threshold
+        truncated = ~declared & (state.views >= self.max_steps)
+        done = declared | truncated
+
+        k_obs, k_reset = jr.split(key)
+        a = jnp.clip(jnp.asarray(action["action"], jnp.int32), 0, self.n_configs - 1)
+        nxt = jnp.stack(jnp.unravel_index(a, self.positions)).astype(jnp.int32)
+        prior = E.move_prior(state.belief, state.config, nxt, self.transition, self.rho)
+        feats = self._draw(state.target, nxt, k_obs)
+        belief, _ = E.belief_from_features(self.model, prior, nxt, feats)
+        moved = FunctionalState(state.target, nxt, belief, feats, state.views + 1)
+        fresh, _ = self.reset(k_reset)
+        new = jax.tree.map(lambda f, m: jnp.where(done, f, m), fresh, moved)
+        base = -jnp.asarray(self.step_cost, loss.dtype)
+        info = {
+            "base_reward": base,
+            "prediction": {"target": state.target, "loss": loss},
+            "declared": declared,
+            "truncated": truncated,
+            "views": state.views,
+            "correct": jnp.argmax(p) == state.target,
+        }
+        return new, self._obs(new), base - loss, done, info
