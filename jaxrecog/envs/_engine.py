@@ -9,8 +9,9 @@ is adapted here only:
 - :func:`capture`: one image set of a scene at a configuration, with the true
   occluded fractions, exactly as a campaign takes it (``reset`` the scene,
   ``reseed`` the capture noise, ``move``, ``capture``);
-- :func:`observe` / :func:`belief_from_features`: the recognizer's Bayes update
-  (eq. 3.1, 4.17-4.19) from images or from eigenspace features;
+- :func:`observe` / :func:`belief_from_features` / :func:`belief_from_logliks`:
+  the recognizer's Bayes update (eq. 3.1, 4.17-4.19) from images, from
+  eigenspace features or from their log-likelihoods;
 - :func:`move_prior`: the level transition for the cameras that move
   (eq. 3.7-3.9).
 """
@@ -29,7 +30,7 @@ from ..campaign import TrialSpec
 from ..planners import model_arrays
 from ..recognizer import image_features
 
-__all__ = ["check_layout", "capture", "observe", "belief_from_features", "move_prior", "uniform_prior", "FEATURE_BOUND"]
+__all__ = ["check_layout", "capture", "observe", "belief_from_features", "belief_from_logliks", "log_likelihoods", "move_prior", "uniform_prior", "FEATURE_BOUND"]
 
 #: |g_k| <= ||y_hat - x_bar|| <= sqrt(2): unit-energy images with non-negative
 #: pixels and a mean of such images (eq. 4.1-4.11); an unusable image gives 0.
@@ -74,15 +75,24 @@ def uniform_prior(model) -> K.Belief:
     return K.uniform_belief(model.n_classes, tuple(model.n_levels for _ in model.cameras), dtype=dtype)
 
 
-def belief_from_features(model, prior: K.Belief, config: Int[Array, " n"],
-                         features: tuple[Float[Array, " K_i"], ...]) -> tuple[K.Belief, Bool[Array, ""]]:
-    """Bayes update with log p(g_i | c, k_i, v_i) per camera (eq. 3.1, 4.17):
-    ``(posterior, ok)``; ``ok`` is false (and the belief unchanged) on
-    unusable evidence."""
+def log_likelihoods(model, config: Int[Array, " n"],
+                    features: tuple[Float[Array, " K_i"], ...]) -> tuple[Float[Array, "C L_i"], ...]:
+    """log p(g_i | c, k_i, v_i) per camera at ``config`` (eq. 4.17-4.22), from the model."""
     mus, vars, chols = model_arrays(model)
-    logliks = K.camera_log_likelihoods(features, config, mus, vars, chols)
+    return K.camera_log_likelihoods(features, config, mus, vars, chols)
+
+
+def belief_from_logliks(prior: K.Belief, logliks: tuple[Float[Array, "C L_i"], ...]) -> tuple[K.Belief, Bool[Array, ""]]:
+    """Bayes update of the factorised belief (eq. 3.1): ``(posterior, ok)``;
+    ``ok`` is false (and the belief unchanged) on unusable evidence."""
     posterior, info = K.update_with_info(prior, logliks)
     return posterior, info.ok
+
+
+def belief_from_features(model, prior: K.Belief, config: Int[Array, " n"],
+                         features: tuple[Float[Array, " K_i"], ...]) -> tuple[K.Belief, Bool[Array, ""]]:
+    """The Bayes update with the features' log-likelihoods (eq. 3.1, 4.17)."""
+    return belief_from_logliks(prior, log_likelihoods(model, config, features))
 
 
 @eqx.filter_jit

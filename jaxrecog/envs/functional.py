@@ -18,8 +18,9 @@ come from rendered images of each trial's scene, never from a feature bank.
 
 The dynamics are those of :class:`~jaxrecog.envs.ActiveRecognitionEnv` with
 ``prediction="probabilities"`` and ``action="flat"``: the belief update is the
-recognizer's (eq. 3.1, 4.17-4.19, the same
-:func:`~jaxrecog.envs._engine.belief_from_features`), the level transition
+recognizer's (eq. 3.1, 4.17-4.19), with the log-likelihoods of every bank
+entry computed once from the model when the env is built (memory
+``sum_i V_i C S C L_i`` floats: 15 MB for the thesis's sizes at S = 16), the level transition
 for the cameras that move (eq. 3.7-3.9); the agent declares when its
 normalised prediction reaches ``p_threshold``; reward
 ``-step_cost - (-log p(target) / log C)``.  When an episode ends
@@ -129,6 +130,25 @@ def bank_from_rig(model, rig, samples: int, *, occluders=None, seed: int = 0) ->
     return _bank(model, cells, "the rig's captures")
 
 
+def _loglik_tables(model, bank: FeatureBank) -> tuple[Float[Array, "V C S C L"], ...]:
+    """log p(g | c', k', v) of every bank entry g (camera i, position v, class
+    c, sample s) under every class c' and level k' (eq. 4.17-4.22), computed
+    once from the model, so a step is a gather and the Bayes update (the
+    thesis's offline-table trick, here for the observations)."""
+    from ..recognizer import restrict_cameras
+
+    out = []
+    for i, f in enumerate(bank.features):
+        one = restrict_cameras(model, (i,))
+
+        def at(v, g, one=one):
+            return E.log_likelihoods(one, v[None], (g,))[0]
+
+        per_sample = jax.vmap(jax.vmap(jax.vmap(at, (None, 0)), (None, 0)), (0, 0))  # over v; c; s
+        out.append(jax.jit(per_sample)(jnp.arange(f.shape[0]), f))
+    return tuple(out)
+
+
 class FunctionalState(NamedTuple):
     """The carried state of one episode.
 
@@ -160,17 +180,25 @@ class FunctionalEnv(eqx.Module):
 
     model: object
     bank: FeatureBank
-    p_threshold: float = eqx.field(static=True, default=0.95)
-    max_steps: int = eqx.field(static=True, default=7)
-    transition: str = eqx.field(static=True, default="uniform")
-    rho: float = eqx.field(static=True, default=0.9)
-    step_cost: float = eqx.field(static=True, default=0.0)
+    tables: tuple[Float[Array, "V C S C L"], ...]
+    p_threshold: float = eqx.field(static=True)
+    max_steps: int = eqx.field(static=True)
+    transition: str = eqx.field(static=True)
+    rho: float = eqx.field(static=True)
+    step_cost: float = eqx.field(static=True)
 
-    def __check_init__(self):
-        pos = tuple(int(f.shape[0]) for f in self.bank.features)
-        if pos != tuple(self.model.positions) or any(int(f.shape[1]) != self.model.n_classes for f in self.bank.features):
-            raise ValueError(f"feature bank [V, C, S, K] shapes {[tuple(f.shape) for f in self.bank.features]} do not fit "
-                             f"the model's positions {tuple(self.model.positions)} and {self.model.n_classes} classes")
+    def __init__(self, model, bank: FeatureBank, *, p_threshold: float = 0.95, max_steps: int = 7,
+                 transition: str = "uniform", rho: float = 0.9, step_cost: float = 0.0):
+        pos = tuple(int(f.shape[0]) for f in bank.features)
+        if pos != tuple(model.positions) or any(int(f.shape[1]) != model.n_classes for f in bank.features):
+            raise ValueError(f"feature bank [V, C, S, K] shapes {[tuple(f.shape) for f in bank.features]} do not fit "
+                             f"the model's positions {tuple(model.positions)} and {model.n_classes} classes")
+        if transition not in ("uniform", "sticky"):
+            raise ValueError(f"transition must be 'uniform' or 'sticky', got {transition!r}")
+        self.model, self.bank = model, bank
+        self.tables = _loglik_tables(model, bank)
+        self.p_threshold, self.max_steps = float(p_threshold), int(max_steps)
+        self.transition, self.rho, self.step_cost = transition, float(rho), float(step_cost)
 
     @property
     def positions(self) -> tuple[int, ...]:
@@ -180,9 +208,12 @@ class FunctionalEnv(eqx.Module):
     def n_configs(self) -> int:
         return math.prod(self.positions)
 
-    def _draw(self, target, config, key) -> tuple[Float[Array, " K_i"], ...]:
+    def _draw(self, target, config, key):
+        """One bank entry per camera: ``(features, log-likelihoods [C, L_i])``."""
         keys = jr.split(key, len(self.bank.features))
-        return tuple(f[config[i], target, jr.randint(keys[i], (), 0, f.shape[2])] for i, f in enumerate(self.bank.features))
+        s = [jr.randint(keys[i], (), 0, f.shape[2]) for i, f in enumerate(self.bank.features)]
+        feats = tuple(f[config[i], target, s[i]] for i, f in enumerate(self.bank.features))
+        return feats, tuple(t[config[i], target, s[i]] for i, t in enumerate(self.tables))
 
     def _obs(self, state: FunctionalState) -> dict:
         return {
@@ -197,8 +228,8 @@ class FunctionalEnv(eqx.Module):
         prior updated with the first features."""
         target = jnp.asarray(target, jnp.int32)
         config = jnp.asarray(config, jnp.int32)
-        feats = self._draw(target, config, key)
-        belief, _ = E.belief_from_features(self.model, E.uniform_prior(self.model), config, feats)
+        feats, logliks = self._draw(target, config, key)
+        belief, _ = E.belief_from_logliks(E.uniform_prior(self.model), logliks)
         state = FunctionalState(target, config, belief, feats, jnp.ones((), jnp.int32))
         return state, self._obs(state)
 
@@ -222,15 +253,18 @@ class FunctionalEnv(eqx.Module):
         truncated = ~declared & (state.views >= self.max_steps)
         done = declared | truncated
 
-        k_obs, k_reset = jr.split(key)
+        # one draw and one Bayes update per step: of the next view, or (done)
+        # of a fresh episode's first view from the uniform prior (auto-reset)
+        k_class, k_config, k_obs = jr.split(key, 3)
         a = jnp.clip(jnp.asarray(action["action"], jnp.int32), 0, self.n_configs - 1)
-        nxt = jnp.stack(jnp.unravel_index(a, self.positions)).astype(jnp.int32)
-        prior = E.move_prior(state.belief, state.config, nxt, self.transition, self.rho)
-        feats = self._draw(state.target, nxt, k_obs)
-        belief, _ = E.belief_from_features(self.model, prior, nxt, feats)
-        moved = FunctionalState(state.target, nxt, belief, feats, state.views + 1)
-        fresh, _ = self.reset(k_reset)
-        new = jax.tree.map(lambda f, m: jnp.where(done, f, m), fresh, moved)
+        fresh = jr.randint(k_config, (), 0, self.n_configs)
+        nxt = jnp.stack(jnp.unravel_index(jnp.where(done, fresh, a), self.positions)).astype(jnp.int32)
+        target = jnp.where(done, jr.randint(k_class, (), 0, n_classes), state.target)
+        moved = E.move_prior(state.belief, state.config, nxt, self.transition, self.rho)
+        prior = jax.tree.map(lambda u, m: jnp.where(done, u, m), E.uniform_prior(self.model), moved)
+        feats, logliks = self._draw(target, nxt, k_obs)
+        belief, _ = E.belief_from_logliks(prior, logliks)
+        new = FunctionalState(target, nxt, belief, feats, jnp.where(done, 1, state.views + 1))
         base = -jnp.asarray(self.step_cost, loss.dtype)
         info = {
             "base_reward": base,
