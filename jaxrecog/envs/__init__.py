@@ -25,10 +25,12 @@ __all__ = [
     "bank_from_database",
     "bank_from_rig",
     "confident_errors",
+    "env_vs_campaign",
     "run_episodes",
+    "summary",
 ]
 
-_GYM_NAMES = {"ActiveRecognitionEnv", "PlannerPolicy", "run_episodes", "confident_errors"}
+_GYM_NAMES = {"ActiveRecognitionEnv", "PlannerPolicy", "run_episodes", "confident_errors", "env_vs_campaign", "summary"}
 
 try:
     import gymnasium as _gym
@@ -37,7 +39,7 @@ except ImportError:  # the functional form still works; the rest says what to in
 else:
     from .active_recognition import ActiveRecognitionEnv
     from .policy import PlannerPolicy
-    from .rollout import confident_errors, run_episodes
+    from .rollout import confident_errors, env_vs_campaign, run_episodes, summary
 
     if ENV_ID not in _gym.registry:
         _gym.register(id=ENV_ID, entry_point="jaxrecog.envs.active_recognition:ActiveRecognitionEnv")

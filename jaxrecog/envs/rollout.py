@@ -16,7 +16,7 @@ import numpy as np
 from ..campaign import TrialSpec
 from ..results import TrialResult
 
-__all__ = ["run_episodes", "confident_errors"]
+__all__ = ["run_episodes", "confident_errors", "summary", "env_vs_campaign"]
 
 
 def _probabilities(env, prediction) -> np.ndarray:
@@ -73,3 +73,43 @@ def run_episodes(env, policy: Callable, specs: Sequence[TrialSpec], *, capture_s
 def confident_errors(results: Sequence[TrialResult]) -> int:
     """Trials that stopped at p >= P_th on the wrong answer (DESIGN.md §7)."""
     return sum(1 for r in results if r.stopped and not r.correct)
+
+
+def summary(results: Sequence[TrialResult], n_objects: int) -> dict:
+    """The average row of the thesis table (:func:`jaxrecog.results.summarize`)
+    plus the confident errors."""
+    from ..results import summarize
+
+    avg = summarize(results, n_objects)[-1]
+    return {"trials": avg.trials, "rate": avg.rate, "exit_prob": avg.exit_prob, "views": avg.views,
+            "confident_errors": confident_errors(results)}
+
+
+def env_vs_campaign(env, planner: str, specs: Sequence[TrialSpec], *, batch: int = 16) -> dict:
+    """``planner`` through the env (:class:`~jaxrecog.envs.PlannerPolicy`) and
+    through :func:`~jaxrecog.campaign.run_campaign` with the same recognizer,
+    rig, trials, keys and capture seeds (``env.settings.seed``), with wall times.
+
+    Returns ``{"env": results, "campaign": results, "env_s", "campaign_s",
+    "same": fraction of trials with the same answer, views and path}``."""
+    import time
+
+    import jax.random as jr
+
+    from ..campaign import run_campaign
+    from .policy import PlannerPolicy
+
+    env = env.unwrapped
+    seed = env.settings.seed
+    policy = PlannerPolicy(planner, env)
+    t0 = time.perf_counter()
+    via_env = run_episodes(env, policy, specs, capture_seed=seed)
+    env_s = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    # the policy's own recognizer on the env's rig (the campaign resets and
+    # reseeds the rig before every capture, as the env does)
+    campaign = run_campaign(policy.recognizer, env.rig, specs, key=jr.PRNGKey(seed + 1), batch=batch, seed=seed)
+    campaign_s = time.perf_counter() - t0
+    path = lambda r: (r.predicted_object, r.predicted_pose, r.steps, r.stopped, r.configurations)  # noqa: E731
+    same = float(np.mean([path(a) == path(b) for a, b in zip(via_env, campaign)])) if specs else 1.0
+    return {"env": via_env, "campaign": campaign, "env_s": env_s, "campaign_s": campaign_s, "same": same}
