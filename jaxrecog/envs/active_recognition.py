@@ -184,6 +184,11 @@ class ActiveRecognitionEnv(gym.Env):
         """The cameras' current positions."""
         return tuple(int(v) for v in self._config)
 
+    @property
+    def views(self) -> int:
+        """Image sets taken in the current episode (1 right after ``reset``)."""
+        return int(getattr(self, "_views", 0))
+
     # -- construction helpers -------------------------------------------------
 
     def make_planner(self, name: str):
@@ -266,7 +271,7 @@ class ActiveRecognitionEnv(gym.Env):
             self._config = config
             self._take_images(prior)
         self._done = terminated or truncated
-        base = -self.step_cost
+        base = 0.0 - self.step_cost
         info = self._info()
         info["base_reward"] = base
         info["prediction"] = {"target": target, "loss": float(loss)}

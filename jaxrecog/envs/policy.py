@@ -22,7 +22,8 @@ __all__ = ["PlannerPolicy"]
 
 
 class PlannerPolicy:
-    """``policy(obs) -> action`` for one env (one episode at a time).
+    """``policy(obs) -> action`` for one env (one episode at a time; a new
+    episode of the env starts a new one of the policy).
 
     Args:
         name: a planner of :func:`jaxrecog.planners.make_planner` (``mi``,
@@ -63,12 +64,14 @@ class PlannerPolicy:
         return c.astype(np.int32)
 
     def __call__(self, obs: dict) -> dict[str, Any]:
+        if self._n > 0 and self.env.views == 1:
+            self.reset()  # the env was reset since the last call: a new episode
         config = self._config(obs)
         if self._state is None:
             self._state = self.recognizer.init(config=tuple(int(v) for v in config))
         elif not np.array_equal(np.asarray(self._state.config), config):
             raise ValueError(f"the observation is at configuration {tuple(config)}, but the policy moved to "
-                             f"{tuple(np.asarray(self._state.config))}; call policy.reset() at every env.reset()")
+                             f"{tuple(np.asarray(self._state.config))}: the env did not take the policy's action")
         self._state, dec = self.recognizer.step(self._state, obs["images"], jr.fold_in(self._key, self._n))
         self._n += 1
         self.last_decision = dec
