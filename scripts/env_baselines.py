@@ -72,9 +72,11 @@ def main(argv=None) -> int:
         if "same_path" in row:
             print(f"{planner:9s} same path in {100 * row['same_path']:.1f} % of the trials")
     if args.out:
-        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.out).write_text(json.dumps(report, indent=1))
-        print(f"wrote {args.out}")
+        out = Path(args.out)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        with out.open("w") as f:
+            json.dump(report, f, indent=1)
+        print(f"wrote {out}")
     return 0
 
 
