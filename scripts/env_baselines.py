@@ -35,7 +35,7 @@ def main(argv=None) -> int:
     p.add_argument("--out", default=None, help="write the numbers as JSON here")
     args = p.parse_args(argv)
 
-    from jaxrecog.experiments import CASES, Settings, _load, _specs, prepare
+    from jaxrecog.experiments import CASES, Settings, case_model, case_trials, prepare
 
     if args.case not in CASES:
         print(f"env_baselines: unknown case {args.case!r}; choose one of {', '.join(CASES)}", file=sys.stderr)
@@ -45,10 +45,10 @@ def main(argv=None) -> int:
 
     case = CASES[args.case]
     settings = Settings(workdir=Path(args.workdir), trials_per_object=args.trials, stride=args.stride, seed=args.seed)
-    model = _load(prepare(settings, databases=(case.database,)), case)
+    model = case_model(prepare(settings, databases=(case.database,)), case)
     env = ActiveRecognitionEnv(model, "synthetic", case="occluded" if case.occluded else "clean", settings=settings,
                                cameras=case.cameras)
-    specs = _specs(case, settings, env.rig, model.n_objects, model.n_poses)
+    specs = case_trials(case, settings, env.rig, model.n_objects, model.n_poses)
     print(f"{case.title}: {len(specs)} trials, positions {env.positions}")
     report = {"case": args.case, "trials": len(specs), "stride": args.stride, "planners": {}}
     for planner in args.planners.split(","):

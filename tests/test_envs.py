@@ -8,6 +8,7 @@ import subprocess
 import sys
 
 import gymnasium as gym
+import jax.random as jr
 import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
@@ -148,8 +149,9 @@ def test_info_scores_are_the_planners_scores(moving):
     env = make(moving, scores=("mi",))
     policy = PlannerPolicy("mi", env)
     obs, info = env.reset(seed=0)
-    policy(obs)
-    np.testing.assert_allclose(info["scores"]["mi"], np.asarray(policy.last_decision.scores), rtol=1e-5, atol=1e-6)
+    rec = policy.recognizer
+    _, dec = rec.step(rec.init(config=env.configuration), obs["images"], jr.PRNGKey(0), trace=True)
+    np.testing.assert_allclose(info["scores"]["mi"], np.asarray(dec.trace.scores), rtol=1e-5, atol=1e-6)
 
 
 def test_bad_input_raises_a_clear_error_and_reset_still_works(moving):

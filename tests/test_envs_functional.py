@@ -39,16 +39,16 @@ def test_the_functional_belief_is_the_recognizers_on_the_same_features(small):
         rig.reset(obj, pose)
         for n in range(4):
             rig.move(tuple(int(v) for v in rstate.config))
-            rstate, dec = rec.step(rstate, np.stack(rig.capture()), jr.PRNGKey(n))
-            np.testing.assert_allclose(obs["belief"], dec.class_probs, rtol=1e-5, atol=1e-7)
-            for lp_env, lp_rec in zip(state.belief.log_pk, dec.posterior.log_pk):
+            rstate, dec = rec.step(rstate, rig.capture().images, jr.PRNGKey(n), trace=True)
+            np.testing.assert_allclose(obs["belief"], dec.trace.class_probs, rtol=1e-5, atol=1e-7)
+            for lp_env, lp_rec in zip(state.belief.log_pk, dec.trace.posterior.log_pk):
                 np.testing.assert_allclose(jnp.exp(lp_env), jnp.exp(lp_rec), rtol=1e-4, atol=1e-6)
             # follow the recognizer's choice; a prediction that never declares
             state, obs, reward, done, info = env.step(
                 state, {"action": dec.next_index, "prediction": jnp.zeros(6)}, jr.PRNGKey(10 + n))
             assert not bool(done) and int(obs["views"]) == n + 2
         # the belief is not trivially uniform: the recognizer learned something
-        assert float(jnp.max(dec.class_probs)) > 0.5
+        assert float(jnp.max(dec.trace.class_probs)) > 0.5
 
 
 def test_step_reward_loss_and_auto_reset(small):

@@ -6,9 +6,10 @@ is adapted here only:
 
 - :func:`check_layout`: the model and the rig agree on cameras, positions and
   image shape;
-- :func:`capture`: one image set of a scene at a configuration, with the true
-  occluded fractions, exactly as a campaign takes it (``reset`` the scene,
-  ``reseed`` the capture noise, ``move``, ``capture``);
+- :func:`start` / :func:`capture`: a scene set up once per episode, then one
+  image set per step with the true occluded fractions, exactly as the trial
+  driver takes them (``reset`` the scene; ``reseed`` the capture noise,
+  ``move``, ``capture``);
 - :func:`observe` / :func:`belief_from_features` / :func:`belief_from_logliks`:
   the recognizer's Bayes update (eq. 3.1, 4.17-4.19) from images, from
   eigenspace features or from their log-likelihoods;
@@ -30,7 +31,7 @@ from ..campaign import TrialSpec
 from ..planners import model_arrays
 from ..recognizer import image_features
 
-__all__ = ["check_layout", "capture", "observe", "belief_from_features", "belief_from_logliks", "log_likelihoods", "move_prior", "uniform_prior", "FEATURE_BOUND"]
+__all__ = ["check_layout", "start", "capture", "observe", "belief_from_features", "belief_from_logliks", "log_likelihoods", "move_prior", "uniform_prior", "FEATURE_BOUND"]
 
 #: |g_k| <= ||y_hat - x_bar|| <= sqrt(2): unit-energy images with non-negative
 #: pixels and a mean of such images (eq. 4.1-4.11); an unusable image gives 0.
@@ -50,23 +51,25 @@ def check_layout(model, rig) -> None:
                          f"the model expects {model_shape}")
 
 
-def capture(rig, scene: TrialSpec, config: Sequence[int], noise_seed) -> tuple[np.ndarray, np.ndarray]:
-    """One image set of ``scene`` at ``config`` (as :func:`~jaxrecog.campaign.run_campaign`
-    takes it: the scene is reset and the capture noise reseeded with
-    ``noise_seed`` before every capture, so a trial's images depend only on
-    its scene and step).
-
-    Returns ``(images uint8 [n, H, W], occluded fraction float64 [n])`` (the
-    fraction is 0 where the rig does not know it, e.g. stored images).
-    """
+def start(rig, scene: TrialSpec) -> None:
+    """Set ``scene`` up on the rig (object, pose, occluders), once per episode
+    as the trial driver does (:mod:`jaxrecog.driver`)."""
     rig.reset(scene.object, scene.pose, scene.occluders)
-    reseed = getattr(rig, "reseed", None)
-    if reseed is not None:
-        reseed(noise_seed)
+
+
+def capture(rig, config: Sequence[int], noise_seed) -> tuple[np.ndarray, np.ndarray]:
+    """One image set at ``config``, taken as :func:`jaxrecog.driver.run_trials`
+    takes it: the capture noise reseeded with ``noise_seed`` (the driver's
+    ``(seed, trial, step)``), the cameras moved, one ``Rig.capture``.
+
+    Returns ``(images uint8 [n, H, W], true occluded fraction float64 [n])``;
+    the fractions are empty (shape ``(0,)``) where the rig does not know them
+    (stored or real images), as in :class:`~jaxrecog.hardware.Capture`.
+    """
+    rig.reseed(noise_seed)
     rig.move(tuple(int(v) for v in config))
-    images = np.stack([np.asarray(im, np.uint8) for im in rig.capture()])
-    occluded = np.asarray(getattr(rig, "last_occlusion", None) or [0.0] * len(images), np.float64)
-    return images, occluded
+    cap = rig.capture()
+    return np.asarray(cap.images, np.uint8), np.asarray(cap.occluded, np.float64)
 
 
 def uniform_prior(model) -> K.Belief:
@@ -82,17 +85,20 @@ def log_likelihoods(model, config: Int[Array, " n"],
     return K.camera_log_likelihoods(features, config, mus, vars, chols)
 
 
-def belief_from_logliks(prior: K.Belief, logliks: tuple[Float[Array, "C L_i"], ...]) -> tuple[K.Belief, Bool[Array, ""]]:
+def belief_from_logliks(prior: K.Belief, logliks: tuple[Float[Array, "C L_i"], ...],
+                        valid: Bool[Array, ""] | bool = True) -> tuple[K.Belief, Bool[Array, ""]]:
     """Bayes update of the factorised belief (eq. 3.1): ``(posterior, ok)``;
-    ``ok`` is false (and the belief unchanged) on unusable evidence."""
-    posterior, info = K.update_with_info(prior, logliks)
+    ``ok`` is false (and the belief unchanged) when ``valid`` is false or the
+    evidence is unusable."""
+    posterior, info = K.update_with_info(prior, logliks, valid=valid)
     return posterior, info.ok
 
 
 def belief_from_features(model, prior: K.Belief, config: Int[Array, " n"],
-                         features: tuple[Float[Array, " K_i"], ...]) -> tuple[K.Belief, Bool[Array, ""]]:
+                         features: tuple[Float[Array, " K_i"], ...],
+                         valid: Bool[Array, ""] | bool = True) -> tuple[K.Belief, Bool[Array, ""]]:
     """The Bayes update with the features' log-likelihoods (eq. 3.1, 4.17)."""
-    return belief_from_logliks(prior, log_likelihoods(model, config, features))
+    return belief_from_logliks(prior, log_likelihoods(model, config, features), valid)
 
 
 @eqx.filter_jit
@@ -101,9 +107,8 @@ def observe(model, prior: K.Belief, config: Int[Array, " n"], images: Float[Arra
     ``(posterior, features, ok)``.  An unusable image (black, constant, not
     finite) leaves the belief unchanged and sets ``ok = False``."""
     gs, usable = image_features(model, config, jnp.asarray(images))
-    gs = tuple(jnp.where(usable, g, 0.0) for g in gs)
-    posterior, ok = belief_from_features(model, prior, config, tuple(jnp.where(usable, g, jnp.nan) for g in gs))
-    return posterior, gs, ok & usable
+    posterior, ok = belief_from_features(model, prior, config, gs, usable)
+    return posterior, gs, ok
 
 
 def move_prior(posterior: K.Belief, config: Int[Array, " n"], next_config: Int[Array, " n"],

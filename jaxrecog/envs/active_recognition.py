@@ -34,7 +34,7 @@ with ``features=True`` the eigenspace features per camera, with
 ``belief=True`` the recognizer's class marginal P(c) after these images.
 
 ``info``: the true ``object``, ``pose``, ``occluded_fraction`` per camera
-(measured by the renderer; 0 where unknown), ``views``, the belief's best
+(measured by the renderer; empty where the rig does not know it), ``views``, the belief's best
 ``belief_class`` and ``belief_probability``, ``valid`` (the images could be
 used), and with ``scores=("mi", ...)`` each planner's scores of all
 configurations under the predicted prior (``info["scores"][name]``, ``[A]``).
@@ -52,7 +52,7 @@ import jax.random as jr
 import numpy as np
 
 from .. import kernels as K
-from ..campaign import TrialSpec
+from ..driver import TrialSpec
 from . import _engine as E
 from .rigs import build_rig, load_env_model
 
@@ -208,7 +208,8 @@ class ActiveRecognitionEnv(gym.Env):
         ``options={"trial": TrialSpec, "capture_seed": s}`` replays a campaign
         trial (:func:`jaxrecog.campaign.plan_trials`): its object, pose,
         initial configuration and occluders, and the capture noise of
-        :func:`~jaxrecog.campaign.run_campaign` run with ``seed=s``.
+        :func:`~jaxrecog.campaign.run_campaign` run with ``seed=s`` (the
+        driver's ``(seed, trial, step)``).
         Otherwise the scene is drawn from the env's generator."""
         super().reset(seed=seed)
         options = dict(options or {})
@@ -232,6 +233,7 @@ class ActiveRecognitionEnv(gym.Env):
         self._scene, self._noise = scene, noise
         self._config = np.asarray(scene.initial, np.int32)
         self._views = 0
+        E.start(self.rig, scene)
         self._posterior = E.uniform_prior(self.model)
         self._take_images(self._posterior)
         self._done = False
@@ -246,7 +248,7 @@ class ActiveRecognitionEnv(gym.Env):
 
     def _take_images(self, prior: K.Belief) -> None:
         """Capture at ``self._config`` and update the belief from ``prior``."""
-        images, occluded = E.capture(self.rig, self._scene, self._config, self._noise + (self._views,))
+        images, occluded = E.capture(self.rig, self._config, self._noise + (self._views,))
         posterior, feats, ok = E.observe(self.model, prior, jnp.asarray(self._config), images)
         self._images, self._occluded = images, occluded
         self._posterior, self._features, self._valid = posterior, feats, bool(ok)

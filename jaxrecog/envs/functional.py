@@ -41,7 +41,7 @@ import numpy as np
 from jaxtyping import Array, Float, Int, PRNGKeyArray
 
 from .. import kernels as K
-from ..campaign import TrialSpec
+from ..driver import TrialSpec
 from ..features import project_camera
 from ..recognizer import image_features
 from . import _engine as E
@@ -121,7 +121,8 @@ def bank_from_rig(model, rig, samples: int, *, occluders=None, seed: int = 0) ->
                 config = tuple(min(v, n - 1) for n in positions)
                 rng = np.random.default_rng([seed, c, s, v])
                 occ = occluders(rng, config) if occluders is not None else None
-                images, _ = E.capture(rig, TrialSpec(-1, obj, pose, config, occ), config, (seed, c, s, v))
+                E.start(rig, TrialSpec(-1, obj, pose, config, occ))
+                images, _ = E.capture(rig, config, (seed, c, s, v))
                 gs, ok = _project(model, jnp.asarray(config, jnp.int32), jnp.asarray(images))
                 if bool(ok):
                     for i, g in enumerate(gs):

@@ -18,6 +18,8 @@ from typing import Any
 import jax.random as jr
 import numpy as np
 
+from .. import kernels as K
+
 __all__ = ["PlannerPolicy"]
 
 
@@ -75,7 +77,9 @@ class PlannerPolicy:
         self._state, dec = self.recognizer.step(self._state, obs["images"], jr.fold_in(self._key, self._n))
         self._n += 1
         self.last_decision = dec
-        pc = np.clip(np.asarray(dec.class_probs, np.float64), 0.0, 1.0)
+        # the class marginal after these images: the next prior's (the level
+        # transition leaves P(c) as it is, eq. 3.8)
+        pc = np.clip(np.asarray(K.class_marginal(self._state.prior), np.float64), 0.0, 1.0)
         form = self.env.prediction_form
         if form == "index":
             pred: Any = np.int64(np.argmax(pc)) if bool(dec.stop) else np.int64(self.env.n_classes)

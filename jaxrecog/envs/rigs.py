@@ -55,7 +55,7 @@ def build_rig(rig: Any, case: str, settings, cameras: tuple[int, ...] | None) ->
             rig = DatasetRig.from_folder(folder, seed=settings.seed)
         else:
             raise ValueError(f"unknown rig {rig!r}; choose 'synthetic', 'dataset:FOLDER', 'hardware-sim' or pass a Rig")
-    missing = [m for m in ("positions", "image_shape", "reset", "move", "capture") if not hasattr(rig, m)]
+    missing = [m for m in ("positions", "image_shape", "reset", "reseed", "move", "capture", "close") if not hasattr(rig, m)]
     if missing:
         raise ValueError(f"rig {rig!r} lacks the Rig interface's {', '.join(missing)}")
     if case == "clean":
@@ -65,7 +65,7 @@ def build_rig(rig: Any, case: str, settings, cameras: tuple[int, ...] | None) ->
     scene = getattr(rig, "renderer", rig)
     if not (hasattr(scene, "table") and hasattr(scene, "radius")):
         raise ValueError(f"case 'occluded' needs a rendered scene to place occluders in; {type(rig).__name__} has none")
-    return rig, experiments._occluder_factory(scene)
+    return rig, experiments.occluder_factory(scene)
 
 
 def load_env_model(model: Any, rig: Any, case: str, settings, cameras: tuple[int, ...] | None):

@@ -13,7 +13,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from ..campaign import TrialSpec
+from ..driver import TrialSpec
 from ..results import TrialResult
 
 __all__ = ["run_episodes", "confident_errors", "summary", "env_vs_campaign"]
