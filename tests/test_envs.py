@@ -225,3 +225,21 @@ def test_import_jaxrecog_works_without_gymnasium():
     p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert p.returncode == 0, p.stderr
     assert "ERR jaxrecog.envs.ActiveRecognitionEnv needs gymnasium" in p.stdout and "jaxrecog[gym]" in p.stdout
+
+
+def test_logits_prediction_is_softmaxed(moving):
+    # ap-gym's own form; unbounded, so check_env would warn about its Box bounds
+    env = make(moving, prediction="logits")
+    assert env.action_space["prediction"].shape == (6,) and np.all(np.isinf(env.action_space["prediction"].high))
+    _, info = env.reset(seed=2)
+    target = info["prediction"]["target"]
+    logits = np.zeros(6, np.float32)
+    _, reward, terminated, _, info = env.step({"action": 1, "prediction": logits})
+    assert not terminated and info["prediction"]["loss"] == pytest.approx(1.0)
+    logits[target] = 10.0  # softmax: p = e^10 / (e^10 + 5) > 0.95
+    _, reward, terminated, _, info = env.step({"action": 2, "prediction": logits})
+    assert terminated
+    assert info["prediction"]["loss"] == pytest.approx(-np.log(np.exp(10) / (np.exp(10) + 5)) / np.log(6), rel=1e-6)
+    env.reset(seed=2)
+    with pytest.raises(gym.error.InvalidAction, match="NaN or \\+inf"):
+        env.step({"action": 0, "prediction": np.full(6, np.nan, np.float32)})
