@@ -243,3 +243,29 @@ def test_logits_prediction_is_softmaxed(moving):
     env.reset(seed=2)
     with pytest.raises(gym.error.InvalidAction, match="NaN or \\+inf"):
         env.step({"action": 0, "prediction": np.full(6, np.nan, np.float32)})
+
+
+def test_a_rig_error_mid_episode_loses_nothing(moving):
+    from jaxrecog.hardware import RigError
+
+    class Flaky(DatasetRig):
+        fail = False
+
+        def capture(self):
+            if self.fail:
+                self.fail = False
+                raise RigError("camera 1 timed out")
+            return super().capture()
+
+    rig = Flaky(moving["db"])
+    env = ActiveRecognitionEnv(moving["model"], rig, settings=SMALL, belief=True)
+    obs, _ = env.reset(seed=0)
+    before = (env.configuration, env.views, obs["belief"])
+    rig.fail = True
+    other = (int(obs["configuration"]) + 1) % 3
+    with pytest.raises(RigError, match="timed out"):
+        env.step({"action": other, "prediction": np.zeros(6, np.float32)})
+    assert (env.configuration, env.views) == before[:2]
+    assert np.array_equal(env._obs()["belief"], before[2])
+    obs, *_ = env.step({"action": other, "prediction": np.zeros(6, np.float32)})
+    assert env.configuration == (other,) and env.views == 2

@@ -231,11 +231,9 @@ class ActiveRecognitionEnv(gym.Env):
             scene = TrialSpec(-1, obj, pose, initial, occ)
             noise = (int(rng.integers(2**62)),)
         self._scene, self._noise = scene, noise
-        self._config = np.asarray(scene.initial, np.int32)
         self._views = 0
         E.start(self.rig, scene)
-        self._posterior = E.uniform_prior(self.model)
-        self._take_images(self._posterior)
+        self._take_images(np.asarray(scene.initial, np.int32), E.uniform_prior(self.model))
         self._done = False
         return self._obs(), self._info()
 
@@ -246,11 +244,12 @@ class ActiveRecognitionEnv(gym.Env):
         if len(s.initial) != len(self.positions) or any(not 0 <= v < n for v, n in zip(s.initial, self.positions)):
             raise ValueError(f"trial {s.trial}: initial configuration {s.initial} outside the positions {self.positions}")
 
-    def _take_images(self, prior: K.Belief) -> None:
-        """Capture at ``self._config`` and update the belief from ``prior``."""
-        images, occluded = E.capture(self.rig, self._config, self._noise + (self._views,))
-        posterior, feats, ok = E.observe(self.model, prior, jnp.asarray(self._config), images)
-        self._images, self._occluded = images, occluded
+    def _take_images(self, config: np.ndarray, prior: K.Belief) -> None:
+        """Capture at ``config`` and update the belief from ``prior`` (the
+        episode changes only once both succeeded: a rig error loses nothing)."""
+        images, occluded = E.capture(self.rig, config, self._noise + (self._views,))
+        posterior, feats, ok = E.observe(self.model, prior, jnp.asarray(config), images)
+        self._config, self._images, self._occluded = config, images, occluded
         self._posterior, self._features, self._valid = posterior, feats, bool(ok)
         self._views += 1
 
@@ -270,8 +269,7 @@ class ActiveRecognitionEnv(gym.Env):
         truncated = not terminated and self._views >= self.max_steps
         if not (terminated or truncated):
             prior = E.move_prior(self._posterior, jnp.asarray(self._config), jnp.asarray(config), self.transition, self.rho)
-            self._config = config
-            self._take_images(prior)
+            self._take_images(config, prior)
         self._done = terminated or truncated
         base = 0.0 - self.step_cost
         info = self._info()
