@@ -27,7 +27,7 @@ import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
 from .. import kernels as K
-from ..campaign import TrialSpec
+from ..driver import TrialSpec
 from ..planners import model_arrays
 from ..recognizer import image_features
 
