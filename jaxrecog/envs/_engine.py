@@ -28,7 +28,6 @@ from jaxtyping import Array, Bool, Float, Int
 
 from .. import kernels as K
 from ..driver import TrialSpec
-from ..planners import model_arrays
 from ..recognizer import image_features
 
 __all__ = ["check_layout", "start", "capture", "observe", "belief_from_features", "belief_from_logliks", "log_likelihoods", "move_prior", "uniform_prior", "FEATURE_BOUND"]
@@ -74,15 +73,14 @@ def capture(rig, config: Sequence[int], noise_seed) -> tuple[np.ndarray, np.ndar
 
 def uniform_prior(model) -> K.Belief:
     """The uniform belief of section 3.3 over the model's classes and levels."""
-    dtype = model.cameras[0].mu.dtype
+    dtype = model.cameras[0].likelihood.dtype
     return K.uniform_belief(model.n_classes, tuple(model.n_levels for _ in model.cameras), dtype=dtype)
 
 
 def log_likelihoods(model, config: Int[Array, " n"],
                     features: tuple[Float[Array, " K_i"], ...]) -> tuple[Float[Array, "C L_i"], ...]:
     """log p(g_i | c, k_i, v_i) per camera at ``config`` (eq. 4.17-4.22), from the model."""
-    mus, vars, chols = model_arrays(model)
-    return K.camera_log_likelihoods(features, config, mus, vars, chols)
+    return K.camera_log_likelihoods(features, config, model.likelihoods)
 
 
 def belief_from_logliks(prior: K.Belief, logliks: tuple[Float[Array, "C L_i"], ...],

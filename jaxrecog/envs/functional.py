@@ -78,7 +78,7 @@ def _bank(model, cells: list[dict], what: str) -> FeatureBank:
         s = min(counts)
         arr = np.stack([np.stack([np.stack(cells[i][(v, c)][:s]) for c in range(model.n_classes)])
                         for v in range(cam.n_positions)])
-        out.append(jnp.asarray(arr, cam.mu.dtype))
+        out.append(jnp.asarray(arr, cam.likelihood.dtype))
     return FeatureBank(tuple(out))
 
 
