@@ -148,12 +148,14 @@ class SensorModel(eqx.Module):
     def summary(self) -> str:
         """A few human-readable lines: sizes, levels and feature statistics."""
         H, W = self.image_shape
+        gaussian = set(self.likelihood_kinds) <= {"diag", "full"}
         lines = [
             f"SensorModel: {self.n_cameras} camera(s), positions {self.positions}, "
             f"{self.n_objects} objects x {self.n_poses} poses = {self.n_classes} classes",
             f"  images {H}x{W} (D={H * W}), K={self.n_components} components, "
             f"{self.n_levels} occlusion level(s) {tuple(round(x, 2) for x in self.levels)}, "
-            f"likelihood {self.covariance}",
+            # the thesis's Gaussians keep their old wording (make demo's output is unchanged)
+            f"{'covariance' if gaussian else 'likelihood'} {self.covariance}",
         ]
         for i, cam in enumerate(self.cameras):
             lam = np.asarray(cam.eigenvalues)
@@ -172,7 +174,7 @@ class SensorModel(eqx.Module):
                     f"(median {np.median(f):.3g}) over {f.shape[0]} positions x {f.shape[1]} level(s)"
                 )
         n_comp = sum(c.n_positions for c in self.cameras) * self.n_classes * self.n_levels
-        lines.append(f"  {n_comp} likelihood components (positions x classes x levels)")
+        lines.append(f"  {n_comp} {'Gaussians' if gaussian else 'likelihood components'} (positions x classes x levels)")
         return "\n".join(lines)
 
 
