@@ -21,7 +21,7 @@ import types
 from pathlib import Path
 from typing import Any, Sequence
 
-from .hardware.problems import problem_message
+from ..hardware.problems import problem_message
 
 __all__ = ["main", "build_parser", "CLIError"]
 
@@ -273,7 +273,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _version() -> str:
-    from . import __version__
+    from .. import __version__
 
     return __version__
 
@@ -297,13 +297,13 @@ def _recognizer_modules():
 
 
 def _load_model(path: str):
-    from .modelfile import load_model
+    from ..modelfile import load_model
 
     return load_model(path)
 
 
 def _table(cameras: int, stride: int):
-    from .hardware.positions import CameraTable, default_table
+    from ..hardware.positions import CameraTable, default_table
 
     t = default_table()
     if cameras == 1:
@@ -312,7 +312,7 @@ def _table(cameras: int, stride: int):
 
 
 def _synthetic_rig(args, **kw):
-    from .hardware import SyntheticRig, default_objects
+    from ..hardware import SyntheticRig, default_objects
 
     objs = default_objects()
     if args.objects > len(objs):
@@ -367,8 +367,8 @@ def _key(seed: int):
 # --------------------------------------------------------------------------
 
 def cmd_render(args) -> int:
-    from .hardware import Noise, render_database
-    from .progress import bar
+    from ..hardware import Noise, render_database
+    from ..progress import bar
 
     t0 = time.perf_counter()
     with _synthetic_rig(args, seed=args.seed) as rig:
@@ -388,10 +388,10 @@ def cmd_render(args) -> int:
 
 
 def cmd_train(args) -> int:
-    from .database import load_database
-    from .modelfile import save_model
-    from .progress import bar
-    from .train import train_model
+    from ..database import load_database
+    from ..modelfile import save_model
+    from ..progress import bar
+    from ..train import train_model
 
     comps: int | float = args.components
     if float(comps).is_integer() and comps >= 1:
@@ -400,7 +400,7 @@ def cmd_train(args) -> int:
         raise UsageError(f"--components must be an integer >= 1 or a fraction in (0, 1], got {args.components}")
     calibrate = None
     if args.calibrate:
-        from .calibration import calibrate_model as calibrate
+        from ..calibration import calibrate_model as calibrate
     db = load_database(args.database)
     with bar(sum(db.positions), f"train {args.kind}", "pos") as b:
         model, info = train_model(db, kind=args.kind, n_components=comps, samples_per_image=args.samples,
@@ -454,7 +454,7 @@ def _calibration_lines(model) -> list[str]:
 def _model_report(path, model=None) -> str:
     """What ``inspect`` prints for a model file: its summary, how it was
     trained and, when calibrated, the variance factors per camera and position."""
-    from .modelfile import load_model_meta
+    from ..modelfile import load_model_meta
 
     model = _load_model(str(path)) if model is None else model
     lines = [f"model file {path}", model.summary()]
@@ -470,14 +470,14 @@ def _model_report(path, model=None) -> str:
 def cmd_inspect(args) -> int:
     import numpy as np
 
-    from . import plots
+    from .. import plots
 
     path = Path(args.path)
     written = []
     if not path.exists() and path.suffix != ".npz":
         raise CLIError(f"{path}: no such model file or database folder")
     if path.is_dir():
-        from .database import load_database, notes
+        from ..database import load_database, notes
 
         db = load_database(path)
         print("\n".join([_database_summary(db), *notes(db)]))
@@ -553,7 +553,7 @@ def cmd_plan(args) -> int:
           f"index {best}, score {scores[best]:.4g}")
     _print_table(["rank", "config", "index", "score"], rows)
     if args.plot:
-        from . import plots
+        from .. import plots
 
         for p in plots.score_heatmap(scores, positions, args.plot, chosen=cfg,
                                      title=f"{args.planner.upper()} scores, {what}",
@@ -566,13 +566,13 @@ def _make_rig(args, model):
     """The rig of ``--rig`` and whether the CLI owns (closes) it."""
     spec = args.rig
     if spec == "synthetic":
-        from .hardware import Noise
+        from ..hardware import Noise
 
         if args.objects != model.n_objects or args.poses != model.n_poses:
             args.objects, args.poses = model.n_objects, model.n_poses
         return _synthetic_rig(args, noise=Noise(brightness=0.03, pixel=args.noise, max_shift=1), seed=args.seed)
     if spec.startswith("dataset:"):
-        from .hardware import DatasetRig
+        from ..hardware import DatasetRig
 
         folder = spec[len("dataset:"):]
         if not folder:
@@ -581,7 +581,7 @@ def _make_rig(args, model):
     if spec.endswith(".toml"):
         if not Path(spec).is_file():
             raise CLIError(f"rig file {spec} not found")
-        from .hardware import rig_from_config
+        from ..hardware import rig_from_config
 
         return rig_from_config(spec)
     raise UsageError(f"--rig {spec!r}: expected 'synthetic', 'dataset:FOLDER' or a .toml rig file")
@@ -614,7 +614,7 @@ def cmd_recognize(args) -> int:
         state = rec.init(key=None if args.start is not None else k_init, config=args.start)
         occl = None
         if args.occluders:
-            from .experiments import occluder_factory  # the thesis-case boards (first views occluded)
+            from ..experiments import occluder_factory  # the thesis-case boards (first views occluded)
 
             start = tuple(int(v) for v in np.asarray(state.config))
             occl = occluder_factory(rig)(np.random.default_rng(args.seed), start)
@@ -646,7 +646,7 @@ def cmd_recognize(args) -> int:
     print(f"result: object {int(dec.object)}, pose {int(dec.pose)} with P = {float(dec.probability):.3f} after "
           f"{len(rows)} step(s) -- {'correct' if ok else 'WRONG'}")
     if args.plot:
-        from . import plots
+        from .. import plots
 
         for p in plots.belief_lines(np.stack(probs), args.plot, true_object=args.object,
                                     title=f"Belief per step: object {args.object + 1} (index {args.object}), "
@@ -684,8 +684,8 @@ def _make_settings(ex, values: dict[str, Any], where: str):
 def _write_report(report, name: str, out: Path, thesis_key: str | None, title: str | None = None) -> list[Path]:
     """``case_NAME.md`` / ``.json`` and the ``campaign_NAME`` bars (PNG + SVG),
     with the thesis's numbers as markers for a thesis case on the full table."""
-    from . import plots
-    from .thesis import SINGLE_CAMERA, TABLES
+    from .. import plots
+    from ..thesis import SINGLE_CAMERA, TABLES
 
     full_table = getattr(report.settings, "stride", 1) == 1  # a strided table is not the thesis's rig
     thesis_key = thesis_key if full_table else None
@@ -722,8 +722,8 @@ def _trace_plot(ex, settings, out: Path, planner: str = "mi", obj: int = 5, prep
                 case: str = "iii") -> list[Path]:
     import numpy as np
 
-    from . import plots
-    from .thesis import TABLE_7_8
+    from .. import plots
+    from ..thesis import TABLE_7_8
 
     if not hasattr(ex, "run_trace"):
         raise CLIError("jaxrecog.experiments has no run_trace (this build is incomplete)")
@@ -755,7 +755,7 @@ def cmd_experiment(args, file_settings: dict[str, Any] | None = None) -> int:
     name = args.case
     rig, model = args.rig, args.model
     if name is not None and (name.endswith(".toml") or Path(name).is_file()):
-        from .config import ConfigFileError, load_settings
+        from ..config import ConfigFileError, load_settings
 
         path = name
         try:
@@ -823,7 +823,7 @@ def cmd_experiment(args, file_settings: dict[str, Any] | None = None) -> int:
 
 
 def _bars() -> bool:
-    from .progress import enabled
+    from ..progress import enabled
 
     return enabled()
 
@@ -844,7 +844,7 @@ def _quick_settings(ex) -> dict[str, Any]:
 def load_settings_flat(path: str) -> dict[str, Any]:
     """An experiment TOML: top-level keys (``case``, ``planners``, Settings
     fields); a ``[settings]`` table is merged in too."""
-    from .config import ConfigFileError, read_toml
+    from ..config import ConfigFileError, read_toml
 
     data = read_toml(path, "experiment file")
     inner = data.pop("settings", {})
@@ -855,7 +855,7 @@ def load_settings_flat(path: str) -> dict[str, Any]:
 
 
 def cmd_bench(args) -> int:
-    from .progress import bar
+    from ..progress import bar
 
     folder = Path(args.benchmarks) if args.benchmarks else Path(__file__).resolve().parent.parent / "benchmarks"
     scripts = sorted(folder.glob("bench_*.py")) if folder.is_dir() else []
@@ -970,7 +970,7 @@ def _find_model(prepared, kind: str = "DB2"):
 def _demo_model_plots(prepared, settings, out: Path, seed: int) -> list[Path]:
     import numpy as np
 
-    from . import plots
+    from .. import plots
 
     written: list[Path] = []
     model = _find_model(prepared)
@@ -1036,7 +1036,7 @@ def _subparsers(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentP
 
 def _apply_config(parser: argparse.ArgumentParser, path: str) -> dict[str, Any]:
     """Set option defaults from the TOML file (command line still wins)."""
-    from .config import load_settings, section
+    from ..config import load_settings, section
 
     data = load_settings(path)
     known_global = {"quiet", "debug"}
@@ -1044,7 +1044,7 @@ def _apply_config(parser: argparse.ArgumentParser, path: str) -> dict[str, Any]:
     subs = _subparsers(parser)
     unknown = sorted(set(data) - set(subs) - {"global"})
     if unknown:
-        from .config import ConfigFileError
+        from ..config import ConfigFileError
 
         raise ConfigFileError(problem_message(f"settings file {path}: unknown table(s) "
                                               f"(known: global, {', '.join(subs)})", unknown))
@@ -1067,7 +1067,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         known, _ = pre.parse_known_args(argv)
         glob: dict[str, Any] = {}
         if known.config:
-            from .config import ConfigFileError
+            from ..config import ConfigFileError
 
             try:
                 glob = _apply_config(parser, known.config)
@@ -1078,7 +1078,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return int(e.code) if isinstance(e.code, int) else 2
     args.quiet = bool(getattr(args, "quiet", False) or glob.get("quiet", False))
     args.debug = bool(getattr(args, "debug", False) or glob.get("debug", False) or debug)
-    from .progress import set_quiet
+    from ..progress import set_quiet
 
     set_quiet(args.quiet)
     try:
