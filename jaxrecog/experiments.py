@@ -43,6 +43,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import time
 from pathlib import Path
 from typing import Callable, Sequence
@@ -53,10 +54,11 @@ from .campaign import TrialSpec, plan_trials, run_campaign
 from .hardware.problems import problem_message
 from .planners import DEFAULT_MIN_PER_STRATUM, make_planner, planner_spec
 from .results import ObjectRow, TrialResult, TrialStore, summarize, table_json, table_markdown
-from .thesis import SINGLE_CAMERA, TABLES
+from .thesis import ThesisTable, published
 
 __all__ = [
-    "Case", "CASES", "DATASET_PLANNERS", "Settings", "Prepared", "CaseReport", "prepare", "make_rig", "rig_pool", "rig_table",
+    "CAPTURE_NOISE", "Case", "CASES", "DATASET_PLANNERS", "Settings", "Prepared", "CaseReport", "prepare", "make_rig",
+    "rig_pool", "rig_table",
     "results_dir", "run_case", "run_dataset", "run_trace",
 ]
 
@@ -81,6 +83,12 @@ CASES: dict[str, Case] = {
         Case("single-occluded", "Single camera (camera 1), occluded, DB2", "DB2", True, (0,), ("mi", "mi-class")),
     )
 }
+
+
+#: (brightness sd, pixel sd, max shift px) of every synthetic capture the
+#: recognizer is tested on: campaign captures (``Settings.capture_noise``),
+#: ``jaxrecog recognize --rig synthetic`` and the test split of ``jaxrecog render``.
+CAPTURE_NOISE: tuple[float, float, int] = (0.05, 2.0, 2)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -120,7 +128,7 @@ class Settings:
     samples_per_image: int = 100
     p_threshold: float = 0.95
     max_steps: int = 7
-    capture_noise: tuple[float, float, int] = (0.05, 2.0, 2)
+    capture_noise: tuple[float, float, int] = CAPTURE_NOISE
     transition: str = "uniform"
     stride: int = 1
 
@@ -324,19 +332,26 @@ class CaseReport:
     results: dict[str, list[TrialResult]]
     seconds: dict[str, float]
 
-    def reference(self, planner: str):
-        """The thesis's (rate, exit, views) rows for this case and planner, if
-        any (none on a strided table: not the thesis's rig)."""
+    def thesis_table(self, planner: str) -> ThesisTable | None:
+        """The thesis's published table for this case and planner
+        (:func:`~jaxrecog.thesis.published`), if any; none on a strided table
+        (not the thesis's rig).  The planner's thesis column comes from the
+        registry (``planners.PLANNERS``: ``mi-class`` is compared with the
+        thesis's ``mi``, ``crlb-det`` with its ``crlb``)."""
         if self.settings.stride != 1:
             return None
-        t = TABLES.get((self.case.name, planner_spec(planner).thesis))
-        if t is not None:
-            return [(r, e, v) for r, e, v in zip(t.rate, t.exit_prob, t.views)] + [t.average]
-        if self.case.name.startswith("single-"):
-            rate, views, exitp = SINGLE_CAMERA[self.case.name.split("-")[1]]
-            n_objects = len(next(iter(self.rows.values()))) - 1
-            return [None] * n_objects + [(rate, exitp if exitp is not None else float("nan"), views)]
-        return None
+        n_objects = sum(r.label != "Average" for r in next(iter(self.rows.values()), []))
+        return published(self.case.name, planner_spec(planner).thesis, n_objects)
+
+    def reference(self, planner: str):
+        """The thesis's (rate, exit, views) rows for this case and planner
+        (``None`` per object where the thesis gives only the average), or
+        ``None`` (:meth:`thesis_table`)."""
+        t = self.thesis_table(planner)
+        if t is None:
+            return None
+        rows = [None if math.isnan(r) else (r, e, v) for r, e, v in zip(t.rate, t.exit_prob, t.views)]
+        return rows + [t.average]
 
     def markdown(self) -> str:
         parts = [f"### {self.case.title}", ""]

@@ -8,9 +8,10 @@ printed average (the mean of the eight rates is 90.75 %, printed 90.8 %).
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
-__all__ = ["ThesisTable", "TABLES", "SINGLE_CAMERA", "TABLE_7_8"]
+__all__ = ["ThesisTable", "TABLES", "SINGLE_CAMERA", "TABLE_7_8", "published"]
 
 
 class ThesisTable(NamedTuple):
@@ -89,3 +90,25 @@ TABLE_7_8 = (
     (0.0001, 0.0000, 0.0000, 0.0062, 0.1993, 0.7944, 0.0000, 0.0000),
     (0.0000, 0.0000, 0.0000, 0.0008, 0.0119, 0.9873, 0.0000, 0.0000),
 )
+
+
+def published(case: str, planner_key: str | None, n_objects: int = 8) -> ThesisTable | None:
+    """The thesis's numbers for a case and a planner's thesis column (``"mi"``,
+    ``"crlb"``, ``"random"``: ``planners.PLANNERS[name].thesis``), or ``None``
+    where the thesis has none.
+
+    Cases ``i``, ``ii``, ``iii``: Tables 7.1-7.7.  ``single-clean`` and
+    ``single-occluded`` (section 7.4, MI only): the average alone, the
+    ``n_objects`` per-object values NaN (and the clean case's exit
+    probability, which the thesis does not give).
+    """
+    table = TABLES.get((case, planner_key))
+    if table is not None:
+        return table
+    scene = case.removeprefix("single-")
+    if planner_key != "mi" or scene == case or scene not in SINGLE_CAMERA:
+        return None
+    rate, views, exit_prob = SINGLE_CAMERA[scene]
+    nan = (math.nan,) * n_objects
+    return ThesisTable("Section 7.4", case, "mi", nan, nan, nan,
+                       (rate, math.nan if exit_prob is None else exit_prob, views))
