@@ -15,6 +15,8 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
+from .thesis import TABLE_7_8
+
 __all__ = [
     "DPI",
     "save",
@@ -23,6 +25,9 @@ __all__ = [
     "eigenimages",
     "occlusion_examples",
     "campaign_bars",
+    "case_bars",
+    "belief_trace",
+    "model_figures",
 ]
 
 DPI = 100
@@ -323,3 +328,59 @@ def campaign_bars(
     ax1.set_title(title)
     fig.subplots_adjust(left=0.08, right=0.78, top=0.93, bottom=0.09, hspace=0.12)
     return save(fig, path)
+
+
+# -- the figures of a campaign report (``jaxrecog experiment`` / ``demo``) ----------
+
+
+def case_bars(report, path: str | os.PathLike, *, title: str | None = None) -> tuple[Path, Path]:
+    """:func:`campaign_bars` of a :class:`~jaxrecog.experiments.CaseReport`,
+    with the thesis's numbers as markers where the thesis has some
+    (:meth:`~jaxrecog.experiments.CaseReport.thesis_table`: a thesis case on
+    the full table); the title says the case, the stride and the trials."""
+    rows = dict(report.rows)
+    ref = {p: t for p in rows if (t := report.thesis_table(p)) is not None}
+    stride = report.settings.stride
+    return campaign_bars(rows, path, thesis=ref,
+                         title=(title or f"Case ({report.case.name})")
+                               + ("" if stride == 1 else f", every {stride}th position")
+                               + f": {report.settings.trials_per_object} trials per object"
+                               + (", markers: thesis" if ref else ""))
+
+
+def belief_trace(result, path: str | os.PathLike, *, planner: str, case: str, occluded: bool,
+                 thesis_rig: bool) -> tuple[Path, Path]:
+    """:func:`belief_lines` of one traced trial (a
+    :class:`~jaxrecog.results.TrialResult` with ``object_probs``), the uniform
+    prior first; thesis Table 7.8 drawn beside it when the trial is the one
+    that table traces (case iii, object 6 = index 5, 8 objects, the thesis's rig)."""
+    probs = np.asarray(result.object_probs, dtype=float)
+    M = probs.shape[1]
+    probs = np.vstack([np.full((1, M), 1.0 / M), probs])
+    traced = thesis_rig and case == "iii" and result.object == 5 and M == len(TABLE_7_8[0])
+    scene = "occluded" if occluded else "clean"
+    return belief_lines(probs, path, true_object=result.object, reference=np.asarray(TABLE_7_8) if traced else None,
+                        title=f"Belief per step: object {result.object + 1} (index {result.object}), "
+                              f"pose {result.pose}, {planner.upper()}, case {case} ({scene})")
+
+
+def model_figures(model, scores: np.ndarray, folder: str | os.PathLike, *,
+                  image: np.ndarray | None = None) -> list[Path]:
+    """A model at a glance: ``mi_scores`` (the MI ``scores`` of every
+    configuration for the uniform belief), ``eigenimages`` (camera 0, position
+    0) and ``occlusion_examples`` of the model's occlusion levels on ``image``
+    (a training image; default: camera 0's mean image at position 0)."""
+    folder = Path(folder)
+    positions = tuple(int(c.mu.shape[0]) for c in model.cameras)
+    written = list(score_heatmap(scores, positions, folder / "mi_scores",
+                                 title="MI of every configuration, uniform belief", label="MI (nats)"))
+    cam = model.cameras[0]
+    mean = np.asarray(cam.mean_image[0])
+    written += eigenimages(mean, np.asarray(cam.basis[0]), model.image_shape, folder / "eigenimages",
+                           eigenvalues=np.asarray(cam.eigenvalues[0]), title="Camera 0, position 0")
+    if image is None:
+        img = mean.reshape(model.image_shape)
+        image = np.clip(255 * (img - img.min()) / max(float(np.ptp(img)), 1e-12), 0, 255).astype(np.uint8)
+    written += occlusion_examples(image, folder / "occlusion_examples",
+                                  levels=tuple(x for x in model.levels if x > 0) or (0.05, 0.25))
+    return written
