@@ -19,7 +19,7 @@ PLANNERS_DOC = ROOT / "docs" / "planners.md"
 
 def render() -> str:
     os.environ["COLUMNS"] = "100"  # argparse wraps help at the terminal width: fix it
-    from jaxrecog.cli import _subparsers, build_parser
+    from jaxrecog.cli import build_parser, subparsers
 
     parser = build_parser()
     parser.prog = "jaxrecog"
@@ -38,7 +38,7 @@ def render() -> str:
         "```",
         "",
     ]
-    for name, sp in _subparsers(parser).items():
+    for name, sp in subparsers(parser).items():
         parts += [f"## jaxrecog {name}", "", "```text", sp.format_help().rstrip(), "```", ""]
     return "\n".join(parts)
 

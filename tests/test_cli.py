@@ -77,7 +77,7 @@ def test_help_of_every_subcommand(capsys):
         out = capsys.readouterr().out
         assert out.startswith(f"usage: jaxrecog {name}")
         # every option has a help text
-        parser = cli._subparsers(cli.build_parser())[name]
+        parser = cli.subparsers(cli.build_parser())[name]
         for a in parser._actions:
             assert a.help, (name, a.dest)
 

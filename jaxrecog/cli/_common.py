@@ -1,0 +1,92 @@
+"""What several subcommands share: the two error kinds, table printing, the
+synthetic rig of the layout options, and the model report."""
+
+from __future__ import annotations
+
+from typing import Any, Sequence
+
+import jax.random as jr
+import numpy as np
+
+from ..hardware import SyntheticRig, default_objects
+from ..hardware.positions import CameraTable, default_table
+from ..modelfile import load_model, load_model_meta
+
+__all__ = ["CLIError", "UsageError", "fmt_cfg", "key", "model_positions", "model_report", "print_table",
+           "synthetic_rig"]
+
+
+class CLIError(Exception):
+    """A runtime failure with a message for the user (exit code 1)."""
+
+
+class UsageError(Exception):
+    """A bad argument found after parsing (exit code 2)."""
+
+
+def key(seed: int):
+    return jr.PRNGKey(int(seed))
+
+
+def model_positions(model) -> tuple[int, ...]:
+    return tuple(int(c.mu.shape[0]) for c in model.cameras)
+
+
+def fmt_cfg(cfg: Sequence[int]) -> str:
+    return ",".join(str(int(v)) for v in cfg)
+
+
+def print_table(headers: Sequence[str], rows: Sequence[Sequence[Any]]) -> None:
+    cells = [[str(h) for h in headers]] + [[str(c) for c in r] for r in rows]
+    widths = [max(len(r[i]) for r in cells) for i in range(len(headers))]
+    for j, r in enumerate(cells):
+        print("  ".join(c.rjust(w) for c, w in zip(r, widths)))
+        if j == 0:
+            print("  ".join("-" * w for w in widths))
+
+
+def _table(cameras: int, stride: int) -> CameraTable:
+    t = default_table()
+    if cameras == 1:
+        t = t.single_camera(0)
+    return CameraTable(t.workspace, tuple(v[::stride] for v in t.views))
+
+
+def synthetic_rig(args, **kw) -> SyntheticRig:
+    """The synthetic rig of the layout options (``--cameras/--stride/--objects/--poses``)."""
+    objs = default_objects()
+    if args.objects > len(objs):
+        raise UsageError(f"--objects {args.objects}: the synthetic scene has {len(objs)} objects")
+    return SyntheticRig(_table(args.cameras, args.stride), objects=objs[: args.objects],
+                        n_poses=args.poses, **kw)
+
+
+def _calibration_lines(model) -> list[str]:
+    """Each calibrated camera's variance factors ``[V, L]``, per position: one
+    row per occlusion level (one row when every level has the same factors)."""
+    lines = []
+    for i, cam in enumerate(model.cameras):
+        if cam.calibration is None:
+            continue
+        f = np.asarray(cam.calibration, dtype=float)
+        lines.append(f"  camera {i} variance factors, positions 0..{f.shape[0] - 1}:")
+        if np.all(f == f[:, :1]):
+            rows = [("all levels", f[:, 0])]
+        else:
+            rows = [(f"level {lv:.2f}", f[:, j]) for j, lv in enumerate(model.levels)]
+        lines += [f"    {name}: " + " ".join(f"{x:.3g}" for x in r) for name, r in rows]
+    return lines
+
+
+def model_report(path, model=None) -> str:
+    """What ``inspect`` (and ``demo``) prints for a model file: its summary, how
+    it was trained and, when calibrated, the variance factors per camera and position."""
+    model = load_model(str(path)) if model is None else model
+    lines = [f"model file {path}", model.summary()]
+    train = load_model_meta(path).get("training") or {}
+    if isinstance(train.get("params"), dict):  # TrainingInfo.to_dict() (experiments.prepare) nests them
+        train = train["params"]
+    if train:
+        keys = ("kind", "K", "samples_per_image", "covariance", "seed")
+        lines.append("  training: " + ", ".join(f"{k} {train[k]}" for k in keys if k in train))
+    return "\n".join(lines + _calibration_lines(model))

@@ -1,0 +1,48 @@
+"""What ``experiment`` and ``demo`` share: Settings from option values, the
+``--quick`` preset, and the files of a campaign report."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+from typing import Any
+
+from .. import experiments as ex  # as a module: tests stub its prepare / run_case / run_trace
+from .. import plots
+from ..hardware.problems import problem_message
+from ._common import UsageError
+
+__all__ = ["QUICK", "make_settings", "trace_plot", "write_report"]
+
+#: "Quick" runs (demo, ``experiment --quick``): fewer Monte Carlo and training
+#: samples and a smaller eigenspace; the database is still the thesis's 32 x 7
+#: (``--stride`` thins it).
+QUICK = {"samples": 256, "min_per_stratum": 2, "samples_per_image": 30, "n_components": 12}
+
+
+def make_settings(values: dict[str, Any], where: str) -> ex.Settings:
+    """``experiments.Settings(**values)``; an unknown name is a usage error naming ``where``."""
+    known = {f.name for f in dataclasses.fields(ex.Settings)}
+    bad = sorted(set(values) - known)
+    if bad:
+        raise UsageError(problem_message(f"{where}: unknown setting(s) (known: {', '.join(sorted(known))})", bad))
+    return ex.Settings(**values)
+
+
+def write_report(report, name: str, out: Path, title: str | None = None) -> list[Path]:
+    """``case_NAME.md`` / ``.json`` and the ``campaign_NAME`` bars (PNG + SVG,
+    :func:`jaxrecog.plots.case_bars`)."""
+    out.mkdir(parents=True, exist_ok=True)
+    md = out / f"case_{name}.md"
+    md.write_text(report.markdown())
+    js = out / f"case_{name}.json"
+    js.write_text(json.dumps(report.to_json(), indent=2))
+    return [md, js, *plots.case_bars(report, out / f"campaign_{name}", title=title)]
+
+
+def trace_plot(settings, out: Path, planner: str = "mi", prepared=None, case: str = "iii") -> list[Path]:
+    """One traced trial of ``case`` (object 6, as thesis Table 7.8) as ``belief_trace`` (PNG + SVG)."""
+    res = ex.run_trace(settings, object=5, planner=planner, prepared=prepared, case=case)
+    return list(plots.belief_trace(res, out / "belief_trace", planner=planner, case=case,
+                                   occluded=ex.CASES[case].occluded, thesis_rig=settings.stride == 1))

@@ -1,0 +1,146 @@
+"""``jaxrecog experiment``: a thesis case, a TOML experiment or a campaign on an image database."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Any
+
+from .. import experiments as ex  # as a module: tests stub its prepare / run_case / run_dataset
+from ..config import ConfigFileError, read_toml
+from ..planners import DEFAULT_MIN_PER_STRATUM
+from ..progress import enabled as progress_bars
+from ._common import UsageError
+from ._options import PLANNERS, positive
+from ._reports import QUICK, make_settings, trace_plot, write_report
+
+NAME = "experiment"
+ORDER = 60
+HELP = "run a thesis case, a TOML experiment or a campaign on an image database"
+DESCRIPTION = ("Run a recognition campaign as in thesis chapter 7 and write the tables (Markdown,\n"
+               "JSON) and plots into --out.  CASE is a case name (i, ii, iii, single-clean,\n"
+               "single-occluded) or a TOML file with 'case' and Settings fields; the case renders\n"
+               "and trains its own database and models (cached in --workdir).\n\n"
+               "With --rig dataset:FOLDER --model MODEL.NPZ (and no CASE) the campaign replays the\n"
+               "test split of an image database instead: every object of the model, --trials per\n"
+               "object with a random pose and start, any number of cameras and positions (the\n"
+               "model's).  A TOML file may give 'rig' and 'model' in place of 'case'.")
+
+
+def add_arguments(p) -> None:
+    p.add_argument("case", metavar="CASE", nargs="?",
+                   help="thesis case name or experiment TOML file (leave out with --rig dataset:FOLDER)")
+    p.add_argument("--out", default="out/experiment", metavar="FOLDER", help="where tables and plots go")
+    p.add_argument("--workdir", metavar="FOLDER", help="cache of the rendered database and models, and the "
+                   "finished trials (default: OUT/work)")
+    p.add_argument("--rig", metavar="RIG",
+                   help="'synthetic' (the thesis case's rendered rig; the default) or 'dataset:FOLDER' "
+                        "(replay an image database's test split; needs --model)")
+    p.add_argument("--model", metavar="MODEL.NPZ", help="trained model file for --rig dataset:FOLDER")
+    p.add_argument("--planners", nargs="+", choices=PLANNERS, metavar="PLANNER",
+                   help=f"planners to compare, from {', '.join(PLANNERS)} (default: the case's; "
+                        "mi random on a dataset rig)")
+    p.add_argument("--trials", type=positive, help="trials per object (default: the case's)")
+    p.add_argument("--samples", type=positive, help="Monte Carlo samples of the planners")
+    p.add_argument("--min-per-stratum", type=positive, help="at least this many planner samples per state "
+                   f"(default {DEFAULT_MIN_PER_STRATUM})")
+    p.add_argument("--batch", type=positive, help="trials run in lockstep")
+    p.add_argument("--seed", type=int, help="campaign seed")
+    p.add_argument("--stride", type=positive,
+                   help="synthetic rig: keep every STRIDE-th position of each camera (8 = a 4 x 1 table "
+                        "that renders and trains in seconds; default 1 = the thesis's 32 x 7)")
+    p.add_argument("--quick", action="store_true", help="small models and fewer planner samples "
+                   "(minutes, not hours)")
+    p.add_argument("--trace", action="store_true", help="also run one traced trial and plot its belief "
+                   "(thesis cases)")
+
+
+def load_settings_flat(path: str) -> dict[str, Any]:
+    """An experiment TOML: top-level keys (``case``, ``planners``, Settings
+    fields); a ``[settings]`` table is merged in too."""
+    data = read_toml(path, "experiment file")
+    inner = data.pop("settings", {})
+    if not isinstance(inner, dict):
+        raise ConfigFileError(f"experiment file {path}: 'settings' must be a table")
+    data.update(inner)
+    return data
+
+
+def _dataset_folder(rig: str) -> str:
+    if not rig.startswith("dataset:"):
+        raise UsageError(f"--rig {rig!r}: expected 'synthetic' or 'dataset:FOLDER'")
+    folder = rig[len("dataset:"):]
+    if not folder:
+        raise UsageError("--rig dataset:FOLDER needs a folder")
+    return folder
+
+
+def run(args) -> int:
+    values: dict[str, Any] = {}
+    planners = args.planners
+    name = args.case
+    rig, model = args.rig, args.model
+    if name is not None and (name.endswith(".toml") or Path(name).is_file()):
+        path = name
+        try:
+            data = load_settings_flat(path)
+        except ConfigFileError as e:
+            raise UsageError(str(e)) from None
+        file_rig, file_model = data.pop("rig", None), data.pop("model", None)
+        rig = rig if rig is not None else file_rig
+        model = model if model is not None else file_model
+        if "case" not in data and rig in (None, "synthetic"):
+            raise UsageError(f"experiment file {path}: needs a 'case' key ({', '.join(ex.CASES)}) "
+                             "or 'rig' = 'dataset:FOLDER' and 'model'")
+        name = str(data.pop("case")) if "case" in data else None
+        if planners is None and "planners" in data:
+            planners = list(data.pop("planners"))
+        data.pop("planners", None)
+        values.update(data)
+    dataset = rig is not None and str(rig) != "synthetic"
+    if dataset:
+        folder = _dataset_folder(str(rig))
+        if name is not None:
+            raise UsageError(f"--rig {rig} replays a database, not a thesis case: leave out the case ({name})")
+        if not model:
+            raise UsageError("--rig dataset:FOLDER needs --model MODEL.NPZ (a model file trained on the database)")
+        if args.trace:
+            raise UsageError("--trace works with the thesis cases (synthetic rig) only")
+        if (args.stride or values.get("stride", 1)) != 1:
+            raise UsageError("--stride selects positions of the synthetic rig; a database has its own positions")
+    else:
+        if model:
+            raise UsageError("--model is used with --rig dataset:FOLDER only (a thesis case trains its own models)")
+        if name is None:
+            raise UsageError("give a CASE (" + ", ".join(ex.CASES) + ") or an experiment TOML file, "
+                             "or --rig dataset:FOLDER --model MODEL.NPZ")
+        if name not in ex.CASES:
+            raise UsageError(f"unknown case {name!r}; choose {', '.join(ex.CASES)} or a TOML file")
+    out = Path(args.out)
+    over = {"trials_per_object": args.trials, "samples": args.samples,
+            "min_per_stratum": args.min_per_stratum, "batch": args.batch, "seed": args.seed,
+            "stride": args.stride}
+    values.update({k: v for k, v in over.items() if v is not None})
+    if args.quick:
+        for k, v in QUICK.items():
+            values.setdefault(k, v)
+    values.setdefault("workdir", args.workdir or str(out / "work"))
+    if args.workdir:
+        values["workdir"] = args.workdir
+    settings = make_settings(values, args.case or "experiment")
+    t0 = time.perf_counter()
+    if dataset:
+        report = ex.run_dataset(folder, model, settings, planners=planners, progress=progress_bars())
+        print(report.markdown())
+        written = write_report(report, "dataset", out, title=f"Database {Path(folder).name}")
+        print(f"campaign on {folder} in {time.perf_counter() - t0:.0f} s; wrote:")
+    else:
+        report = ex.run_case(name, settings, planners=planners, progress=progress_bars())
+        print(report.markdown())
+        written = write_report(report, name, out)
+        if args.trace:
+            written += trace_plot(settings, out, planner=(planners or ["mi"])[0], case=name)
+        print(f"case {name} in {time.perf_counter() - t0:.0f} s; wrote:")
+    for p in written:
+        print(f"  {p}")
+    return 0

@@ -1,0 +1,138 @@
+"""``jaxrecog recognize``: one recognition trial on a rig, step by step."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import jax.random as jr
+import numpy as np
+
+from .. import plots
+from ..experiments import CAPTURE_NOISE, occluder_factory  # the thesis-case boards (first views occluded)
+from ..hardware import DatasetRig, Noise, rig_from_config
+from ..modelfile import load_model
+from ..planners import make_planner
+from ..recognizer import Recognizer
+from ._common import CLIError, UsageError, fmt_cfg, key, model_positions, print_table, synthetic_rig
+from ._images import usable
+from ._options import (PLANNERS, config_tuple, nonneg, planner_size_options, positive, probability,
+                       skip_invalid_option, table_options)
+
+NAME = "recognize"
+ORDER = 50
+HELP = "run one recognition trial on a rig"
+DESCRIPTION = ("Place an object, then take image sets and move the cameras where the planner says\n"
+               "until the best (object, pose) reaches --threshold or --max-steps; print each step.")
+
+
+def add_arguments(p) -> None:
+    p.add_argument("model", metavar="MODEL.NPZ", help="model file")
+    p.add_argument("--rig", default="synthetic", metavar="RIG",
+                   help="'synthetic' (pybullet scene), 'dataset:FOLDER' (replay a database's test split) "
+                        "or a rig TOML file (simulated or real hardware)")
+    p.add_argument("--object", type=nonneg, default=0, help="object to place (0-based)")
+    p.add_argument("--pose", type=nonneg, default=0, help="its pose (0-based)")
+    p.add_argument("--start", type=config_tuple, metavar="V1,V2",
+                   help="initial configuration (default: random from --seed)")
+    p.add_argument("--planner", choices=PLANNERS, default="mi", help="view planner")
+    p.add_argument("--threshold", type=probability, default=0.95, help="stop probability P_th")
+    p.add_argument("--max-steps", type=positive, default=7, help="largest number of image sets")
+    planner_size_options(p)
+    skip_invalid_option(p)
+    p.add_argument("--occluders", action="store_true", help="synthetic rig: cardboard boards in front of the first views (as thesis case ii/iii)")
+    p.add_argument("--noise", type=float, default=CAPTURE_NOISE[1], help="synthetic rig: per-pixel noise (gray levels)")
+    p.add_argument("--plot", metavar="PNG", help="also plot the belief over objects per step")
+    p.add_argument("--seed", type=int, default=0, help="PRNG seed (start, planner, rig noise)")
+    table_options(p)
+
+
+def _make_rig(args, model):
+    """The rig of ``--rig``."""
+    spec = args.rig
+    if spec == "synthetic":
+        if args.objects != model.n_objects or args.poses != model.n_poses:
+            args.objects, args.poses = model.n_objects, model.n_poses
+        brightness, _, max_shift = CAPTURE_NOISE  # a campaign's captures, with --noise per pixel
+        return synthetic_rig(args, noise=Noise(brightness=brightness, pixel=args.noise, max_shift=max_shift),
+                             seed=args.seed)
+    if spec.startswith("dataset:"):
+        folder = spec[len("dataset:"):]
+        if not folder:
+            raise UsageError("--rig dataset:FOLDER needs a folder")
+        return DatasetRig.from_folder(folder, seed=args.seed)
+    if spec.endswith(".toml"):
+        if not Path(spec).is_file():
+            raise CLIError(f"rig file {spec} not found")
+        return rig_from_config(spec)
+    raise UsageError(f"--rig {spec!r}: expected 'synthetic', 'dataset:FOLDER' or a .toml rig file")
+
+
+def _trial(args, model, rig, rec, state, k_run):
+    """The trial on ``rig``: reset the scene, then image sets until the
+    recognizer stops.  Returns the object probabilities per step (prior
+    first), the printed rows and the last decision."""
+    occl = None
+    if args.occluders:
+        start = tuple(int(v) for v in np.asarray(state.config))
+        occl = occluder_factory(rig)(np.random.default_rng(args.seed), start)
+    rig.reset(args.object, args.pose, occl)
+    probs = [np.full(model.n_objects, 1.0 / model.n_objects)]
+    rows = []
+    dec = None
+    for n in range(args.max_steps):
+        cfg = tuple(int(v) for v in np.asarray(state.config))
+        rig.move(cfg)
+        cap = rig.capture()
+        imgs = usable(cap.images, model.image_shape,
+                      [f"image of camera {i} at position {v} (step {n + 1})" for i, v in enumerate(cfg)],
+                      args.skip_invalid)
+        state, dec = rec.step(state, imgs, jr.fold_in(k_run, n), trace=True)
+        probs.append(np.asarray(dec.trace.object_probs, dtype=float))
+        occ = cap.occluded
+        stop = bool(dec.stop)
+        rows.append((n + 1, fmt_cfg(cfg), int(dec.object), int(dec.pose), f"{float(dec.probability):.3f}",
+                     " ".join(f"{100 * x:.0f}%" for x in occ) or "-",
+                     "stop" if stop else fmt_cfg(np.asarray(dec.next_config))))
+        if stop:
+            break
+    return probs, rows, dec
+
+
+def run(args) -> int:
+    model = load_model(args.model)
+    positions = model_positions(model)
+    if args.object >= model.n_objects or args.pose >= model.n_poses:
+        raise UsageError(f"--object/--pose: the model has {model.n_objects} objects x {model.n_poses} poses")
+    if args.start is not None and (len(args.start) != len(positions)
+                                   or any(v >= n for v, n in zip(args.start, positions))):
+        raise UsageError(f"--start {fmt_cfg(args.start)} does not fit the model's positions {positions}")
+    if args.occluders and args.rig != "synthetic":
+        raise UsageError("--occluders works with --rig synthetic only")
+    k_plan, k_init, k_run = jr.split(key(args.seed), 3)
+    rig = _make_rig(args, model)
+    try:
+        if tuple(rig.positions) != positions:
+            raise CLIError(f"rig {args.rig} has positions {tuple(rig.positions)} but model {args.model} has "
+                           f"{positions} (for the synthetic rig use the --cameras/--stride the database "
+                           "was rendered with)")
+        planner = make_planner(args.planner, model, key=k_plan, samples=args.samples,
+                               min_per_stratum=args.min_per_stratum)
+        rec = Recognizer(model, planner, p_threshold=args.threshold, max_steps=args.max_steps)
+        state = rec.init(key=None if args.start is not None else k_init, config=args.start)
+        probs, rows, dec = _trial(args, model, rig, rec, state, k_run)
+    finally:
+        close = getattr(rig, "close", None)
+        if close is not None:
+            close()
+    print(f"object {args.object}, pose {args.pose} on rig {args.rig}; planner {args.planner}, "
+          f"P_th {args.threshold}")
+    print_table(["step", "config", "object", "pose", "P", "occluded", "next"], rows)
+    ok = int(dec.object) == args.object and int(dec.pose) == args.pose
+    print(f"result: object {int(dec.object)}, pose {int(dec.pose)} with P = {float(dec.probability):.3f} after "
+          f"{len(rows)} step(s) -- {'correct' if ok else 'WRONG'}")
+    if args.plot:
+        for p in plots.belief_lines(np.stack(probs), args.plot, true_object=args.object,
+                                    title=f"Belief per step: object {args.object + 1} (index {args.object}), "
+                                          f"pose {args.pose}, {args.planner.upper()}"):
+            print(f"wrote {p}")
+    return 0
