@@ -10,6 +10,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import cv2
+import numpy as np
 import pytest
 from PIL import Image
 
@@ -149,8 +151,6 @@ def test_train_bad_database_and_calibrate(tiny, tmp_path):
     assert not (tmp_path / "c.npz").exists()
 
     # the same database with its test rows relabelled 'calib': calibrated, saved, reported
-    import numpy as np
-
     from jaxrecog.database import ImageDatabase, load_database, write_database
     from jaxrecog.modelfile import load_model
 
@@ -446,3 +446,114 @@ def test_bad_toml_files_are_usage_errors_naming_the_file(tmp_path):
     assert p.returncode == 2 and "settings file" in p.stderr and "broken.toml" in p.stderr
     p = run("--config", tmp_path / "absent.toml", "inspect", tmp_path)
     assert p.returncode == 2 and "absent.toml" in p.stderr and "not found" in p.stderr
+
+
+# -- images the belief cannot use: one line and exit 1, or a warning with --skip-invalid ----
+
+BAD_IMAGES = {  # kind -> (image of the tiny model's 30x40, written as; words of the reason)
+    "black": (lambda: np.zeros((30, 40), np.uint8), "png", "all-black"),
+    "constant": (lambda: np.full((30, 40), 7, np.uint8), "png", "constant image (every pixel 7)"),
+    "nan": (lambda: np.where(np.eye(30, 40, dtype=bool), np.nan, 50.0).astype(np.float32), "tiff",
+            "30 pixel(s) are NaN"),
+    "wrong size": (lambda: np.random.default_rng(0).integers(1, 255, (20, 30), dtype=np.uint8), "png",
+                   "is 20x30, the model expects 30x40"),
+}
+
+
+def _test_image(tiny, camera, position, obj=1, pose=0):
+    rows = [l.split(",") for l in (tiny["db"] / "manifest.csv").read_text().splitlines()[1:]]
+    paths = {(int(r[1]), int(r[2]), int(r[3]), int(r[4]), r[5]): r[0] for r in rows}
+    return tiny["db"] / paths[(camera, position, obj, pose, "test")]
+
+
+def _bad_image(kind, folder) -> Path:
+    make, ext, _ = BAD_IMAGES[kind]
+    path = Path(folder) / f"{kind.replace(' ', '_')}.{ext}"
+    assert cv2.imwrite(str(path), make())
+    return path
+
+
+@pytest.mark.parametrize("kind", list(BAD_IMAGES))
+def test_plan_rejects_an_image_the_belief_cannot_use(tiny, tmp_path, kind):
+    """`plan --images black.png ...` used to exit 0 and print the uniform prior as if the image had counted."""
+    bad = _bad_image(kind, tmp_path)
+    p = run("plan", tiny["model"], "--samples", 64, "--images", _test_image(tiny, 0, 1), bad, "--at", "1,0")
+    assert p.returncode == 1, p.stdout
+    line = one_error_line(p, str(bad), BAD_IMAGES[kind][2], "--skip-invalid")
+    assert "camera" not in line and p.stdout == ""
+
+
+@pytest.mark.slow
+def test_plan_skip_invalid_warns_and_scores_the_unchanged_belief(tiny, tmp_path):
+    bad = _bad_image("black", tmp_path)
+    good = _test_image(tiny, 0, 1)
+    p = run("plan", tiny["model"], "--samples", 64, "--images", good, bad, "--at", "1,0", "--skip-invalid")
+    assert p.returncode == 0, p.stderr
+    warnings = [l for l in p.stderr.splitlines() if l.startswith("jaxrecog: warning:")]
+    assert len(warnings) == 1 and str(bad) in warnings[0] and "all-black" in warnings[0]
+    # 2 objects x 2 poses: the belief is still the uniform prior
+    assert "after the images at 1,0 (not used): best (object, pose) = (0, 0), P = 0.250" in p.stdout
+    p = run("plan", tiny["model"], "--samples", 64, "--images", good, _test_image(tiny, 1, 0), "--at", "1,0",
+            "--skip-invalid")
+    assert p.returncode == 0 and "warning" not in p.stderr and "(not used)" not in p.stdout
+    assert "best (object, pose) = (1, 0)" in p.stdout
+
+
+def _database_with(tiny, folder, kind) -> Path:
+    """The tiny database with camera 0's test images at position 0 replaced by
+    a bad image (for "wrong size": every image at 20x30)."""
+    from jaxrecog.database import ImageDatabase, load_database, write_database
+
+    db = load_database(tiny["db"])
+    images = np.asarray(db.images)
+    if kind == "wrong size":
+        images = np.stack([cv2.resize(im, (30, 20)) for im in images])
+    else:
+        hit = (np.asarray(db.camera) == 0) & (np.asarray(db.position) == 0) & (np.asarray(db.split) == "test")
+        images = images.copy()
+        images[hit] = BAD_IMAGES[kind][0]()
+    out = write_database(folder, ImageDatabase.from_arrays(images, db.camera, db.position, db.object, db.pose,
+                                                           db.split))
+    return out if out.is_dir() else out.parent
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("kind", ["black", "constant", "wrong size"])
+def test_recognize_rejects_a_capture_the_belief_cannot_use(tiny, tmp_path, kind):
+    db = _database_with(tiny, tmp_path / "db", kind)
+    p = run("recognize", tiny["model"], "--rig", f"dataset:{db}", "--object", 1, "--pose", 1, "--start", "0,0",
+            "--samples", 64)
+    assert p.returncode == 1, p.stdout
+    one_error_line(p, "image of camera 0 at position 0 (step 1)", BAD_IMAGES[kind][2], "--skip-invalid")
+    assert "result:" not in p.stdout
+
+
+@pytest.mark.slow
+def test_recognize_skip_invalid_goes_on_without_the_image_set(tiny, tmp_path):
+    db = _database_with(tiny, tmp_path / "db", "black")
+    p = run("recognize", tiny["model"], "--rig", f"dataset:{db}", "--object", 1, "--pose", 1, "--start", "0,0",
+            "--samples", 64, "--skip-invalid")
+    assert p.returncode == 0, p.stderr
+    warnings = [l for l in p.stderr.splitlines() if l.startswith("jaxrecog: warning:")]
+    assert warnings and all("camera 0 at position 0" in w and "all-black" in w for w in warnings)
+    steps = [l.split() for l in p.stdout.splitlines() if l.strip()[:1].isdigit()]
+    assert steps[0][1] == "0,0" and steps[0][4] == "0.250"  # step 1 left the uniform belief as it was
+    assert len(steps) >= 2 and "result: object" in p.stdout
+
+
+def test_recognize_rejects_a_nan_capture(tiny, monkeypatch, capsys):
+    """No CLI rig delivers NaN (they give 8-bit images), so a stub rig does: in process."""
+    from jaxrecog.cli import recognize
+    from jaxrecog.hardware import DatasetRig
+
+    class NaNRig(DatasetRig):
+        def capture(self):
+            return [np.where(np.eye(30, 40, dtype=bool), np.nan, im.astype(np.float32))
+                    for im in super().capture()]
+
+    monkeypatch.setattr(recognize, "_make_rig", lambda args, model: NaNRig.from_folder(tiny["db"]))
+    argv = ["recognize", str(tiny["model"]), "--samples", "16", "--start", "2,1", "--object", "1"]
+    assert cli.main(argv) == 1
+    err = capsys.readouterr().err
+    assert err.count("jaxrecog: error:") == 1 and "Traceback" not in err
+    assert "image of camera 0 at position 2 (step 1): 30 pixel(s) are NaN" in err
