@@ -84,6 +84,15 @@ def test_help_of_every_subcommand(capsys):
             assert a.help, (name, a.dest)
 
 
+def test_subcommands_are_the_public_modules_of_the_package():
+    """A new subcommand is one new module in jaxrecog/cli/: found, not listed;
+    --help keeps the workflow order (each module's ORDER)."""
+    modules = sorted(p.stem for p in Path(cli.__file__).parent.glob("[!_]*.py"))
+    assert sorted(cli.COMMANDS) == modules
+    assert list(cli.COMMANDS) == ["render", "train", "inspect", "plan", "recognize", "experiment", "bench", "demo"]
+    assert list(cli.subparsers(cli.build_parser())) == list(cli.COMMANDS)
+
+
 def test_missing_model_exit_1_one_line(tmp_path):
     p = run("inspect", tmp_path / "nope.npz")
     assert p.returncode == 1

@@ -105,3 +105,52 @@ def test_titles_wrap_at_commas_and_keep_short_phrases_whole():
     assert plots.wrap_title("short", 62) == "short"
     long = plots.wrap_title("a " * 50, 20).split("\n")  # one part longer than the width: spaces
     assert all(len(line) <= 20 for line in long)
+
+
+def _same_png(a, b) -> bool:
+    return np.array_equal(_png(a[0])[0], _png(b[0])[0])
+
+
+def test_case_bars_mark_the_thesis_where_it_has_numbers(tmp_path):
+    """The thesis lookup of a report (variants map to the thesis's planner; a
+    single-camera case has the MI average only; a strided table has none), and
+    its bars are exactly campaign_bars with those markers and the case's title."""
+    import math
+
+    from jaxrecog.experiments import CASES, CaseReport, Settings
+
+    rows = {"mi": _rows([100.0] * 8, [2.0] * 8), "crlb-det": _rows([90.0] * 8, [3.0] * 8),
+            "random": _rows([50.0] * 8, [6.0] * 8)}
+    full = CaseReport(CASES["i"], Settings(), rows, {}, {})
+    thesis = {"mi": TABLES[("i", "mi")], "crlb-det": TABLES[("i", "crlb")], "random": TABLES[("i", "random")]}
+    assert {p: full.thesis_table(p) for p in rows} == thesis
+    single = CaseReport(CASES["single-occluded"], Settings(), rows, {}, {})
+    t = single.thesis_table("mi")
+    assert t.average == (66.6, 0.74, 5.8) and len(t.rate) == 8 and all(math.isnan(x) for x in t.rate)
+    assert single.reference("mi") == [None] * 8 + [(66.6, 0.74, 5.8)]
+    assert single.thesis_table("crlb-det") is None and single.thesis_table("random") is None
+    strided = CaseReport(CASES["i"], Settings(stride=8), rows, {}, {})
+    assert all(strided.thesis_table(p) is None for p in rows)
+
+    assert _same_png(plots.case_bars(full, tmp_path / "full"),
+                     plots.campaign_bars(rows, tmp_path / "ref_full", thesis=thesis,
+                                         title="Case (i): 100 trials per object, markers: thesis"))
+    assert _same_png(plots.case_bars(strided, tmp_path / "s8", title="Database x"),
+                     plots.campaign_bars(rows, tmp_path / "ref_s8", thesis={},
+                                         title="Database x, every 8th position: 100 trials per object"))
+    assert not _same_png(plots.case_bars(full, tmp_path / "full"), plots.case_bars(strided, tmp_path / "s8b"))
+
+
+def test_belief_trace_draws_table_7_8_beside_the_trial_it_traces(tmp_path):
+    import types
+
+    probs = np.asarray(TABLE_7_8[1:])
+    res = types.SimpleNamespace(object=5, pose=2, object_probs=probs)
+    title = "Belief per step: object 6 (index 5), pose 2, MI, case iii (occluded)"
+    with_ref = plots.belief_trace(res, tmp_path / "t", planner="mi", case="iii", occluded=True, thesis_rig=True)
+    assert _same_png(with_ref, plots.belief_lines(np.asarray(TABLE_7_8), tmp_path / "r", true_object=5,
+                                                  reference=np.asarray(TABLE_7_8), title=title))
+    # on a strided table the thesis's trace does not apply
+    plain = plots.belief_trace(res, tmp_path / "s", planner="mi", case="iii", occluded=True, thesis_rig=False)
+    assert _same_png(plain, plots.belief_lines(np.asarray(TABLE_7_8), tmp_path / "p", true_object=5, title=title))
+    assert not _same_png(with_ref, plain)
