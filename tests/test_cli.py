@@ -553,12 +553,12 @@ def test_recognize_skip_invalid_goes_on_without_the_image_set(tiny, tmp_path):
 def test_recognize_rejects_a_nan_capture(tiny, monkeypatch, capsys):
     """No CLI rig delivers NaN (they give 8-bit images), so a stub rig does: in process."""
     from jaxrecog.cli import recognize
-    from jaxrecog.hardware import DatasetRig
+    from jaxrecog.hardware import Capture, DatasetRig
 
     class NaNRig(DatasetRig):
         def capture(self):
-            return [np.where(np.eye(30, 40, dtype=bool), np.nan, im.astype(np.float32))
-                    for im in super().capture()]
+            images = super().capture().images.astype(np.float32)
+            return Capture(np.where(np.eye(30, 40, dtype=bool), np.nan, images), ())
 
     monkeypatch.setattr(recognize, "_make_rig", lambda args, model: NaNRig.from_folder(tiny["db"]))
     argv = ["recognize", str(tiny["model"]), "--samples", "16", "--start", "2,1", "--object", "1"]
