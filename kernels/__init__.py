@@ -1,5 +1,5 @@
 """Pure JAX estimation kernels (likelihood, belief, mutual information, Fisher /
-Cramér-Rao), each with a plain NumPy reference in :mod:`jaxrecog.kernels.reference`.
+Cramér-Rao), each with a plain NumPy reference in ``tests/oracles.py``.
 
 Nothing here imports from ``jaxrecog`` proper or ``jaxrecog.hardware``.
 Per-camera values come as tuples, one entry per camera: likelihoods

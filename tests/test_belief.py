@@ -5,13 +5,13 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from kernel_models import random_belief
-
-from jaxrecog import kernels as K
-from jaxrecog.kernels.reference import (
+from oracles import (
     joint_transition_ref,
     joint_uniform_ref,
     joint_update_ref,
 )
+
+from jaxrecog import kernels as K
 
 
 def _to_jax(b):

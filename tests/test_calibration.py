@@ -201,7 +201,7 @@ def test_bad_calibration_inputs(rng):
 
 @pytest.fixture(scope="module")
 def trained():
-    from jaxrecog.testing import make_database
+    from builders import make_database
     from jaxrecog.train import train_model
 
     db = make_database(positions=(2, 1), n_objects=2, n_poses=2, image_shape=(16, 20), n_test=3)

@@ -8,6 +8,8 @@ import collections
 
 import jax.random as jr
 import pytest
+from builders import moving_database
+from compiles import count_compiles
 
 from jaxrecog import train_model
 from jaxrecog.campaign import plan_trials, run_campaign
@@ -15,7 +17,6 @@ from jaxrecog.hardware import DatasetRig
 from jaxrecog.planners import RandomPlanner, make_planner
 from jaxrecog.recognizer import Recognizer
 from jaxrecog.results import TrialStore
-from jaxrecog.testing import count_compiles, moving_database
 
 
 @pytest.fixture(scope="module")

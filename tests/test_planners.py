@@ -7,11 +7,11 @@ from types import SimpleNamespace
 import jax.numpy as jnp
 import jax.random as jr
 import pytest
+from builders import moving_database
 
 from jaxrecog import train_model
 from jaxrecog.experiments import Settings
 from jaxrecog.planners import DEFAULT_MIN_PER_STRATUM, PLANNERS, make_planner, planner_names, planner_spec, planners_markdown, samples_per_stratum
-from jaxrecog.testing import moving_database
 
 
 def _sizes(objects=8, poses=4, levels=6, cameras=2):

@@ -12,6 +12,7 @@ import jax.numpy as jnp
 import jax.random as jr
 import numpy as np
 import pytest
+from builders import moving_database as _moving_database
 
 from jaxrecog import ImageDatabase, train_model
 from jaxrecog.campaign import plan_trials, run_campaign
@@ -20,7 +21,6 @@ from jaxrecog.hardware import DatasetRig
 from jaxrecog.planners import FixedPlanner, MIPlanner, RandomPlanner, make_planner
 from jaxrecog.recognizer import Recognizer, restrict_cameras
 from jaxrecog.sensor_model import CameraModel, SensorModel
-from jaxrecog.testing import moving_database as _moving_database
 
 
 def random_model(positions=(4, 3), n_objects=3, n_poses=2, levels=(0.0, 0.1), k=3, hw=(6, 8), seed=0):
