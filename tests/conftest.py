@@ -1,5 +1,6 @@
-"""Strict test settings (STYLE.md §11): rank promotion raises, a ``getkey``
-fixture, and an ``x64`` fixture for numerics tests that need double precision."""
+"""Strict test settings (STYLE.md §11): rank promotion raises, strict dtype
+promotion for the numerics modules, a ``getkey`` fixture, and an ``x64``
+fixture for numerics tests that need double precision."""
 
 from __future__ import annotations
 
@@ -12,6 +13,15 @@ import pytest
 
 jax.config.update("jax_numpy_rank_promotion", "raise")
 jax.config.update("jax_numpy_dtype_promotion", "standard")
+
+
+@pytest.fixture
+def strict_dtype_promotion():
+    """Run the test under strict dtype promotion: mixing float32 and float64
+    (or int and float arrays) without an explicit cast raises.  The numerics
+    modules use it for every test (``pytestmark``)."""
+    with jax.numpy_dtype_promotion("strict"):
+        yield
 
 
 @pytest.fixture

@@ -13,6 +13,8 @@ from oracles import (
 
 from jaxrecog import kernels as K
 
+pytestmark = pytest.mark.usefixtures("strict_dtype_promotion")  # numerics: no implicit promotion
+
 
 def _to_jax(b):
     return K.Belief(jnp.asarray(b.log_pc), tuple(jnp.asarray(x) for x in b.log_pk))

@@ -25,6 +25,8 @@ from jaxrecog.modelfile import (
 from jaxrecog.results import TrialResult
 from jaxrecog.sensor_model import CameraModel, SensorModel
 
+pytestmark = pytest.mark.usefixtures("strict_dtype_promotion")  # numerics: no implicit promotion
+
 MAX_ITER = 100
 
 

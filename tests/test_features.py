@@ -12,6 +12,8 @@ from builders import make_database
 from jaxrecog.features import ImageError, project, project_batch, project_camera
 from jaxrecog.train import train_model
 
+pytestmark = pytest.mark.usefixtures("strict_dtype_promotion")  # numerics: no implicit promotion
+
 
 @pytest.fixture(scope="module")
 def setup():

@@ -10,6 +10,8 @@ from scipy.special import logsumexp
 
 from jaxrecog import kernels as K
 
+pytestmark = pytest.mark.usefixtures("strict_dtype_promotion")  # numerics: no implicit promotion
+
 MI_TABLES, _, FISHER = jitted()
 
 

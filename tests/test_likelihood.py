@@ -9,6 +9,8 @@ from oracles import log_likelihood_full_ref, log_likelihood_ref
 
 from jaxrecog.kernels import camera_log_likelihoods, log_likelihood, log_likelihood_full
 
+pytestmark = pytest.mark.usefixtures("strict_dtype_promotion")  # numerics: no implicit promotion
+
 
 def test_diagonal_matches_reference(rng, x64):
     mus, vars = random_model(rng, n_classes=5, levels=(3,), positions=(2,), dims=(4,))

@@ -10,6 +10,8 @@ from oracles import log_likelihood_full_ref, mutual_information_quadrature, mutu
 
 from jaxrecog import kernels as K
 
+pytestmark = pytest.mark.usefixtures("strict_dtype_promotion")  # numerics: no implicit promotion
+
 MI_TABLES, MI, _ = jitted()
 
 

@@ -10,6 +10,8 @@ from kernel_models import random_belief, random_model
 
 from jaxrecog import kernels as K
 
+pytestmark = pytest.mark.usefixtures("strict_dtype_promotion")  # numerics: no implicit promotion
+
 
 def _j(x, dtype=None):
     return tuple(jnp.asarray(a, dtype) for a in x)
