@@ -10,11 +10,11 @@ import jax.numpy as jnp
 import jax.random as jr
 import numpy as np
 import pytest
+from builders import moving_database
 
 from jaxrecog import Recognizer, TrialSpec, make_planner, plan_trials, run_trials, train_model
 from jaxrecog.hardware import Capture, Rig, RigError, config_from_index, index_from_config
 from jaxrecog.planners import RandomPlanner
-from jaxrecog.testing import moving_database
 
 import jaxrecog.kernels as K
 
