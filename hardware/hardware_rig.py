@@ -43,7 +43,7 @@ import glob
 import logging
 import math
 import time
-from typing import Any, Callable, Protocol, Sequence
+from typing import Any, Callable, Protocol, Sequence, runtime_checkable
 
 import numpy as np
 
@@ -86,6 +86,7 @@ class _UnitLost(Exception):
         self.camera, self.error = camera, error
 
 
+@runtime_checkable  # a parameter's annotation: the test suite's type checker isinstance-checks it
 class Renderer(Protocol):
     def reset(self, object: int, pose: int, occluders: Any = None) -> None: ...
 

@@ -149,7 +149,7 @@ class Recognizer(eqx.Module):
     def n_configs(self) -> int:
         return int(np.prod(self.positions))
 
-    def init(self, key: PRNGKeyArray | None = None, config: Sequence[int] | None = None) -> RecognizerState:
+    def init(self, key: PRNGKeyArray | None = None, config: Sequence[int] | Int[ArrayLike, " n"] | None = None) -> RecognizerState:
         """Uniform belief (section 3.3) at ``config`` (default: a random
         configuration drawn from ``key``, or all zeros without a key)."""
         positions = self.positions
