@@ -223,12 +223,11 @@ def test_fixed_planner_never_moves_and_nan_scores_do_not_pick_visited(getkey):
         seen.add(int(dec.next_index))
 
 
-def test_resume_reruns_a_stored_trial_whose_scene_changed(tmp_path):
+def test_resume_reruns_a_stored_trial_whose_scene_changed(tmp_path, moving_model):
     from jaxrecog.campaign import TrialSpec
     from jaxrecog.results import TrialResult, TrialStore
 
-    db = _moving_database()
-    model = train_model(db, kind="DB1", n_components=2, samples_per_image=10)
+    db, model = moving_model
     rig = DatasetRig(db, split="test")
     rec = Recognizer(model, RandomPlanner(3))
     store = TrialStore(tmp_path / "t.jsonl")
@@ -240,11 +239,10 @@ def test_resume_reruns_a_stored_trial_whose_scene_changed(tmp_path):
         run_campaign(rec, rig, [spec, spec], key=jr.PRNGKey(0), batch=1)
 
 
-def test_trials_are_reproducible_whatever_the_batch(tmp_path):
+def test_trials_are_reproducible_whatever_the_batch(tmp_path, moving_model):
     """A trial's images depend on (seed, trial, step) only, not on which
     trials ran before or beside it."""
-    db = _moving_database()
-    model = train_model(db, kind="DB1", n_components=2, samples_per_image=10)
+    db, model = moving_model
     # two different test images per view, so the rig's random choice matters
     rng = np.random.default_rng(3)
     test = np.flatnonzero(db.split == "test")
