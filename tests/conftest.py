@@ -6,12 +6,14 @@ database of the strided thesis table."""
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import shutil
 from pathlib import Path
 
 import jax
 import jax.random as jr
+import jaxtyping
 import numpy as np
 import pytest
 
@@ -26,6 +28,24 @@ def strict_dtype_promotion():
     modules use it for every test (``pytestmark``)."""
     with jax.numpy_dtype_promotion("strict"):
         yield
+
+
+@pytest.fixture
+def unchecked():
+    """``with unchecked(): ...`` turns the run-time type checker off inside the
+    block: for the tests of the product's own guards against wrongly typed
+    input (what a caller without the checker, e.g. a settings file, gets)."""
+
+    @contextlib.contextmanager
+    def block():
+        previous = jaxtyping.config.jaxtyping_disable
+        jaxtyping.config.update("jaxtyping_disable", True)
+        try:
+            yield
+        finally:
+            jaxtyping.config.update("jaxtyping_disable", previous)
+
+    return block
 
 
 @pytest.fixture
