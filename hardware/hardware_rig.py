@@ -97,7 +97,7 @@ def _wrap_deg(a: float) -> float:
     return (a + 180.0) % 360.0 - 180.0
 
 
-def ptu_angles(eye: Sequence[float], target: Sequence[float], mount) -> tuple[float, float]:
+def ptu_angles(eye: Sequence[float] | np.ndarray, target: Sequence[float] | np.ndarray, mount) -> tuple[float, float]:
     """PTU (pan, tilt) in degrees that point a camera at ``eye`` towards ``target``.
 
     ``pan = pan_sign * wrap(az - pan_zero)``, ``tilt = el - tilt_zero`` with
