@@ -20,6 +20,7 @@ import json
 import math
 import os
 import platform
+import sys
 import time
 from pathlib import Path
 
@@ -28,7 +29,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxrecog import kernels as K
-from jaxrecog.kernels import reference as R
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))  # test support (oracles, builders, compile counter) lives in tests/
+import oracles as R  # noqa: E402
 
 
 def _timeit(fn, *args, repeat=20):
@@ -174,7 +177,7 @@ def numpy_belief_update(belief, lls, kernel_ms, repeat=5):
     got = np.asarray(K.log_joint(step(belief, lls)), float)
     ref_ms = 1e3 * float(np.median(times))
     return {
-        "method": "kernels.reference.joint_update_ref on the full joint (C=32, L=6, 2 cameras: 1152 states), "
+        "method": "tests/oracles.joint_update_ref on the full joint (C=32, L=6, 2 cameras: 1152 states), "
                   f"median of {repeat}",
         "states": int(lj.size),
         "reference_ms": ref_ms,

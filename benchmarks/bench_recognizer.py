@@ -21,6 +21,7 @@ import dataclasses
 import json
 import os
 import platform
+import sys
 import time
 from pathlib import Path
 
@@ -31,8 +32,10 @@ import numpy as np
 
 from jaxrecog.campaign import batched_step, run_campaign
 from jaxrecog.planners import samples_per_stratum
-from jaxrecog.testing import count_compiles
 from jaxrecog.experiments import CASES, Settings, case_model, make_recognizer, case_trials, make_rig, prepare, rig_pool
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))  # test support (oracles, builders, compile counter) lives in tests/
+from compiles import count_compiles  # noqa: E402
 
 
 def step_latency(model, planner: str, settings: Settings, images, repeat: int) -> dict:

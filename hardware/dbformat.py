@@ -184,11 +184,11 @@ class ImageDatabase:
     def from_arrays(
         cls,
         images: np.ndarray,
-        camera: Sequence[int],
-        position: Sequence[int],
-        object: Sequence[int],
-        pose: Sequence[int],
-        split: Sequence[str],
+        camera: Sequence[int] | np.ndarray,
+        position: Sequence[int] | np.ndarray,
+        object: Sequence[int] | np.ndarray,
+        pose: Sequence[int] | np.ndarray,
+        split: Sequence[str] | np.ndarray,
         paths: Sequence[str] | None = None,
         root: Path | None = None,
     ) -> "ImageDatabase":

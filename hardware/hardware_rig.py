@@ -43,7 +43,7 @@ import glob
 import logging
 import math
 import time
-from typing import Any, Callable, Protocol, Sequence
+from typing import Any, Callable, Protocol, Sequence, runtime_checkable
 
 import numpy as np
 
@@ -86,6 +86,7 @@ class _UnitLost(Exception):
         self.camera, self.error = camera, error
 
 
+@runtime_checkable  # a parameter's annotation: the test suite's type checker isinstance-checks it
 class Renderer(Protocol):
     def reset(self, object: int, pose: int, occluders: Any = None) -> None: ...
 
@@ -96,7 +97,7 @@ def _wrap_deg(a: float) -> float:
     return (a + 180.0) % 360.0 - 180.0
 
 
-def ptu_angles(eye: Sequence[float], target: Sequence[float], mount) -> tuple[float, float]:
+def ptu_angles(eye: Sequence[float] | np.ndarray, target: Sequence[float] | np.ndarray, mount) -> tuple[float, float]:
     """PTU (pan, tilt) in degrees that point a camera at ``eye`` towards ``target``.
 
     ``pan = pan_sign * wrap(az - pan_zero)``, ``tilt = el - tilt_zero`` with

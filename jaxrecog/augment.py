@@ -276,7 +276,7 @@ class ShiftWindows:
         self.view = np.lib.stride_tricks.sliding_window_view(self.padded, (H, W), axis=(1, 2))
 
 
-def apply_geometry(images: np.ndarray, plan: SamplePlan, bank: OccluderBank, level: int,
+def apply_geometry(images: np.ndarray | ShiftWindows, plan: SamplePlan, bank: OccluderBank, level: int,
                    max_shift: int, *, return_masks: bool = False):
     """``m ⊙ S_d x`` for every sample of ``plan``: shift then occlude, ``uint8 [B, H, W]``.
 

@@ -49,7 +49,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
-from jaxtyping import Array, Bool, Float, Int
+from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from . import kernels as K
 from .database import ImageDatabase, load_database
@@ -257,8 +257,8 @@ def _as_features(model: SensorModel, calib, split: str) -> CalibrationFeatures:
 # ---------------------------------------------------------------- math
 
 
-def mahalanobis_terms(mu: Float[Array, "C L K"], var: Float[Array, "C L K"],
-                      chol: Float[Array, "C L K K"] | None, g: Float[Array, "N K"]
+def mahalanobis_terms(mu: Float[ArrayLike, "C L K"], var: Float[ArrayLike, "C L K"],
+                      chol: Float[ArrayLike, "C L K K"] | None, g: Float[ArrayLike, "N K"]
                       ) -> tuple[Float[Array, "N C L"], Float[Array, "C L"]]:
     """``q[n, c, k] = (g_n - μ)ᵀ Σ⁻¹ (g_n - μ)`` and ``log|2π Σ|[c, k]`` of one
     position of a Gaussian (diagonal ``var`` or, given ``chol``, full

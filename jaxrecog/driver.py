@@ -41,7 +41,7 @@ import jax
 import jax.numpy as jnp
 import jax.random as jr
 import numpy as np
-from jaxtyping import Array, Bool, Int, PRNGKeyArray, Shaped
+from jaxtyping import ArrayLike, Bool, Int, PRNGKeyArray, Shaped
 
 from .hardware.rig import Capture, Rig
 from .recognizer import Decision, Recognizer, RecognizerState
@@ -124,8 +124,8 @@ def batched_step(recognizer: Recognizer, *, vectorize: bool = False, trace: bool
     """
     vectorize, trace = bool(vectorize), bool(trace)
 
-    def step(states, fresh: Bool[Array, " B"], configs: Int[Array, "B n"], images: Shaped[Array, "B n H W"],
-             key: PRNGKeyArray, trials: Int[Array, " B"], steps: Int[Array, " B"]):
+    def step(states, fresh: Bool[ArrayLike, " B"], configs: Int[ArrayLike, "B n"], images: Shaped[ArrayLike, "B n H W"],
+             key: PRNGKeyArray, trials: Int[ArrayLike, " B"], steps: Int[ArrayLike, " B"]):
         return _batched_step(recognizer, states, fresh, configs, images, key, trials, steps, vectorize, trace)
 
     return step

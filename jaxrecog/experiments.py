@@ -118,7 +118,7 @@ class Settings:
             The database and model files of each stride are cached apart.
     """
 
-    workdir: Path = Path("out/experiments")
+    workdir: Path | str = Path("out/experiments")  # a str becomes a Path (__post_init__)
     trials_per_object: int = 100
     seed: int = 0
     samples: int = 1024

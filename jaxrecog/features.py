@@ -24,7 +24,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Bool, Float, Int, Shaped
+from jaxtyping import Array, ArrayLike, Bool, Float, Int, Real
 
 from .eigenspace import unit_energy
 from .sensor_model import SensorModel, CameraModel
@@ -104,8 +104,8 @@ def project(model: SensorModel, camera: int, position: int, image, *, name: str 
                         jnp.asarray(xhat, dtype=cam.basis.dtype))
 
 
-def project_batch(mean_image: Float[Array, " D"], basis: Float[Array, "D K"],
-                  images: Float[Array, "B D"]) -> tuple[Float[Array, "B K"], Bool[Array, " B"]]:
+def project_batch(mean_image: Float[ArrayLike, " D"], basis: Float[ArrayLike, "D K"],
+                  images: Real[ArrayLike, "B D"]) -> tuple[Float[Array, "B K"], Bool[Array, " B"]]:
     """Pure batched projection for one position: ``(g [B, K], valid [B])``.
 
     Rows that are non-finite, negative somewhere, all zero or constant are
@@ -136,8 +136,8 @@ def _unit_energy(y: Float[Array, "*B D"]) -> tuple[Float[Array, "*B D"], Bool[Ar
     return jnp.where(valid[..., None], scaled / safe[..., None], 0.0), valid
 
 
-def project_camera(camera: CameraModel, positions: Int[Array, " B"],
-                   images: Float[Array, "B H W"]) -> tuple[Float[Array, "B K"], Bool[Array, " B"]]:
+def project_camera(camera: CameraModel, positions: Int[ArrayLike, " B"],
+                   images: Real[ArrayLike, "B H W"]) -> tuple[Float[Array, "B K"], Bool[Array, " B"]]:
     """Pure batched projection of images of one camera at per-image positions
     (gathers each position's mean and basis): ``(g [B, K], valid [B])``."""
     B = images.shape[0]

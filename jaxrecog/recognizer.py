@@ -27,7 +27,7 @@ import jax
 import jax.numpy as jnp
 import jax.random as jr
 import numpy as np
-from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray, Shaped
+from jaxtyping import Array, ArrayLike, Bool, Float, Int, PRNGKeyArray, Real
 
 from . import kernels as K
 from .features import project_at
@@ -104,8 +104,8 @@ def restrict_cameras(model, cameras: Sequence[int]):
     return eqx.tree_at(lambda m: m.cameras, model, cams)
 
 
-def image_features(model, config: Int[Array, " n"], images: Shaped[Array, "n H W"]
-                   ) -> tuple[tuple[Float[Array, " K_i"], ...], Bool[Array, ""]]:
+def image_features(model, config: Int[ArrayLike, " n"], images: Real[ArrayLike, "n H W"]
+                   ) -> tuple[tuple[Float[Array, " _K"], ...], Bool[Array, ""]]:
     """Eigenspace features per camera (eq. 4.1-4.11) and one validity flag.
 
     Returns ``(gs, ok)``: one ``[K_i]`` vector per camera (each camera has its
@@ -149,7 +149,7 @@ class Recognizer(eqx.Module):
     def n_configs(self) -> int:
         return int(np.prod(self.positions))
 
-    def init(self, key: PRNGKeyArray | None = None, config: Sequence[int] | None = None) -> RecognizerState:
+    def init(self, key: PRNGKeyArray | None = None, config: Sequence[int] | Int[ArrayLike, " n"] | None = None) -> RecognizerState:
         """Uniform belief (section 3.3) at ``config`` (default: a random
         configuration drawn from ``key``, or all zeros without a key)."""
         positions = self.positions
@@ -167,7 +167,7 @@ class Recognizer(eqx.Module):
         return RecognizerState(prior, config, jnp.zeros((), jnp.int32), jnp.zeros((self.n_configs,), bool))
 
     @eqx.filter_jit
-    def step(self, state: RecognizerState, images: Shaped[Array, "n H W"], key: PRNGKeyArray, *,
+    def step(self, state: RecognizerState, images: Real[ArrayLike, "n H W"], key: PRNGKeyArray, *,
              trace: bool = False) -> tuple[RecognizerState, Decision]:
         """One image set in, the belief updated, the next configuration out.
 

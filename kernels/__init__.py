@@ -1,5 +1,5 @@
 """Pure JAX estimation kernels (likelihood, belief, mutual information, Fisher /
-Cramér-Rao), each with a plain NumPy reference in :mod:`jaxrecog.kernels.reference`.
+Cramér-Rao), each with a plain NumPy reference in ``tests/oracles.py``.
 
 Nothing here imports from ``jaxrecog`` proper or ``jaxrecog.hardware``.
 Per-camera values come as tuples, one entry per camera: likelihoods
@@ -7,6 +7,9 @@ Per-camera values come as tuples, one entry per camera: likelihoods
 ``[C, L_i]``, sample tables; configurations are the row-major product of the
 cameras' positions.  Likelihood families register in :data:`LIKELIHOODS`
 (importing a family's module registers it: one line below per built-in kind).
+In the jaxtyping annotations a per-camera size is written with a leading ``_``
+(``"_V C _L _K"``): it may differ from camera to camera, so it is not matched
+across the tuple, while shared sizes such as ``C`` are.
 """
 
 from .belief import (

@@ -20,7 +20,7 @@ import math
 from typing import NamedTuple
 
 import jax.numpy as jnp
-from jaxtyping import Array, Bool, Float
+from jaxtyping import Array, ArrayLike, Bool, Float
 
 from ._grid import lse as _lse
 
@@ -35,8 +35,8 @@ class Belief(NamedTuple):
             form ``[V_i, C, L_i]``, see :func:`transition_per_position`.)
     """
 
-    log_pc: Float[Array, " C"]
-    log_pk: tuple[Float[Array, "C L_i"], ...]
+    log_pc: Float[ArrayLike, " C"]
+    log_pk: tuple[Float[ArrayLike, "C _L"], ...]
 
 
 class UpdateInfo(NamedTuple):
@@ -91,7 +91,7 @@ def _check_logliks(belief: Belief, logliks) -> None:
 
 
 def update_with_info(
-    belief: Belief, logliks: tuple[Float[Array, "C L_i"], ...], valid: Bool[Array, ""] | bool = True
+    belief: Belief, logliks: tuple[Float[ArrayLike, "C _L"], ...], valid: Bool[ArrayLike, ""] | bool = True
 ) -> tuple[Belief, UpdateInfo]:
     """Bayes rule in log space (eq. 3.1) on the factorised belief, with diagnostics.
 
@@ -140,7 +140,7 @@ def update_with_info(
     return Belief(new_pc, new_pk), UpdateInfo(ok, log_ev)
 
 
-def update(belief: Belief, logliks: tuple[Float[Array, "C L_i"], ...]) -> Belief:
+def update(belief: Belief, logliks: tuple[Float[ArrayLike, "C _L"], ...]) -> Belief:
     """Bayes rule in log space (eq. 3.1); see :func:`update_with_info`.
 
     Degenerate input (NaN/+inf log-likelihoods, or zero evidence) leaves the
@@ -160,9 +160,9 @@ def _sticky(lp, rho, stay):
 
 def transition(
     belief: Belief,
-    moved: Bool[Array, " n"] | tuple[bool, ...],
+    moved: Bool[ArrayLike, " n"] | tuple[bool, ...],
     kind: str = "uniform",
-    rho: float | Float[Array, ""] = 0.9,
+    rho: float | Float[ArrayLike, ""] = 0.9,
 ) -> Belief:
     """Predict the next prior with a per-camera level transition (eq. 3.7-3.9).
 
@@ -201,10 +201,10 @@ def transition(
 
 def transition_per_position(
     belief: Belief,
-    current: tuple[int, ...] | Array,
+    current: tuple[int, ...] | ArrayLike,
     positions: tuple[int, ...],
     kind: str = "uniform",
-    rho: float | Float[Array, ""] = 0.9,
+    rho: float | Float[ArrayLike, ""] = 0.9,
 ) -> Belief:
     """The predicted prior for every candidate position of every camera.
 

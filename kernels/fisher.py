@@ -42,7 +42,7 @@ from typing import NamedTuple
 import jax.numpy as jnp
 import jax.random as jr
 from jax.scipy.linalg import solve_triangular
-from jaxtyping import Array, Float, PRNGKeyArray
+from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray
 
 from ._grid import floor_log_probs, grid_mixture, lse, weights
 from .belief import Belief
@@ -59,7 +59,7 @@ class FisherDraws(NamedTuple):
 
     eps_obj: Float[Array, "C J"]
     eps_pose: Float[Array, "C J"]
-    eps_occ: tuple[Float[Array, "C L J"], ...]
+    eps_occ: tuple[Float[Array, "C _L J"], ...]
 
 
 def fisher_draws(key: PRNGKeyArray, tables: MITables) -> FisherDraws:
@@ -184,7 +184,7 @@ def fisher_information(
 
 
 def crlb_criterion(
-    fisher: Float[Array, "A D D"], kind: str = "trace", jitter: float = 1e-6
+    fisher: Float[ArrayLike, "A D D"], kind: str = "trace", jitter: float = 1e-6
 ) -> Float[Array, " A"]:
     """Scalar criterion on the bound J^{-1} (eq. 5.15, 5.25); smaller is better.
 

@@ -13,7 +13,7 @@ from typing import ClassVar
 
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
+from jaxtyping import Array, ArrayLike, Float
 
 from .likelihood import Likelihood, register_likelihood
 
@@ -28,7 +28,7 @@ def _lift(x, n: int):
 
 
 def gaussian_scaled_log_density(
-    q: Float[Array, "N C L"], logdet: Float[Array, "C L"], log_factor: Float[Array, " L"], k: int
+    q: Float[ArrayLike, "N C L"], logdet: Float[ArrayLike, "C L"], log_factor: Float[ArrayLike, " L"], k: int
 ) -> Float[Array, "N C L"]:
     """log N(g; mu, s Sigma) in K dimensions from ``q = (g - mu)^T Sigma^-1 (g - mu)``
     and ``log|2 pi Sigma|``, with ``theta = log s`` per level:
@@ -50,16 +50,16 @@ class DiagonalGaussian(Likelihood):
     field_shapes: ClassVar[dict[str, str]] = {"mu": "V C L K", "var": "V C L K"}
     second_moments: ClassVar[str] = "diag"
 
-    mu: Float[Array, "*V C L K"]
-    var: Float[Array, "*V C L K"]
+    mu: Float[ArrayLike, "*V C L K"]
+    var: Float[ArrayLike, "*V C L K"]
 
-    def log_density(self, g: Float[Array, "*B K"]) -> Float[Array, "*B C L"]:
+    def log_density(self, g: Float[ArrayLike, "*B K"]) -> Float[Array, "*B C L"]:
         """Eq. 4.22 with a diagonal Sigma: ``-1/2 sum_d [(g_d - mu_d)^2 / var_d + log(2 pi var_d)]``."""
         n = g.ndim - 1
         d = g[..., None, None, :] - _lift(self.mu, n)
         return -0.5 * jnp.sum(d * d / _lift(self.var, n) + _lift(jnp.log(self.var), n) + _LOG_2PI, axis=-1)
 
-    def sample(self, z: Float[Array, "C L J K"]) -> Float[Array, "C L J K"]:
+    def sample(self, z: Float[ArrayLike, "C L J K"]) -> Float[Array, "C L J K"]:
         """g = mu[c, k] + sqrt(var[c, k]) * z[c, k, j]."""
         return self.mu[:, :, None, :] + jnp.sqrt(self.var)[:, :, None, :] * z
 
@@ -72,7 +72,7 @@ class DiagonalGaussian(Likelihood):
     def variance(self) -> Float[Array, "C L K"]:
         return self.var
 
-    def scaled(self, factor: Float[Array, " L"]) -> "DiagonalGaussian":
+    def scaled(self, factor: Float[ArrayLike, " L"]) -> "DiagonalGaussian":
         """var[c, k] * factor[k]."""
         return DiagonalGaussian(self.mu, self.var * factor[None, :, None])
 
@@ -85,7 +85,7 @@ class DiagonalGaussian(Likelihood):
         d = m1 - m2
         return jnp.sum(0.125 * d * d / v + 0.5 * jnp.log(v) - 0.25 * (jnp.log(v1) + jnp.log(v2)), axis=-1)
 
-    def scaling_terms(self, g: Float[Array, "N K"]):
+    def scaling_terms(self, g: Float[ArrayLike, "N K"]):
         """``(q [N, C, L], log|2 pi Sigma| [C, L])``, Sigma = diag(var)."""
         k = self.mu.shape[-1]
         d = g[:, None, None, :] - self.mu[None]
@@ -105,7 +105,7 @@ class DiagonalGaussian(Likelihood):
 
 
 def log_likelihood(
-    g: Float[Array, " K"], mu: Float[Array, "C L K"], var: Float[Array, "C L K"]
+    g: Float[ArrayLike, " K"], mu: Float[ArrayLike, "C L K"], var: Float[ArrayLike, "C L K"]
 ) -> Float[Array, "C L"]:
     """:meth:`DiagonalGaussian.log_density` of one position's arrays (eq. 4.22)."""
     return DiagonalGaussian(mu, var).log_density(g)

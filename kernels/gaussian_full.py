@@ -16,7 +16,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from jax.scipy.linalg import solve_triangular
-from jaxtyping import Array, Float
+from jaxtyping import Array, ArrayLike, Float
 
 from .gaussian_diag import gaussian_scaled_log_density
 from .likelihood import Likelihood, register_likelihood
@@ -51,16 +51,16 @@ class FullGaussian(Likelihood):
     field_shapes: ClassVar[dict[str, str]] = {"mu": "V C L K", "var": "V C L K", "chol": "V C L K K"}
     second_moments: ClassVar[str] = "full"
 
-    mu: Float[Array, "*V C L K"]
-    var: Float[Array, "*V C L K"]
-    chol: Float[Array, "*V C L K K"]
+    mu: Float[ArrayLike, "*V C L K"]
+    var: Float[ArrayLike, "*V C L K"]
+    chol: Float[ArrayLike, "*V C L K K"]
 
     def __init__(self, mu, chol, var=None):
         self.mu = mu
         self.chol = chol
         self.var = jnp.sum(chol * chol, axis=-1) if var is None else var
 
-    def log_density(self, g: Float[Array, "*B K"]) -> Float[Array, "*B C L"]:
+    def log_density(self, g: Float[ArrayLike, "*B K"]) -> Float[Array, "*B C L"]:
         """Eq. 4.22: ``-1/2 |z|^2 - sum log diag S - K/2 log 2 pi`` with
         ``z = S^-1 (g - mu)`` by one batched triangular solve per component."""
         batch, k = g.shape[:-1], g.shape[-1]
@@ -70,7 +70,7 @@ class FullGaussian(Likelihood):
         ld = -0.5 * jnp.sum(w * w, -2) - _half_logdet(self.chol)[..., None] - 0.5 * k * _LOG_2PI  # [C, L, N]
         return jnp.moveaxis(ld.reshape(ld.shape[:2] + batch), (0, 1), (-2, -1))
 
-    def sample(self, z: Float[Array, "C L J K"]) -> Float[Array, "C L J K"]:
+    def sample(self, z: Float[ArrayLike, "C L J K"]) -> Float[Array, "C L J K"]:
         """g = mu[c, k] + S[c, k] z[c, k, j]."""
         return self.mu[:, :, None, :] + jnp.einsum("clkm,cljm->cljk", self.chol, z)
 
@@ -83,7 +83,7 @@ class FullGaussian(Likelihood):
     def variance(self) -> Float[Array, "C L K"]:
         return self.var
 
-    def scaled(self, factor: Float[Array, " L"]) -> "FullGaussian":
+    def scaled(self, factor: Float[ArrayLike, " L"]) -> "FullGaussian":
         """Sigma[c, k] * factor[k]: ``chol * sqrt(factor)``, ``var * factor``."""
         return FullGaussian(self.mu, self.chol * jnp.sqrt(factor)[None, :, None, None], self.var * factor[None, :, None])
 
@@ -104,7 +104,7 @@ class FullGaussian(Likelihood):
         rows = jax.lax.map(row, (self.mu.reshape(c * l, k), cov.reshape(c * l, k, k), half.reshape(c * l)))
         return rows.reshape(c, l, c, l)
 
-    def scaling_terms(self, g: Float[Array, "N K"]):
+    def scaling_terms(self, g: Float[ArrayLike, "N K"]):
         """``(q [N, C, L], log|2 pi Sigma| [C, L])`` by triangular solves."""
         k = self.mu.shape[-1]
         d = g[:, None, None, :] - self.mu[None]  # [N, C, L, K]
@@ -134,7 +134,7 @@ class FullGaussian(Likelihood):
 
 
 def log_likelihood_full(
-    g: Float[Array, " K"], mu: Float[Array, "C L K"], chol: Float[Array, "C L K K"]
+    g: Float[ArrayLike, " K"], mu: Float[ArrayLike, "C L K"], chol: Float[ArrayLike, "C L K K"]
 ) -> Float[Array, "C L"]:
     """:meth:`FullGaussian.log_density` of one position's arrays (eq. 4.22)."""
     return FullGaussian(mu, chol).log_density(g)

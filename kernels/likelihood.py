@@ -47,7 +47,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float, Int
+from jaxtyping import Array, ArrayLike, Float, Int
 
 __all__ = [
     "LIKELIHOODS",
@@ -289,12 +289,12 @@ def as_likelihoods(likelihoods, vars=None, chols=None, *, where: str = "likeliho
 
 
 def camera_log_likelihoods(
-    gs: tuple[Float[Array, " K_i"], ...],
-    config: Int[Array, " n"] | tuple[int, ...],
+    gs: tuple[Float[ArrayLike, " _K"], ...],
+    config: Int[ArrayLike, " n"] | tuple[int, ...],
     likelihoods,
-    vars: tuple[Float[Array, "V_i C L_i K_i"], ...] | None = None,
-    chols: tuple[Float[Array, "V_i C L_i K_i K_i"], ...] | None = None,
-) -> tuple[Float[Array, "C L_i"], ...]:
+    vars: tuple[Float[ArrayLike, "_V C _L _K"], ...] | None = None,
+    chols: tuple[Float[ArrayLike, "_V C _L _K _K"], ...] | None = None,
+) -> tuple[Float[Array, "C _L"], ...]:
     """Per-camera log p(g_i | c, k_i, v_i) at configuration ``config = (v_0, v_1, ...)``.
 
     The joint log-likelihood of a state is the sum of these over cameras

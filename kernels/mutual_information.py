@@ -55,7 +55,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import jax.random as jr
-from jaxtyping import Array, Float, PRNGKeyArray
+from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray
 
 from ._grid import floor_log_probs, grid_mixture, lse, weights
 from .belief import Belief
@@ -84,12 +84,12 @@ class MITables(NamedTuple):
             :func:`mutual_information`).
     """
 
-    ld: tuple[Float[Array, "V C L J C L"], ...] | None
-    ld_self: tuple[Float[Array, "V C L J"], ...]
-    t_uniform: tuple[Float[Array, "V C L J C"], ...] | None
-    z: tuple[Float[Array, "C L J K"], ...]
-    ld_max: tuple[Float[Array, "V C L J C"], ...] | None = None
-    ld_exp: tuple[Float[Array, "V C L C L J"], ...] | None = None
+    ld: tuple[Float[Array, "_V C _L J C _L"], ...] | None
+    ld_self: tuple[Float[Array, "_V C _L J"], ...]
+    t_uniform: tuple[Float[Array, "_V C _L J C"], ...] | None
+    z: tuple[Float[Array, "C _L J _K"], ...]
+    ld_max: tuple[Float[Array, "_V C _L J C"], ...] | None = None
+    ld_exp: tuple[Float[Array, "_V C _L C _L J"], ...] | None = None
 
 
 def samples_per_configuration(tables: MITables) -> int:
@@ -106,11 +106,11 @@ def _camera_ld(lik: Likelihood, z):
 
 def mi_tables(
     likelihoods,
-    vars: tuple[Float[Array, "V C L K"], ...] | None = None,
+    vars: tuple[Float[ArrayLike, "_V C _L _K"], ...] | None = None,
     *,
     key: PRNGKeyArray,
     samples_per_stratum: int,
-    chols: tuple[Float[Array, "V C L K K"], ...] | None = None,
+    chols: tuple[Float[ArrayLike, "_V C _L _K _K"], ...] | None = None,
     store: str = "both",
 ) -> MITables:
     """Offline sample tables (per model and key) for :func:`mutual_information`

@@ -1,17 +1,51 @@
-"""Strict test settings (STYLE.md §11): rank promotion raises, a ``getkey``
-fixture, and an ``x64`` fixture for numerics tests that need double precision."""
+"""Strict test settings (STYLE.md §11): rank promotion raises, strict dtype
+promotion for the numerics modules, a ``getkey`` fixture, an ``x64`` fixture
+for numerics tests that need double precision, and the session's shared
+end-to-end inputs: one trained model of the moving database and one rendered
+database of the strided thesis table."""
 
 from __future__ import annotations
 
+import contextlib
 import itertools
+import shutil
+from pathlib import Path
 
 import jax
 import jax.random as jr
+import jaxtyping
 import numpy as np
 import pytest
 
 jax.config.update("jax_numpy_rank_promotion", "raise")
 jax.config.update("jax_numpy_dtype_promotion", "standard")
+
+
+@pytest.fixture
+def strict_dtype_promotion():
+    """Run the test under strict dtype promotion: mixing float32 and float64
+    (or int and float arrays) without an explicit cast raises.  The numerics
+    modules use it for every test (``pytestmark``)."""
+    with jax.numpy_dtype_promotion("strict"):
+        yield
+
+
+@pytest.fixture
+def unchecked():
+    """``with unchecked(): ...`` turns the run-time type checker off inside the
+    block: for the tests of the product's own guards against wrongly typed
+    input (what a caller without the checker, e.g. a settings file, gets)."""
+
+    @contextlib.contextmanager
+    def block():
+        previous = jaxtyping.config.jaxtyping_disable
+        jaxtyping.config.update("jaxtyping_disable", True)
+        try:
+            yield
+        finally:
+            jaxtyping.config.update("jaxtyping_disable", previous)
+
+    return block
 
 
 @pytest.fixture
@@ -41,3 +75,41 @@ def x64():
         yield
     finally:
         jax.config.update("jax_enable_x64", previous)
+
+
+@pytest.fixture(scope="session")
+def moving_model():
+    """``builders.moving_database()`` and its DB1 model (K = 2, 10 samples per
+    image), trained once per session for every test that recognises on it
+    (the database and the model are only read)."""
+    from builders import moving_database
+
+    from jaxrecog import train_model
+
+    db = moving_database()
+    return db, train_model(db, kind="DB1", n_components=2, samples_per_image=10)
+
+
+@pytest.fixture(scope="session")
+def strided_database(tmp_path_factory) -> Path:
+    """The thesis table at stride 8 (4 x 1 positions, 8 objects x 4 poses: 160
+    images), rendered once per session by the product's own cache path
+    (``experiments.prepare``), for the end-to-end runs to start from."""
+    from jaxrecog.experiments import Settings, prepare
+
+    work = tmp_path_factory.mktemp("strided")
+    prepare(Settings(workdir=work, stride=8), databases=())
+    return work / "database-stride8"
+
+
+@pytest.fixture
+def strided_workdir(strided_database):
+    """``seed(workdir)`` copies the session's rendered strided database into a
+    fresh work folder, where ``prepare`` finds it instead of rendering again
+    (each run still trains and writes its own models, trials and tables)."""
+
+    def seed(workdir: Path) -> Path:
+        shutil.copytree(strided_database, Path(workdir) / strided_database.name)
+        return Path(workdir)
+
+    return seed

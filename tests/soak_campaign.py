@@ -8,6 +8,7 @@ import sys
 import time
 
 import jax.random as jr
+from builders import moving_database  # tests/ is this script's folder: first on sys.path
 
 from jaxrecog.campaign import plan_trials, run_campaign
 from jaxrecog.hardware import DatasetRig
@@ -15,7 +16,6 @@ from jaxrecog.modelfile import load_model
 from jaxrecog.planners import make_planner
 from jaxrecog.recognizer import Recognizer
 from jaxrecog.results import TrialResult, TrialStore
-from jaxrecog.testing import moving_database
 
 TRIALS_PER_OBJECT = 16
 
@@ -29,7 +29,7 @@ class SlowRig(DatasetRig):
 
 
 def campaign(model_path, store_path=None) -> list[TrialResult]:
-    """Random-planner campaign on :func:`~jaxrecog.testing.moving_database`'s
+    """Random-planner campaign on :func:`builders.moving_database`'s
     test split, every seed fixed, resumable from ``store_path``."""
     model = load_model(model_path)
     rec = Recognizer(model, make_planner("random", model, key=jr.PRNGKey(0)), p_threshold=0.99)

@@ -5,13 +5,15 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from kernel_models import random_belief
-
-from jaxrecog import kernels as K
-from jaxrecog.kernels.reference import (
+from oracles import (
     joint_transition_ref,
     joint_uniform_ref,
     joint_update_ref,
 )
+
+from jaxrecog import kernels as K
+
+pytestmark = pytest.mark.usefixtures("strict_dtype_promotion")  # numerics: no implicit promotion
 
 
 def _to_jax(b):

@@ -25,6 +25,8 @@ from jaxrecog.modelfile import (
 from jaxrecog.results import TrialResult
 from jaxrecog.sensor_model import CameraModel, SensorModel
 
+pytestmark = pytest.mark.usefixtures("strict_dtype_promotion")  # numerics: no implicit promotion
+
 MAX_ITER = 100
 
 
@@ -201,7 +203,7 @@ def test_bad_calibration_inputs(rng):
 
 @pytest.fixture(scope="module")
 def trained():
-    from jaxrecog.testing import make_database
+    from builders import make_database
     from jaxrecog.train import train_model
 
     db = make_database(positions=(2, 1), n_objects=2, n_poses=2, image_shape=(16, 20), n_test=3)

@@ -8,25 +8,18 @@ import collections
 
 import jax.random as jr
 import pytest
+from compiles import count_compiles
 
-from jaxrecog import train_model
 from jaxrecog.campaign import plan_trials, run_campaign
 from jaxrecog.hardware import DatasetRig
 from jaxrecog.planners import RandomPlanner, make_planner
 from jaxrecog.recognizer import Recognizer
 from jaxrecog.results import TrialStore
-from jaxrecog.testing import count_compiles, moving_database
-
-
-@pytest.fixture(scope="module")
-def moving():
-    db = moving_database()
-    return db, train_model(db, kind="DB1", n_components=2, samples_per_image=10)
 
 
 @pytest.mark.parametrize("planner", ["random", "mi"])
-def test_a_second_campaign_with_the_same_recognizer_compiles_nothing(moving, planner):
-    db, model = moving
+def test_a_second_campaign_with_the_same_recognizer_compiles_nothing(moving_model, planner):
+    db, model = moving_model
     rig = DatasetRig(db, split="test")
 
     def recognizer():
@@ -77,8 +70,8 @@ class _SpyRig(DatasetRig):
         return super().capture()
 
 
-def test_an_interrupted_campaign_resumes_with_the_missing_trials_only(moving, tmp_path):
-    db, model = moving
+def test_an_interrupted_campaign_resumes_with_the_missing_trials_only(moving_model, tmp_path):
+    db, model = moving_model
     rec = Recognizer(model, RandomPlanner(3), p_threshold=0.999)
     specs = plan_trials(2, 3, (3,), 4, seed=7)  # 8 trials
     run = dict(key=jr.PRNGKey(2), batch=3, seed=5)

@@ -13,11 +13,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from builders import write_synthetic_database
 from PIL import Image
 
 from jaxrecog import cli
 from jaxrecog.modelfile import save_model
-from jaxrecog.testing import write_synthetic_database
 from jaxrecog.train import train_model
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -14,6 +14,8 @@ import pytest
 from jaxrecog import kernels as K
 from kernel_models import random_model
 
+pytestmark = pytest.mark.usefixtures("strict_dtype_promotion")  # numerics: no implicit promotion
+
 
 def _beliefs(n_classes, levels):
     log_pc = np.full(n_classes, -90.0)  # P ~ 1e-39: subnormal in float32

@@ -7,9 +7,9 @@ import csv
 import cv2
 import numpy as np
 import pytest
+from builders import make_database
 
 from jaxrecog.database import DatabaseError, NonGrayImageWarning, load_database, write_database
-from jaxrecog.testing import make_database
 
 
 @pytest.fixture

@@ -10,19 +10,13 @@ import jax.numpy as jnp
 import jax.random as jr
 import numpy as np
 import pytest
+from builders import moving_database
 
-from jaxrecog import Recognizer, TrialSpec, make_planner, plan_trials, run_trials, train_model
+from jaxrecog import Recognizer, TrialSpec, make_planner, plan_trials, run_trials
 from jaxrecog.hardware import Capture, Rig, RigError, config_from_index, index_from_config
 from jaxrecog.planners import RandomPlanner
-from jaxrecog.testing import moving_database
 
 import jaxrecog.kernels as K
-
-
-@pytest.fixture(scope="module")
-def moving():
-    db = moving_database()
-    return db, train_model(db, kind="DB1", n_components=2, samples_per_image=10)
 
 
 class StrictRig:
@@ -69,8 +63,8 @@ def test_the_strict_rig_is_a_rig():
     assert isinstance(StrictRig(moving_database()), Rig)
 
 
-def test_driver_uses_only_the_protocol_and_records_what_the_rig_reports(moving):
-    db, model = moving
+def test_driver_uses_only_the_protocol_and_records_what_the_rig_reports(moving_model):
+    db, model = moving_model
     rec = Recognizer(model, RandomPlanner(3), p_threshold=0.999)
     specs = plan_trials(2, 3, (3,), 3, seed=1)
     rig = StrictRig(db)
@@ -96,8 +90,8 @@ def test_driver_uses_only_the_protocol_and_records_what_the_rig_reports(moving):
             assert rig.calls[i - 2][1][0] == 4
 
 
-def test_a_rig_per_slot_sets_up_each_scene_once_and_gives_the_same_results(moving):
-    db, model = moving
+def test_a_rig_per_slot_sets_up_each_scene_once_and_gives_the_same_results(moving_model):
+    db, model = moving_model
     rec = Recognizer(model, RandomPlanner(3), p_threshold=0.999)
     specs = plan_trials(2, 3, (3,), 4, seed=2)  # 8 trials
     shared = StrictRig(db)
@@ -120,12 +114,12 @@ def _refill_rounds(lengths, batch):
     return rounds
 
 
-def test_slots_refill_so_the_batch_stays_busy(moving, monkeypatch):
+def test_slots_refill_so_the_batch_stays_busy(moving_model, monkeypatch):
     """A finished slot takes the next trial at once, so B = 2 slots need the
     refill schedule's rounds, fewer than chunks of 2 run to their longest."""
     import jaxrecog.driver as D
 
-    db, model = moving
+    db, model = moving_model
     rounds = []
     real = D.batched_step
 
@@ -143,8 +137,8 @@ def test_slots_refill_so_the_batch_stays_busy(moving, monkeypatch):
     assert len(rounds) == _refill_rounds(lengths, 2) < chunked
 
 
-def test_an_unusable_image_is_counted_and_leaves_the_belief_alone(moving):
-    db, model = moving
+def test_an_unusable_image_is_counted_and_leaves_the_belief_alone(moving_model):
+    db, model = moving_model
     rec = Recognizer(model, make_planner("mi", model, key=jr.PRNGKey(0), samples=8, min_per_stratum=1), p_threshold=0.999)
     spec = TrialSpec(0, 1, 2, (0,))
     seen = []
@@ -159,8 +153,8 @@ def test_an_unusable_image_is_counted_and_leaves_the_belief_alone(moving):
             assert not np.any(np.isnan(np.asarray(leaf)))
 
 
-def test_driver_rejects_a_rig_of_another_layout_and_duplicate_trials(moving):
-    db, model = moving
+def test_driver_rejects_a_rig_of_another_layout_and_duplicate_trials(moving_model):
+    db, model = moving_model
     rec = Recognizer(model, RandomPlanner(3))
 
     class Other(StrictRig):

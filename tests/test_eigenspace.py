@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from builders import make_database
 
 from jaxrecog.eigenspace import choose_n_components, position_eigenspace, unit_energy
-from jaxrecog.testing import make_database
 
 
 def _full_svd(images):

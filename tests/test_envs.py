@@ -18,7 +18,7 @@ from jaxrecog.campaign import plan_trials
 from jaxrecog.envs import ENV_ID, ActiveRecognitionEnv, PlannerPolicy, confident_errors, env_vs_campaign
 from jaxrecog.experiments import Settings
 from jaxrecog.hardware import DatasetRig
-from jaxrecog.testing import make_database, moving_database
+from builders import make_database, moving_database
 
 #: a small Monte Carlo size: the planners' tables build in a moment
 SMALL = Settings(samples=64, min_per_stratum=2)

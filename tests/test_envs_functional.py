@@ -14,7 +14,7 @@ from jaxrecog.envs import FunctionalEnv, bank_from_database
 from jaxrecog.hardware import DatasetRig
 from jaxrecog.planners import make_planner
 from jaxrecog.recognizer import Recognizer
-from jaxrecog.testing import make_database
+from builders import make_database
 
 
 @pytest.fixture(scope="module")

@@ -13,13 +13,13 @@ import sys
 from pathlib import Path
 
 import pytest
+from builders import moving_database, write_synthetic_database
 from PIL import Image
 from test_cli import one_error_line
 
 from jaxrecog import cli
 from jaxrecog.database import write_database
 from jaxrecog.modelfile import save_model
-from jaxrecog.testing import moving_database, write_synthetic_database
 from jaxrecog.train import train_model
 
 
@@ -31,7 +31,7 @@ def run(*args, timeout=180):
 
 @pytest.fixture(scope="module")
 def moving(tmp_path_factory):
-    """The one-camera database of :func:`jaxrecog.testing.moving_database`
+    """The one-camera database of :func:`builders.moving_database`
     (3 positions, 2 objects x 3 poses; the objects differ at position 2 only)
     on disk, and its DB1 model."""
     root = tmp_path_factory.mktemp("moving")

@@ -7,10 +7,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from builders import make_database
 
 from jaxrecog.features import ImageError, project, project_batch, project_camera
-from jaxrecog.testing import make_database
 from jaxrecog.train import train_model
+
+pytestmark = pytest.mark.usefixtures("strict_dtype_promotion")  # numerics: no implicit promotion
 
 
 @pytest.fixture(scope="module")

@@ -5,10 +5,12 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from kernel_models import as_jax, as_jax_belief, jitted, random_belief, random_chols, random_model
+from oracles import crlb_criterion_ref, fisher_information_ref, fisher_score_difference_ref
 from scipy.special import logsumexp
 
 from jaxrecog import kernels as K
-from jaxrecog.kernels.reference import crlb_criterion_ref, fisher_information_ref, fisher_score_difference_ref
+
+pytestmark = pytest.mark.usefixtures("strict_dtype_promotion")  # numerics: no implicit promotion
 
 MI_TABLES, _, FISHER = jitted()
 

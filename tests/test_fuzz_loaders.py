@@ -19,6 +19,7 @@ import zipfile
 
 import numpy as np
 import pytest
+from builders import make_database
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
@@ -26,7 +27,6 @@ from jaxrecog import train_model
 from jaxrecog.database import DatabaseError, ImageDatabase, load_database, write_database
 from jaxrecog.modelfile import ModelFileError, ModelFileVersionWarning, _content_hash, load_model, save_model
 from jaxrecog.sensor_model import SensorModel
-from jaxrecog.testing import make_database
 
 FUZZ = settings(max_examples=100, deadline=2000, derandomize=True, database=None,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])

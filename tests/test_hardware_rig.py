@@ -120,8 +120,8 @@ def test_capture_needs_in_position(rig):
 
 @pytest.mark.parametrize("cfg,match", [((0,), "2 cameras"), ((32, 0), "camera 1 position 32"), ((0, -1), "camera 2"),
                                        (("a", 0), "not a sequence")])
-def test_bad_configuration(rig, cfg, match):
-    with pytest.raises(RigError, match=match):
+def test_bad_configuration(rig, cfg, match, unchecked):
+    with unchecked(), pytest.raises(RigError, match=match):  # ("a", 0): the rig's guard, not the checker
         rig.move(cfg)
 
 

@@ -5,9 +5,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from kernel_models import random_chols, random_model
+from oracles import log_likelihood_full_ref, log_likelihood_ref
 
 from jaxrecog.kernels import camera_log_likelihoods, log_likelihood, log_likelihood_full
-from jaxrecog.kernels.reference import log_likelihood_full_ref, log_likelihood_ref
+
+pytestmark = pytest.mark.usefixtures("strict_dtype_promotion")  # numerics: no implicit promotion
 
 
 def test_diagonal_matches_reference(rng, x64):

@@ -22,7 +22,7 @@ from scipy.stats import multivariate_normal, norm
 
 from jaxrecog import kernels as K
 from jaxrecog.calibration import CalibrationFeatures, CameraFeatures, apply_calibration, calibrate_model
-from jaxrecog.kernels.reference import bhattacharyya_ref
+from oracles import bhattacharyya_ref
 from jaxrecog.modelfile import ModelFileContentError, _content_hash, load_model, load_model_meta, save_model
 from jaxrecog.planners import make_planner
 from jaxrecog.recognizer import Recognizer
@@ -183,7 +183,7 @@ def test_fit_from_moments_applies_the_floor(rng):
         acc.fit(K.DiagonalGaussian)
 
 
-def test_registry_and_interface_errors(rng):
+def test_registry_and_interface_errors(rng, unchecked):
     assert K.LIKELIHOODS["diag"] is K.DiagonalGaussian and K.LIKELIHOODS["full"] is K.FullGaussian
     assert K.likelihood_class("test-isotropic") is IsotropicGaussian
     with pytest.raises(ValueError, match="unknown likelihood 'nope'; registered: .*diag, full"):
@@ -195,7 +195,7 @@ def test_registry_and_interface_errors(rng):
 
     with pytest.raises(ValueError, match="already DiagonalGaussian"):
         K.register_likelihood(Other)
-    with pytest.raises(TypeError, match="not a Likelihood"):
+    with unchecked(), pytest.raises(TypeError, match="not a Likelihood"):  # the guard, not the checker
         K.register_likelihood(dict)
     with pytest.raises(ValueError, match="var has K = 4, another field has K = 3"):
         K.DiagonalGaussian(jnp.zeros((2, 3, 1, 3)), jnp.ones((2, 3, 1, 4)))
@@ -322,7 +322,7 @@ def test_third_family_model_file_round_trip_and_validation(tmp_path):
 
 @pytest.fixture(scope="module")
 def small_db():
-    from jaxrecog.testing import make_database
+    from builders import make_database
 
     return make_database(positions=(2, 2), n_objects=2, n_poses=2, image_shape=(16, 20))
 

@@ -12,12 +12,12 @@ import zipfile
 
 import numpy as np
 import pytest
+from builders import make_database
 
 from jaxrecog.modelfile import (
     FORMAT_VERSION, ModelFileContentError, ModelFileCorruptError, ModelFileMissingError,
     ModelFileTruncatedError, ModelFileVersionError, load_model, load_model_meta, save_model,
 )
-from jaxrecog.testing import make_database
 from jaxrecog.train import train_model
 
 

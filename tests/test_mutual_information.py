@@ -6,9 +6,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from kernel_models import as_jax, as_jax_belief, jitted, random_belief, random_chols, random_model
+from oracles import log_likelihood_full_ref, mutual_information_quadrature, mutual_information_ref
 
 from jaxrecog import kernels as K
-from jaxrecog.kernels.reference import log_likelihood_full_ref, mutual_information_quadrature, mutual_information_ref
+
+pytestmark = pytest.mark.usefixtures("strict_dtype_promotion")  # numerics: no implicit promotion
 
 MI_TABLES, MI, _ = jitted()
 

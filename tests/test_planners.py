@@ -8,10 +8,8 @@ import jax.numpy as jnp
 import jax.random as jr
 import pytest
 
-from jaxrecog import train_model
 from jaxrecog.experiments import Settings
 from jaxrecog.planners import DEFAULT_MIN_PER_STRATUM, PLANNERS, make_planner, planner_names, planner_spec, planners_markdown, samples_per_stratum
-from jaxrecog.testing import moving_database
 
 
 def _sizes(objects=8, poses=4, levels=6, cameras=2):
@@ -38,9 +36,8 @@ def test_campaign_default_floor_is_eight():
 
 
 @pytest.mark.parametrize("name", ["mi", "mi-class", "crlb"])
-def test_make_planner_builds_tables_with_the_floor(name):
-    db = moving_database()
-    model = train_model(db, kind="DB1", n_components=2, samples_per_image=10)
+def test_make_planner_builds_tables_with_the_floor(name, moving_model):
+    _, model = moving_model
     strata = model.n_objects * model.n_poses
     p = make_planner(name, model, key=jr.PRNGKey(0), samples=strata, min_per_stratum=3)
     assert p.tables.ld_self[0].shape[3] == 3
@@ -56,8 +53,8 @@ def test_make_planner_builds_tables_with_the_floor(name):
 # -- the registry (issue 14): one mapping feeds make_planner, the CLI, the docs and the thesis lookup
 
 
-def test_registry_names_are_the_choices_and_every_entry_builds(getkey):
-    model = train_model(moving_database(), kind="DB1", n_components=2, samples_per_image=10)
+def test_registry_names_are_the_choices_and_every_entry_builds(getkey, moving_model):
+    _, model = moving_model
     assert planner_names() == tuple(PLANNERS)
     assert {"mi", "mi-class", "crlb", "crlb-det", "crlb-eig", "random", "fixed"} <= set(PLANNERS)
     prior_free = {"random", "fixed"}
@@ -85,11 +82,11 @@ def test_aliases_and_unknown_names():
         planner_spec("nope")
 
 
-def test_a_new_planner_is_one_registry_entry(getkey, monkeypatch):
+def test_a_new_planner_is_one_registry_entry(getkey, monkeypatch, moving_model):
     """Registering an entry is all it takes for make_planner to build it."""
     from jaxrecog import planners as P
 
-    model = train_model(moving_database(), kind="DB1", n_components=2, samples_per_image=10)
+    _, model = moving_model
     entry = P.PlannerSpec(lambda m, *, key, samples, min_per_stratum: P.FixedPlanner(P._n_configs(m), 2), None, "test")
     monkeypatch.setitem(P.PLANNERS, "always-three", entry)
     assert "always-three" in planner_names()

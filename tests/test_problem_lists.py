@@ -33,7 +33,7 @@ def test_a_settings_table_with_many_unknown_options():
 def test_a_model_file_with_many_unexpected_arrays(tmp_path):
     from jaxrecog import train_model
     from jaxrecog.modelfile import ModelFileContentError, _content_hash, load_model, save_model
-    from jaxrecog.testing import make_database
+    from builders import make_database
 
     path = save_model(tmp_path / "m.npz", train_model(make_database(positions=(2,), n_objects=1, n_poses=2,
                                                                     image_shape=(8, 8)),

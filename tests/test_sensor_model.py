@@ -6,11 +6,11 @@ import dataclasses
 
 import numpy as np
 import pytest
+from builders import make_database
 
 from jaxrecog.augment import DB2_LEVELS, AugmentParams, augment_images
 from jaxrecog.features import project
 from jaxrecog.sensor_model import GaussianAccumulator
-from jaxrecog.testing import make_database
 from jaxrecog.train import train_model
 
 
@@ -110,7 +110,7 @@ def test_identical_images_get_identical_gaussians_with_shared_draws():
     import dataclasses
 
     from jaxrecog import AugmentParams, ImageDatabase, train_model
-    from jaxrecog.testing import make_database
+    from builders import make_database
 
     db = make_database(positions=(2,), n_objects=4, n_poses=2)
     images = db.images.copy()

@@ -1,7 +1,9 @@
 """``Settings.stride``: the thesis campaigns end to end on a thinned table
 (every 8th position: 4 x 1 configurations, 160 rendered images), for real —
-``jaxrecog demo`` and ``scripts/reproduce_thesis.py`` render, train, run a
-campaign and write their tables and plots; each stride has its own caches."""
+``jaxrecog demo`` and ``scripts/reproduce_thesis.py`` train, run a campaign
+and write their tables and plots; each stride has its own caches.  Both start
+from the session's one rendered strided database (``strided_workdir``,
+rendered by the same ``prepare`` they call), so it is rendered once, not twice."""
 
 from __future__ import annotations
 
@@ -26,7 +28,7 @@ def png_size(path) -> tuple[int, int]:
         return im.size
 
 
-def test_stride_thins_the_table_and_names_the_caches(tmp_path):
+def test_stride_thins_the_table_and_names_the_caches(tmp_path, unchecked):
     assert rig_table(Settings()).positions == (32, 7)
     assert rig_table(Settings(stride=8)).positions == (4, 1)
     assert rig_table(Settings(stride=4)).positions == (8, 2)  # as `jaxrecog render --stride 4`
@@ -35,7 +37,7 @@ def test_stride_thins_the_table_and_names_the_caches(tmp_path):
     assert results_dir(Settings(workdir=tmp_path)) == tmp_path / "results"
     assert results_dir(Settings(workdir=tmp_path, stride=8)) == tmp_path / "results-stride8"
     for bad in (0, -1, 1.5, True):
-        with pytest.raises(ValueError, match="stride"):
+        with unchecked(), pytest.raises(ValueError, match="stride"):  # 1.5: the guard, not the checker
             Settings(stride=bad)
     # a strided table is not the thesis's rig: no thesis numbers beside its tables
     from jaxrecog.experiments import CASES
@@ -51,8 +53,9 @@ def _assert_small_database(work: Path) -> None:
 
 
 @pytest.mark.slow
-def test_demo_on_a_strided_table(tmp_path):
+def test_demo_on_a_strided_table(tmp_path, strided_workdir):
     out = tmp_path / "demo"
+    strided_workdir(out / "work")
     p = subprocess.run([sys.executable, "-m", "jaxrecog.cli", "--quiet", "demo", "--stride", "8", "--trials", "1",
                         "--planners", "mi-class", "--out", str(out)],
                        capture_output=True, text=True, timeout=300, env=ENV)
@@ -77,8 +80,8 @@ def test_demo_on_a_strided_table(tmp_path):
 
 
 @pytest.mark.slow
-def test_reproduce_thesis_script_on_a_strided_table(tmp_path):
-    work = tmp_path / "thesis"
+def test_reproduce_thesis_script_on_a_strided_table(tmp_path, strided_workdir):
+    work = strided_workdir(tmp_path / "thesis")
     p = subprocess.run([sys.executable, str(ROOT / "scripts/reproduce_thesis.py"), "--case", "i", "--trials", "1",
                         "--stride", "8", "--workdir", str(work), "--quiet"],
                        capture_output=True, text=True, timeout=300, env=ENV)

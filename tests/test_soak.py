@@ -35,6 +35,8 @@ import jax.numpy as jnp
 import jax.random as jr
 import numpy as np
 import pytest
+from builders import make_database, moving_database
+from compiles import count_compiles
 
 from jaxrecog import train_model
 from jaxrecog.campaign import batched_step
@@ -43,7 +45,6 @@ from jaxrecog.modelfile import save_model
 from jaxrecog.planners import make_planner
 from jaxrecog.recognizer import Recognizer
 from jaxrecog.results import TrialStore
-from jaxrecog.testing import count_compiles, make_database, moving_database
 from soak_campaign import TRIALS_PER_OBJECT, campaign
 
 pytestmark = pytest.mark.slow

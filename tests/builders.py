@@ -1,5 +1,6 @@
-"""Small generators of synthetic image databases, for tests and the demo,
-and a counter of XLA compilations (tests and benchmarks).
+"""Small generators of synthetic image databases, for the tests and the
+benchmarks (test support: not installed with the package, so OpenCV drawing
+stays out of the product).
 
 Each object is a distinct flat shape drawn with OpenCV (polygon with its own
 number of corners, gray level and stripe texture, plus an off-centre marker so
@@ -12,21 +13,17 @@ lands; it is *not* a physical scene.
 
 from __future__ import annotations
 
-import collections
-import contextlib
-import logging
 import math
 import os
-import re
 from pathlib import Path
 from typing import Sequence
 
 import cv2
 import numpy as np
 
-from .database import ImageDatabase, write_database
+from jaxrecog import ImageDatabase, write_database
 
-__all__ = ["render_view", "make_database", "write_synthetic_database", "moving_database", "count_compiles"]
+__all__ = ["render_view", "make_database", "write_synthetic_database", "moving_database"]
 
 
 def render_view(
@@ -147,29 +144,3 @@ def moving_database() -> ImageDatabase:
                     pose.append(p)
                     split.append(s)
     return ImageDatabase.from_arrays(np.stack(imgs), cam, pos, obj, pose, split)
-
-
-class _CompileLog(logging.Handler):
-    def __init__(self):
-        super().__init__(logging.DEBUG)
-        self.names: collections.Counter[str] = collections.Counter()
-
-    def emit(self, record):
-        m = re.match(r"Compiling (?:jit\()?([\w<>.-]+)", record.getMessage())
-        if m:
-            self.names[m.group(1)] += 1
-
-
-@contextlib.contextmanager
-def count_compiles():
-    """Count the XLA compilations inside the block by function name
-    (``jax.log_compiles``): yields a ``Counter`` filled as they happen."""
-    import jax
-
-    log, logger = _CompileLog(), logging.getLogger("jax")
-    logger.addHandler(log)
-    try:
-        with jax.log_compiles():
-            yield log.names
-    finally:
-        logger.removeHandler(log)
