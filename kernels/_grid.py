@@ -129,3 +129,24 @@ def grid_mixture(tabs, extra, feats=()):
 
 
 __all__ = ["floor_log_probs", "grid_mixture", "lse", "weights"]
+
+
+def check_belief(tables, belief) -> None:
+    """The belief fits the sample tables (number of cameras, C); a clear
+    ``ValueError`` otherwise.  Shared by the MI and Fisher kernels."""
+    n = len(tables.ld_self)
+    if len(belief.log_pk) != n:
+        raise ValueError(f"belief over {len(belief.log_pk)} cameras, tables for {n}")
+    c = tables.ld_self[0].shape[1]
+    if belief.log_pc.shape != (c,):
+        raise ValueError(f"belief.log_pc has shape {belief.log_pc.shape}, tables have C = {c}")
+
+
+def to_grid(t):
+    """``[V, C, L, J, ...] -> [C, J, V*L, ...]``: a camera's per-position table
+    as the rows of the (v_1, v_2) grid product."""
+    v, c, l, j = t.shape[:4]
+    t = jnp.moveaxis(t, 3, 1)  # [V, J, C, L, ...]
+    t = jnp.moveaxis(t, 2, 0)  # [C, V, J, L, ...]
+    t = jnp.moveaxis(t, 2, 1)  # [C, J, V, L, ...]
+    return t.reshape((c, j, v * l) + t.shape[4:])

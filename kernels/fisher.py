@@ -46,7 +46,8 @@ from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray
 
 from ._grid import floor_log_probs, grid_mixture, lse, weights
 from .belief import Belief
-from .mutual_information import MITables, _check_belief, _to_grid, per_position_levels
+from ._grid import check_belief, to_grid
+from .mutual_information import MITables, per_position_levels
 
 DEFAULT_SIGMA_S = 0.4
 
@@ -106,7 +107,7 @@ def fisher_information(
         ``[A, D, D]`` symmetric PSD matrices, coordinates (object, pose, k_0, ...);
         with ``with_stderr`` a pair ``(J, stderr [A, D, D])``.
     """
-    _check_belief(tables, belief)
+    check_belief(tables, belief)
     if tables.ld is None:
         raise ValueError("fisher_information: needs tables built with store='full' or 'both'")
     n = len(tables.ld)
@@ -152,10 +153,10 @@ def fisher_information(
         ba = jnp.sum(jnp.exp(x - la[..., None]) * levb, axis=-1)
         la0 = lse(x0, axis=-1)
         ba0 = jnp.sum(jnp.exp(x0 - la0[..., None]) * levb, axis=-1)
-        tabs_g.append(_to_grid(la))
-        b_g.append(_to_grid(ba))
-        tabs_0.append(_to_grid(la0))
-        b_0.append(_to_grid(ba0))
+        tabs_g.append(to_grid(la))
+        b_g.append(to_grid(ba))
+        tabs_0.append(to_grid(la0))
+        b_0.append(to_grid(ba0))
 
     fo = obj[None, None, None, :]
     fp = pose[None, None, None, :]

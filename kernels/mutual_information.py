@@ -57,7 +57,7 @@ import jax.numpy as jnp
 import jax.random as jr
 from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray
 
-from ._grid import floor_log_probs, grid_mixture, lse, weights
+from ._grid import check_belief, floor_log_probs, grid_mixture, lse, to_grid, weights
 from .belief import Belief
 from .likelihood import Likelihood, as_likelihoods
 
@@ -221,24 +221,6 @@ def per_position_levels(belief: Belief, positions: tuple[int, ...]):
     return out
 
 
-def _check_belief(tables, belief):
-    n = len(tables.ld_self)
-    if len(belief.log_pk) != n:
-        raise ValueError(f"belief over {len(belief.log_pk)} cameras, tables for {n}")
-    c = tables.ld_self[0].shape[1]
-    if belief.log_pc.shape != (c,):
-        raise ValueError(f"belief.log_pc has shape {belief.log_pc.shape}, tables have C = {c}")
-
-
-def _to_grid(t):
-    """[V, C, L, J, ...] -> [C, J, V*L, ...]."""
-    v, c, l, j = t.shape[:4]
-    t = jnp.moveaxis(t, 3, 1)  # [V, J, C, L, ...]
-    t = jnp.moveaxis(t, 2, 0)  # [C, V, J, L, ...]
-    t = jnp.moveaxis(t, 2, 1)  # [C, J, V, L, ...]
-    return t.reshape((c, j, v * l) + t.shape[4:])
-
-
 def mutual_information(
     tables: MITables,
     belief: Belief,
@@ -276,7 +258,7 @@ def mutual_information(
         raise ValueError(f"mutual_information: target must be 'state' or 'class', got {target!r}")
     if levels not in ("belief", "uniform"):
         raise ValueError(f"mutual_information: levels must be 'belief' or 'uniform', got {levels!r}")
-    _check_belief(tables, belief)
+    check_belief(tables, belief)
     n = len(tables.ld_self)
     positions = tuple(t.shape[0] for t in tables.ld_self)
     n_c, j = tables.ld_self[0].shape[1], tables.ld_self[0].shape[3]
@@ -299,7 +281,7 @@ def mutual_information(
         ts = belief_level_tables(tables, log_pk)
 
     # E_s E_g log p(g|a): mixture over c' on the (v_0, v_1, ...) grid.
-    grid_tabs = [_to_grid(t) for t in ts]  # [C, J, X_i, C']
+    grid_tabs = [to_grid(t) for t in ts]  # [C, J, X_i, C']
     extra = jnp.broadcast_to(log_pc[None, None, :], (n_c, j, n_c))
     logp, _, _ = grid_mixture(grid_tabs, extra)  # [C, J, X_0, ..., X_{n-1}]
     pc = weights(log_pc, n + 1)

@@ -8,8 +8,9 @@ import jax.random as jr
 import numpy as np
 
 from .. import plots
+from ..driver import StepRecord, TrialSpec, run_trials
 from ..experiments import CAPTURE_NOISE, occluder_factory  # the thesis-case boards (first views occluded)
-from ..hardware import DatasetRig, Noise, rig_from_config
+from ..hardware import Capture, DatasetRig, Noise, rig_from_config
 from ..modelfile import load_model
 from ..planners import make_planner
 from ..recognizer import Recognizer
@@ -67,35 +68,57 @@ def _make_rig(args, model):
     raise UsageError(f"--rig {spec!r}: expected 'synthetic', 'dataset:FOLDER' or a .toml rig file")
 
 
+class _CheckedRig:
+    """The command's rig, with every capture checked by :func:`usable` (one
+    line naming a bad image, or a black frame in its place with
+    ``--skip-invalid``), so the trial driver only ever sees usable images."""
+
+    def __init__(self, rig, shape: tuple[int, int], skip_invalid: bool):
+        self.rig, self.image_shape, self.skip_invalid = rig, tuple(shape), skip_invalid
+        self.positions = tuple(rig.positions)
+        self._step = 0
+
+    def reset(self, object, pose, occluders=None):
+        self.rig.reset(object, pose, occluders)
+
+    def reseed(self, seed):
+        self._step = int(seed[2])
+        self.rig.reseed(seed)
+
+    def move(self, configuration):
+        self._config = tuple(configuration)
+        self.rig.move(configuration)
+
+    def capture(self) -> Capture:
+        cap = self.rig.capture()
+        names = [f"image of camera {i} at position {v} (step {self._step + 1})" for i, v in enumerate(self._config)]
+        return Capture(usable(list(cap.images), self.image_shape, names, self.skip_invalid), cap.occluded)
+
+    def close(self):
+        self.rig.close()
+
+
 def _trial(args, model, rig, rec, state, k_run):
-    """The trial on ``rig``: reset the scene, then image sets until the
-    recognizer stops.  Returns the object probabilities per step (prior
-    first), the printed rows and the last decision."""
-    occl = None
-    if args.occluders:
-        start = tuple(int(v) for v in np.asarray(state.config))
-        occl = occluder_factory(rig)(np.random.default_rng(args.seed), start)
-    rig.reset(args.object, args.pose, occl)
+    """The trial on ``rig``, through the one trial driver (:func:`jaxrecog.driver.run_trials`).
+    Returns the object probabilities per step (prior first), the printed rows
+    and the last decision."""
+    start = tuple(int(v) for v in np.asarray(state.config))
+    occl = occluder_factory(rig)(np.random.default_rng(args.seed), start) if args.occluders else None
     probs = [np.full(model.n_objects, 1.0 / model.n_objects)]
-    rows = []
-    dec = None
-    for n in range(args.max_steps):
-        cfg = tuple(int(v) for v in np.asarray(state.config))
-        rig.move(cfg)
-        cap = rig.capture()
-        imgs = usable(cap.images, model.image_shape,
-                      [f"image of camera {i} at position {v} (step {n + 1})" for i, v in enumerate(cfg)],
-                      args.skip_invalid)
-        state, dec = rec.step(state, imgs, jr.fold_in(k_run, n), trace=True)
+    rows, last = [], []
+
+    def row(r: StepRecord) -> None:
+        dec = r.decision
         probs.append(np.asarray(dec.trace.object_probs, dtype=float))
-        occ = cap.occluded
-        stop = bool(dec.stop)
-        rows.append((n + 1, fmt_cfg(cfg), int(dec.object), int(dec.pose), f"{float(dec.probability):.3f}",
-                     " ".join(f"{100 * x:.0f}%" for x in occ) or "-",
-                     "stop" if stop else fmt_cfg(np.asarray(dec.next_config))))
-        if stop:
-            break
-    return probs, rows, dec
+        rows.append((r.step + 1, fmt_cfg(r.config), int(dec.object), int(dec.pose), f"{float(dec.probability):.3f}",
+                     " ".join(f"{100 * x:.0f}%" for x in r.capture.occluded) or "-",
+                     "stop" if bool(dec.stop) else fmt_cfg(np.asarray(dec.next_config))))
+        last[:] = [dec]
+
+    spec = TrialSpec(0, args.object, args.pose, start, occl)
+    run_trials(rec, _CheckedRig(rig, model.image_shape, args.skip_invalid), [spec], key=k_run, batch=1,
+               seed=args.seed, trace=True, on_step=row)
+    return probs, rows, last[0]
 
 
 def run(args) -> int:
@@ -121,9 +144,7 @@ def run(args) -> int:
         state = rec.init(key=None if args.start is not None else k_init, config=args.start)
         probs, rows, dec = _trial(args, model, rig, rec, state, k_run)
     finally:
-        close = getattr(rig, "close", None)
-        if close is not None:
-            close()
+        rig.close()
     print(f"object {args.object}, pose {args.pose} on rig {args.rig}; planner {args.planner}, "
           f"P_th {args.threshold}")
     print_table(["step", "config", "object", "pose", "P", "occluded", "next"], rows)
