@@ -197,7 +197,7 @@ def test_registry_and_interface_errors(rng, unchecked):
         K.register_likelihood(Other)
     with unchecked(), pytest.raises(TypeError, match="not a Likelihood"):  # the guard, not the checker
         K.register_likelihood(dict)
-    with pytest.raises(ValueError, match="var has K = 4, another field has K = 3"):
+    with unchecked(), pytest.raises(ValueError, match="var has K = 4, another field has K = 3"):  # the guard, not the checker
         K.DiagonalGaussian(jnp.zeros((2, 3, 1, 3)), jnp.ones((2, 3, 1, 4)))
     toy = IsotropicGaussian(jnp.zeros((2, 3, 1, 2)), jnp.ones((2, 3, 1)))
     assert (toy.n_positions, toy.n_classes, toy.n_levels, toy.dim) == (2, 3, 1, 2)
