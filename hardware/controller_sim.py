@@ -65,20 +65,8 @@ import socket
 import threading
 import time
 
-from .datagram import (
-    Datagram,
-    DatagramError,
-    Hello,
-    InPosition,
-    Move,
-    Moving,
-    MsgType,
-    Rejected,
-    RejectCode,
-    Welcome,
-    decode,
-    encode,
-)
+from .datagram import Datagram, DatagramError, Hello, InPosition, Move, Moving
+from .datagram import MsgType, Rejected, RejectCode, Welcome, decode, encode
 from .kinematics import Workspace, WorkspaceError, camera1_position, camera2_position
 
 __all__ = ["LinkFaults", "ControllerSimulator", "ExecutedMove"]

@@ -44,20 +44,8 @@ import socket
 import time
 from typing import Callable
 
-from .datagram import (
-    Datagram,
-    DatagramError,
-    Hello,
-    InPosition,
-    Move,
-    Moving,
-    MsgType,
-    Rejected,
-    RejectCode,
-    Welcome,
-    decode,
-    encode,
-)
+from .datagram import Datagram, DatagramError, Hello, InPosition, Move, Moving
+from .datagram import MsgType, Rejected, RejectCode, Welcome, decode, encode
 
 __all__ = [
     "ControllerLink",
