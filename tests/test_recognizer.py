@@ -126,7 +126,7 @@ def separated_model(llr=5.0):
     g = np.stack([np.asarray(project_camera(cam, jnp.full((2,), v), jnp.asarray(images[v]))[0]) for v in range(3)])
     d2 = ((g[:, 0] - g[:, 1]) ** 2).sum(-1)  # [V]
     var = np.broadcast_to((d2 / (2 * llr))[:, None, None, None], (3, 2, 1, g.shape[-1]))
-    cam = eqx.tree_at(lambda c: (c.mu, c.var), cam, (jnp.asarray(g[:, :, None, :]), jnp.asarray(var, jnp.float32)))
+    cam = eqx.tree_at(lambda c: (c.likelihood.mu, c.likelihood.var), cam, (jnp.asarray(g[:, :, None, :]), jnp.asarray(var, jnp.float32)))
     return eqx.tree_at(lambda m: m.cameras, model, (cam,)), images
 
 

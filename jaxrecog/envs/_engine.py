@@ -24,7 +24,7 @@ from typing import Sequence
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Bool, Float, Int
+from jaxtyping import Array, ArrayLike, Bool, Float, Int, Real
 
 from .. import kernels as K
 from ..driver import TrialSpec
@@ -56,7 +56,7 @@ def start(rig, scene: TrialSpec) -> None:
     rig.reset(scene.object, scene.pose, scene.occluders)
 
 
-def capture(rig, config: Sequence[int], noise_seed) -> tuple[np.ndarray, np.ndarray]:
+def capture(rig, config: Sequence[int] | np.ndarray, noise_seed) -> tuple[np.ndarray, np.ndarray]:
     """One image set at ``config``, taken as :func:`jaxrecog.driver.run_trials`
     takes it: the capture noise reseeded with ``noise_seed`` (the driver's
     ``(seed, trial, step)``), the cameras moved, one ``Rig.capture``.
@@ -77,14 +77,14 @@ def uniform_prior(model) -> K.Belief:
     return K.uniform_belief(model.n_classes, tuple(model.n_levels for _ in model.cameras), dtype=dtype)
 
 
-def log_likelihoods(model, config: Int[Array, " n"],
-                    features: tuple[Float[Array, " K_i"], ...]) -> tuple[Float[Array, "C L_i"], ...]:
+def log_likelihoods(model, config: Int[ArrayLike, " n"],
+                    features: tuple[Float[Array, " _K"], ...]) -> tuple[Float[Array, "C _L"], ...]:
     """log p(g_i | c, k_i, v_i) per camera at ``config`` (eq. 4.17-4.22), from the model."""
     return K.camera_log_likelihoods(features, config, model.likelihoods)
 
 
-def belief_from_logliks(prior: K.Belief, logliks: tuple[Float[Array, "C L_i"], ...],
-                        valid: Bool[Array, ""] | bool = True) -> tuple[K.Belief, Bool[Array, ""]]:
+def belief_from_logliks(prior: K.Belief, logliks: tuple[Float[Array, "C _L"], ...],
+                        valid: Bool[ArrayLike, ""] | bool = True) -> tuple[K.Belief, Bool[Array, ""]]:
     """Bayes update of the factorised belief (eq. 3.1): ``(posterior, ok)``;
     ``ok`` is false (and the belief unchanged) when ``valid`` is false or the
     evidence is unusable."""
@@ -92,15 +92,15 @@ def belief_from_logliks(prior: K.Belief, logliks: tuple[Float[Array, "C L_i"], .
     return posterior, info.ok
 
 
-def belief_from_features(model, prior: K.Belief, config: Int[Array, " n"],
-                         features: tuple[Float[Array, " K_i"], ...],
-                         valid: Bool[Array, ""] | bool = True) -> tuple[K.Belief, Bool[Array, ""]]:
+def belief_from_features(model, prior: K.Belief, config: Int[ArrayLike, " n"],
+                         features: tuple[Float[Array, " _K"], ...],
+                         valid: Bool[ArrayLike, ""] | bool = True) -> tuple[K.Belief, Bool[Array, ""]]:
     """The Bayes update with the features' log-likelihoods (eq. 3.1, 4.17)."""
     return belief_from_logliks(prior, log_likelihoods(model, config, features), valid)
 
 
 @eqx.filter_jit
-def observe(model, prior: K.Belief, config: Int[Array, " n"], images: Float[Array, "n H W"]):
+def observe(model, prior: K.Belief, config: Int[ArrayLike, " n"], images: Real[ArrayLike, "n H W"]):
     """Features g_i = V_iᵀ(y_i/‖y_i‖ − x̄_i) (eq. 4.1-4.11) and the Bayes update:
     ``(posterior, features, ok)``.  An unusable image (black, constant, not
     finite) leaves the belief unchanged and sets ``ok = False``."""
@@ -109,7 +109,7 @@ def observe(model, prior: K.Belief, config: Int[Array, " n"], images: Float[Arra
     return posterior, gs, ok
 
 
-def move_prior(posterior: K.Belief, config: Int[Array, " n"], next_config: Int[Array, " n"],
+def move_prior(posterior: K.Belief, config: Int[ArrayLike, " n"], next_config: Int[ArrayLike, " n"],
                kind: str = "uniform", rho: float = 0.9) -> K.Belief:
     """The prior of the images at ``next_config``: cameras that move get the
     level transition, cameras that stay keep their levels (eq. 3.7-3.9)."""

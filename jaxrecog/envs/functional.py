@@ -38,7 +38,7 @@ import jax
 import jax.numpy as jnp
 import jax.random as jr
 import numpy as np
-from jaxtyping import Array, Float, Int, PRNGKeyArray
+from jaxtyping import Array, ArrayLike, Float, Int, PRNGKeyArray
 
 from .. import kernels as K
 from ..driver import TrialSpec
@@ -55,7 +55,7 @@ class FeatureBank(eqx.Module):
     """Per camera ``i``, ``features[i]``: ``[V_i, C, S, K_i]`` feature vectors
     of held-out (or rendered) images of class ``c`` at position ``v``."""
 
-    features: tuple[Float[Array, "V C S K"], ...]
+    features: tuple[Float[Array, "_V C S _K"], ...]
 
     @property
     def samples(self) -> int:
@@ -131,7 +131,7 @@ def bank_from_rig(model, rig, samples: int, *, occluders=None, seed: int = 0) ->
     return _bank(model, cells, "the rig's captures")
 
 
-def _loglik_tables(model, bank: FeatureBank) -> tuple[Float[Array, "V C S C L"], ...]:
+def _loglik_tables(model, bank: FeatureBank) -> tuple[Float[Array, "_V C S C _L"], ...]:
     """log p(g | c', k', v) of every bank entry g (camera i, position v, class
     c, sample s) under every class c' and level k' (eq. 4.17-4.22), computed
     once from the model, so a step is a gather and the Bayes update (the
@@ -164,7 +164,7 @@ class FunctionalState(NamedTuple):
     target: Int[Array, ""]
     config: Int[Array, " n"]
     belief: K.Belief
-    features: tuple[Float[Array, " K_i"], ...]
+    features: tuple[Float[Array, " _K"], ...]
     views: Int[Array, ""]
 
 
@@ -181,7 +181,7 @@ class FunctionalEnv(eqx.Module):
 
     model: object
     bank: FeatureBank
-    tables: tuple[Float[Array, "V C S C L"], ...]
+    tables: tuple[Float[Array, "_V C S C _L"], ...]
     p_threshold: float = eqx.field(static=True)
     max_steps: int = eqx.field(static=True)
     transition: str = eqx.field(static=True)
@@ -224,7 +224,7 @@ class FunctionalEnv(eqx.Module):
             "views": state.views,
         }
 
-    def init(self, target: Int[Array, ""], config: Int[Array, " n"], key: PRNGKeyArray) -> tuple[FunctionalState, dict]:
+    def init(self, target: Int[ArrayLike, ""], config: Int[ArrayLike, " n"], key: PRNGKeyArray) -> tuple[FunctionalState, dict]:
         """An episode of class ``target`` starting at ``config``: the uniform
         prior updated with the first features."""
         target = jnp.asarray(target, jnp.int32)
