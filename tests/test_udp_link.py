@@ -231,10 +231,12 @@ def test_controller_binds_loopback_only():
 def test_same_seed_same_faults():
     def run(seed):
         faults = LinkFaults(loss=0.3, duplicate=0.3)
-        with ControllerSimulator(faults=faults, seed=seed, time_scale=0.001) as sim:
-            # the timeout is far above a move's duration (~1 ms), so only the seeded faults
-            # (now on requests and replies) cause resends
-            with ControllerLink(sim.address, timeout=0.08, retries=30) as link:
+        # moves take no time (time_scale 0), so no repeat meets a move still running
+        # (a MOVING answer would depend on timing), and the timeout is far above a
+        # reply's delay even on a loaded machine: only the seeded faults (on requests
+        # and replies) cause resends
+        with ControllerSimulator(faults=faults, seed=seed, time_scale=0.0) as sim:
+            with ControllerLink(sim.address, timeout=0.25, retries=30) as link:
                 for i in range(12):
                     link.move(*move_of(i).astuple())
                 time.sleep(0.01)
