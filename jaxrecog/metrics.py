@@ -98,7 +98,8 @@ def confident_errors(results: Sequence[TrialResult], p_threshold: float = 0.95) 
 def campaign_metrics(results: Sequence[TrialResult], p_threshold: float = 0.95,
                      n_bins: int = 10) -> dict:
     """Recognition rate (%), mean views, mean exit probability, ECE and the
-    confident-error rate (% of stopped trials) of one campaign."""
+    confident-error rate (% of stopped trials, and % of all trials: the
+    number every results table shows) of one campaign."""
     p, ok = _arrays(results)
     ce = confident_errors(results, p_threshold)
     return {
@@ -110,4 +111,5 @@ def campaign_metrics(results: Sequence[TrialResult], p_threshold: float = 0.95,
         "stopped": ce.stopped,
         "confident_errors": ce.wrong,
         "confident_error_rate": 100.0 * ce.rate,
+        "confident_error_pct_of_trials": 100.0 * ce.rate_of_all,
     }

@@ -103,10 +103,16 @@ class ObjectRow:
     rate: float  # percent
     exit_prob: float
     views: float
+    #: wrong and stopped on the threshold (p >= P_th), % of the row's trials:
+    #: the number that shows an over-confident belief (NaN: not recorded)
+    confident_errors: float = math.nan
 
 
 def summarize(results: Iterable[TrialResult], n_objects: int) -> list[ObjectRow]:
-    """Per-object rows and the average row (mean over objects, as the thesis)."""
+    """Per-object rows and the average row (mean over objects, as the thesis).
+
+    A trial is a *confident error* when it stopped on the threshold (its
+    ``stopped`` flag: exit probability >= P_th) on the wrong object or pose."""
     by_obj: dict[int, list[TrialResult]] = {m: [] for m in range(n_objects)}
     for r in results:
         by_obj[r.object].append(r)
@@ -121,6 +127,7 @@ def summarize(results: Iterable[TrialResult], n_objects: int) -> list[ObjectRow]
                     100.0 * sum(r.correct for r in rs) / len(rs),
                     sum(r.exit_prob for r in rs) / len(rs),
                     sum(r.steps for r in rs) / len(rs),
+                    100.0 * sum(r.stopped and not r.correct for r in rs) / len(rs),
                 )
             )
         else:
@@ -134,6 +141,7 @@ def summarize(results: Iterable[TrialResult], n_objects: int) -> list[ObjectRow]
                 sum(r.rate for r in filled) / len(filled),
                 sum(r.exit_prob for r in filled) / len(filled),
                 sum(r.views for r in filled) / len(filled),
+                sum(r.confident_errors for r in filled) / len(filled),
             )
         )
     return rows
@@ -145,16 +153,18 @@ def _num(x: float, digits: int) -> str:
 
 
 def table_markdown(rows: Sequence[ObjectRow], title: str = "", reference: Sequence[tuple[float, float, float]] | None = None) -> str:
-    """The thesis-shaped table as Markdown; ``reference`` adds the thesis's
-    (rate, exit prob, views) per row for comparison."""
-    head = "| Object | Trials | Recog. rate (%) | Mean exit prob. | Mean no. of views |"
-    sep = "|---|---:|---:|---:|---:|"
+    """The thesis-shaped table as Markdown, with the confident-error column
+    (wrong and stopped at p >= P_th, % of trials; the thesis does not report
+    it); ``reference`` adds the thesis's (rate, exit prob, views) per row for
+    comparison."""
+    head = "| Object | Trials | Recog. rate (%) | Mean exit prob. | Mean no. of views | Confident errors (%) |"
+    sep = "|---|---:|---:|---:|---:|---:|"
     if reference is not None:
         head += " Thesis rate / exit / views |"
         sep += "---|"
     lines = ([f"**{title}**", ""] if title else []) + [head, sep]
     for i, r in enumerate(rows):
-        line = f"| {r.label} | {r.trials} | {r.rate:.1f} | {r.exit_prob:.2f} | {r.views:.2f} |"
+        line = f"| {r.label} | {r.trials} | {r.rate:.1f} | {r.exit_prob:.2f} | {r.views:.2f} | {_num(r.confident_errors, 1)} |"
         if reference is not None:
             ref = reference[i] if i < len(reference) else None
             line += f" {_num(ref[0], 1)} / {_num(ref[1], 2)} / {_num(ref[2], 1)} |" if ref else " |"

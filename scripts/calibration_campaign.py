@@ -133,13 +133,13 @@ def main(argv=None) -> int:
                           "seconds": time.perf_counter() - t1}
 
     head = ("| model | trials | recog. rate (%) | mean views | mean exit prob. | ECE | stopped "
-            "| confident errors (% of stopped) |")
+            "| confident errors (% of trials; % of stopped) |")
     lines = [f"Case {case.name} ({case.title}), planner {args.planner}, {args.trials} trials/object, "
              f"P_th = {settings.p_threshold}", "", head, "|---|---:|---:|---:|---:|---:|---:|---:|"]
     for label, m in metrics.items():
         lines.append(f"| {label} | {m['trials']} | {m['recognition_rate']:.1f} | {m['mean_views']:.2f} | "
                      f"{m['mean_exit_prob']:.3f} | {m['ece']:.3f} | {m['stopped']} | "
-                     f"{m['confident_errors']} ({m['confident_error_rate']:.1f} %) |")
+                     f"{m['confident_errors']} ({m['confident_error_pct_of_trials']:.1f} %; {m['confident_error_rate']:.1f} %) |")
     table = "\n".join(lines)
     print(table)
     out = args.workdir / "results"

@@ -310,6 +310,7 @@ def test_confident_errors_hand_computed():
     assert m["recognition_rate"] == pytest.approx(20.0)
     assert m["mean_views"] == pytest.approx((1 + 1 + 1 + 7 + 7) / 5)
     assert m["confident_error_rate"] == pytest.approx(200 / 3)
+    assert m["confident_error_pct_of_trials"] == pytest.approx(40.0)
     assert confident_errors([_trial(0, 0.5, False, stopped=False)]).rate == 0.0
     with pytest.raises(ValueError, match="trial 7: exit probability nan"):
         expected_calibration_error([_trial(7, float("nan"), True)])

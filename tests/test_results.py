@@ -5,8 +5,8 @@ import pytest
 from jaxrecog.results import TrialResult, TrialStore, summarize, table_markdown
 
 
-def _trial(i, obj, ok=True, steps=2, p=0.97):
-    return TrialResult(i, obj, 1, obj if ok else (obj + 1) % 3, 1, p, steps, True, ((0.1, 0.0),) * steps, ((0, 1),) * steps)
+def _trial(i, obj, ok=True, steps=2, p=0.97, stopped=True):
+    return TrialResult(i, obj, 1, obj if ok else (obj + 1) % 3, 1, p, steps, stopped, ((0.1, 0.0),) * steps, ((0, 1),) * steps)
 
 
 def test_summary_rows_match_hand_computation():
@@ -19,6 +19,19 @@ def test_summary_rows_match_hand_computation():
     md = table_markdown(rows, "demo", reference=[(100, 0.9, 2.0)] * 4)
     assert "| Average | 4 | 83.3 |" in md
     assert "| 100.0 / 0.90 / 2.0 |" in md
+
+
+def test_confident_errors_count_wrong_trials_stopped_on_the_threshold_only():
+    rs = [_trial(0, 0, ok=False, p=0.99), _trial(1, 0), _trial(2, 0, ok=False, p=0.6, stopped=False),
+          _trial(3, 0), _trial(4, 1, steps=1)]
+    rows = summarize(rs, 2)
+    assert rows[0].confident_errors == 25.0  # 1 of 4: the step-limit miss is an error, not a confident one
+    assert rows[0].rate == 50.0
+    assert rows[1].confident_errors == 0.0
+    assert rows[2].confident_errors == pytest.approx(12.5)  # mean over objects, as the rate
+    md = table_markdown(rows)
+    assert "Confident errors (%)" in md.splitlines()[0]
+    assert "| 1 | 4 | 50.0 | 0.88 | 2.00 | 25.0 |" in md
 
 
 def test_unreported_thesis_value_is_a_dash_not_nan():
