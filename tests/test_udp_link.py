@@ -77,11 +77,14 @@ def test_workspace_violation_is_rejected_not_retried():
         assert link.stats["sent"] == 3
 
 
-def test_200_moves_under_loss_duplication_reordering_and_corruption():
-    # the faults hit requests and replies alike; their pattern is fixed by the seed
-    faults = LinkFaults(loss=0.2, duplicate=0.2, reorder=0.2, corrupt=0.05, delay_s=(0.0, 0.002), reorder_delay_s=0.012)
-    timeout, retries, n = 0.012, 25, 200
-    with ControllerSimulator(faults=faults, seed=7, time_scale=0.0005) as sim:
+def _moves_under_faults(seed: int, n: int = 200):
+    """``n`` moves through a link whose requests and replies are lost,
+    duplicated, reordered and corrupted (the pattern is fixed by ``seed``);
+    every correctness property is asserted here, whatever the timing.  Returns
+    (client stats, controller stats, wall time)."""
+    faults = LinkFaults(loss=0.2, duplicate=0.2, reorder=0.2, corrupt=0.05, delay_s=(0.0, 0.002), reorder_delay_s=0.03)
+    timeout, retries = 0.012, 25
+    with ControllerSimulator(faults=faults, seed=seed, time_scale=0.0005) as sim:
         with ControllerLink(sim.address, timeout=timeout, retries=retries) as link:
             t0 = time.monotonic()
             for i in range(n):
@@ -93,23 +96,38 @@ def test_200_moves_under_loss_duplication_reordering_and_corruption():
     assert [e.seq for e in sim.executed] == list(range(1, n + 1))
     s, c = link.stats, sim.stats
     assert s["accepted"] == n and s["retransmit"] > 0
-    # the controller really saw faulty requests: lost, duplicated (the extra copy
-    # arrived and was answered from the cache, not executed), held back until
-    # the client had moved on (stale: ignored, the rig never moved back), corrupt
-    assert c["request_lost"] > 0 and c["request_duplicated"] > 0 and c["request_reordered"] > 0
-    assert c["duplicate_copy"] > 0 and c["repeat"] > 0
-    assert c["stale"] > 0
-    assert c["request_corrupted"] > 0 and c["corrupt"] > 0
     assert c["new"] == n
-    # and the client saw faulty replies: duplicated, stale (a reply for an
-    # earlier move, overtaken), corrupt -- all dropped
+    # the controller really saw faulty requests and the client faulty replies
+    # (the fates are seeded per datagram, so these do not depend on timing)
+    assert c["request_lost"] > 0 and c["request_duplicated"] > 0 and c["request_reordered"] > 0
+    assert c["request_corrupted"] > 0 and c["corrupt"] > 0
     assert c["reply_duplicated"] > 0 and c["reply_reordered"] > 0
-    assert s["duplicate"] > 0
-    assert s["stale"] > 0
     assert s["corrupt"] > 0
     # bounded time: the worst case is every move using every retry; in practice far less
     assert total < n * (retries + 1) * timeout
     assert total < 20.0, f"{n} moves took {total:.2f} s; stats {dict(s)}"
+    return s, c, total
+
+
+def test_200_moves_under_loss_duplication_reordering_and_corruption():
+    # Whether a held-back copy arrives *after* the client has moved on (stale)
+    # or while it still waits (a repeat, or a duplicate reply) depends on the
+    # scheduling of two threads: on a loaded machine one seed's 200 moves can
+    # see no stale datagram at all.  So the stale paths must show up within
+    # three seeds; every run asserts every correctness property
+    # (the deterministic stale test is test_held_back_request_copy_...).
+    seen = {"controller stale": 0, "controller repeat": 0, "copy answered from the cache": 0,
+            "client stale": 0, "client duplicate": 0}
+    for seed in (7, 8, 9):
+        s, c, _ = _moves_under_faults(seed)
+        seen["controller stale"] += c["stale"]  # held back until the client moved on: ignored
+        seen["controller repeat"] += c["repeat"]
+        seen["copy answered from the cache"] += c["duplicate_copy"]  # never executed twice
+        seen["client stale"] += s["stale"]  # a reply for an earlier move, overtaken
+        seen["client duplicate"] += s["duplicate"]
+        if all(seen.values()):
+            break
+    assert all(seen.values()), seen
 
 
 def test_request_faults_are_seeded_per_datagram():
