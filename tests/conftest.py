@@ -6,9 +6,12 @@ database of the strided thesis table."""
 
 from __future__ import annotations
 
+import atexit
 import contextlib
 import itertools
+import os
 import shutil
+import tempfile
 from pathlib import Path
 
 import jax
@@ -19,6 +22,39 @@ import pytest
 
 jax.config.update("jax_numpy_rank_promotion", "raise")
 jax.config.update("jax_numpy_dtype_promotion", "standard")
+
+
+def _share_compilations() -> None:
+    """One persistent XLA compilation cache for the whole run: this process,
+    the xdist workers and every subprocess the tests start (the CLI, the demo,
+    the scripts) read it through ``JAX_COMPILATION_CACHE_DIR``.
+
+    On this CPU one XLA compilation costs ~60 ms even for a one-op program,
+    and the suite compiles the same programs again and again from different
+    function objects (each test builds its own recognizer; each subprocess
+    starts cold), which the in-memory cache cannot see.  A hit costs ~10 ms.
+    The folder is new for every run (nothing carries over from an earlier run,
+    as on a fresh clone) unless ``JAXRECOG_TEST_JAX_CACHE`` names one (``off``:
+    no cache).  Results
+    are unchanged (the cached executable is the compiled one) and
+    ``tests/compiles.py`` still counts every compilation (jax logs it before it
+    looks the program up)."""
+    folder = os.environ.get("JAXRECOG_TEST_JAX_CACHE")
+    if folder == "off":  # to measure what the cache saves
+        return
+    if not folder:
+        folder = tempfile.mkdtemp(prefix="jaxrecog-xla-cache-")
+        os.environ["JAXRECOG_TEST_JAX_CACHE"] = folder  # xdist workers inherit it
+        atexit.register(shutil.rmtree, folder, ignore_errors=True)
+    settings = {"JAX_COMPILATION_CACHE_DIR": folder, "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS": "0",
+                "JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES": "0"}
+    os.environ.update(settings)  # subprocesses
+    jax.config.update("jax_compilation_cache_dir", folder)
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+
+
+_share_compilations()
 
 
 @pytest.fixture
