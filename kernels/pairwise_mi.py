@@ -173,7 +173,16 @@ def pairwise_mutual_information(
         ts = list(tables.t_uniform)
     else:
         log_pk = [lp.astype(dtype) for lp in per_position_levels(belief, positions)]
-        ts = level_tables(tables.log_w, tables.w_max, tables.w_exp, log_pk)
+        # inner weights floored (f32: >= e^-61): the shifted sum over k' holds the term
+        # E = 1 at its max times P >= e^-61 > tau, so it never underflows (no fallback)
+        ts = level_tables(tables.log_w, tables.w_max, tables.w_exp, [floor_log_probs(lp) for lp in log_pk], guard=False)
+    # No underflow fallback on the grid either: D(s, s) = 0 gives W_i[c, k, c] >= log P_i(k|c)
+    # and W_i <= 0, so the shifted sum over c' of stratum s is >= P(s).  Strata whose weight has
+    # a factor below exp(floor) are dropped (weight 0; their share of I is < 1e-7 nats in
+    # float32), so every stratum that counts has a sum >= e^(log tau + 1) > tau.
+    finfo = jnp.finfo(dtype)
+    tau = n_c * float(finfo.tiny) / float(finfo.eps)
+    floor = (math.log(tau) + 1.0) / (len(positions) + 1)
     selfs = None if target == "state" else [own_class(t) for t in ts]
-    mi = mixture_information(ts, selfs, log_pc, log_pk)[0]
+    mi = mixture_information(ts, selfs, log_pc, log_pk, weight_floor=floor, guard=False)[0]
     return jnp.where(jnp.isnan(mi), -jnp.inf, mi)
