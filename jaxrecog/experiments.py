@@ -116,6 +116,9 @@ class Settings:
             the full 32 x 7 table; 8 = (4, 1) positions, a database of 160
             images that renders and trains in seconds (tests, smoke runs).
             The database and model files of each stride are cached apart.
+        exclude_visited_positions: never send a camera back to a position it
+            already used (:class:`~jaxrecog.recognizer.Recognizer`; a departure
+            from the thesis, off by default).
     """
 
     workdir: Path | str = Path("out/experiments")  # a str becomes a Path (__post_init__)
@@ -131,6 +134,7 @@ class Settings:
     capture_noise: tuple[float, float, int] = CAPTURE_NOISE
     transition: str = "uniform"
     stride: int = 1
+    exclude_visited_positions: bool = False
 
     def __post_init__(self):
         object.__setattr__(self, "workdir", Path(self.workdir))
@@ -166,6 +170,8 @@ def _run_id(settings: Settings, model_path: Path) -> str:
     import hashlib
 
     fields = {k: v for k, v in dataclasses.asdict(settings).items() if k not in ("workdir", "batch")}
+    if not fields["exclude_visited_positions"]:  # added later: off keeps the digests of earlier runs
+        del fields["exclude_visited_positions"]
     h = hashlib.sha256(json.dumps(fields, sort_keys=True, default=str).encode())
     h.update(hashlib.sha256(Path(model_path).read_bytes()).digest())
     return h.hexdigest()[:10]
@@ -307,7 +313,8 @@ def make_recognizer(model, planner_name: str, settings: Settings):
 
     planner = make_planner(planner_name, model, key=jr.PRNGKey(settings.seed), samples=settings.samples,
                            min_per_stratum=settings.min_per_stratum)
-    return Recognizer(model, planner, p_threshold=settings.p_threshold, max_steps=settings.max_steps, transition=settings.transition)
+    return Recognizer(model, planner, p_threshold=settings.p_threshold, max_steps=settings.max_steps, transition=settings.transition,
+                      exclude_visited_positions=settings.exclude_visited_positions)
 
 
 def case_model(prepared: Prepared, case: Case):

@@ -8,6 +8,9 @@ recognizer takes the argmax; it never branches on the planner's kind.
 
 - :class:`MIPlanner` — Mutual Information I(s; g | a) (thesis eq. 5.3-5.13),
   or I(c; g | a) with ``target="class"`` (see DESIGN.md §3, "Target").
+- :class:`PairwiseMIPlanner` — the deterministic pairwise-distance estimate of
+  the same I(s; g | a) or I(c; g | a) (Kolchinsky & Tracey 2017; Bhattacharyya:
+  a lower bound, KL: an upper bound), no samples (DESIGN.md §7).
 - :class:`CRLBPlanner` — minus a criterion of the Cramér-Rao bound J_g(a)^-1
   (eq. 5.14-5.28): trace (A-optimal, default), log-det (D) or the largest
   eigenvalue (E).
@@ -34,6 +37,7 @@ from . import kernels as K
 __all__ = [
     "Planner",
     "MIPlanner",
+    "PairwiseMIPlanner",
     "CRLBPlanner",
     "RandomPlanner",
     "FixedPlanner",
@@ -129,6 +133,34 @@ class MIPlanner(Planner):
         return K.mutual_information(self.tables, prior, target=self.target, levels=self.levels)
 
 
+class PairwiseMIPlanner(Planner):
+    """Pairwise-distance MI over all configurations, no Monte Carlo
+    (:func:`~jaxrecog.kernels.pairwise_mutual_information`).
+
+    ``divergence="bhattacharyya"`` scores a lower bound on I(s; g | a),
+    ``"kl"`` an upper bound; ``target`` and ``levels`` as :class:`MIPlanner`.
+    """
+
+    tables: K.PairwiseTables
+    target: str = eqx.field(static=True, default="state")
+    levels: str = eqx.field(static=True, default="belief")
+
+    @classmethod
+    def from_model(cls, model, *, target: str = "state", divergence: str = "bhattacharyya",
+                   levels: str = "belief") -> "PairwiseMIPlanner":
+        """Build the divergence tables (belief-free, once per model; no key, no samples)."""
+        if levels not in ("belief", "uniform"):
+            raise ValueError(f"levels must be 'belief' or 'uniform', got {levels!r}")
+        if target not in ("state", "class"):
+            raise ValueError(f"target must be 'state' or 'class', got {target!r}")
+        tables = K.pairwise_tables(model.likelihoods, kind=divergence)
+        return cls(_n_configs(model), tables, target, levels)
+
+    def scores(self, prior, key):
+        del key  # deterministic
+        return K.pairwise_mutual_information(self.tables, prior, target=self.target, levels=self.levels)
+
+
 class CRLBPlanner(Planner):
     """Minus the chosen criterion of J_g(a)^-1 (eq. 5.25): smaller bound = better."""
 
@@ -174,6 +206,13 @@ def _mi(target: str):
     return build
 
 
+def _pairwise(target: str, divergence: str):
+    def build(model, *, key, samples, min_per_stratum, **options):
+        del key, samples, min_per_stratum  # deterministic: no samples
+        return PairwiseMIPlanner.from_model(model, target=target, divergence=divergence, **options)
+    return build
+
+
 def _crlb(criterion: str):
     def build(model, *, key, samples, min_per_stratum, **options):
         return CRLBPlanner.from_model(model, key=key, samples=samples, criterion=criterion,
@@ -212,6 +251,14 @@ class PlannerSpec(NamedTuple):
 PLANNERS: dict[str, PlannerSpec] = {
     "mi": PlannerSpec(_mi("state"), "mi", "Mutual Information I(s; g | a) over the full state (object, pose, levels), eq. 5.10"),
     "mi-class": PlannerSpec(_mi("class"), "mi", "Mutual Information I(c; g | a) about (object, pose), occlusion levels marginalised"),
+    "mi-pairwise": PlannerSpec(_pairwise("state", "bhattacharyya"), "mi",
+                               "pairwise-distance I(s; g | a), Bhattacharyya (a lower bound; deterministic, Kolchinsky & Tracey 2017)"),
+    "mi-class-pairwise": PlannerSpec(_pairwise("class", "bhattacharyya"), "mi",
+                                     "pairwise-distance I(c; g | a), Bhattacharyya (deterministic; levels marginalised)"),
+    "mi-pairwise-kl": PlannerSpec(_pairwise("state", "kl"), "mi",
+                                  "pairwise-distance I(s; g | a), KL (an upper bound; deterministic)"),
+    "mi-class-pairwise-kl": PlannerSpec(_pairwise("class", "kl"), "mi",
+                                        "pairwise-distance I(c; g | a), KL (deterministic; levels marginalised)"),
     "crlb": PlannerSpec(_crlb("trace"), "crlb", "Cramér-Rao bound, minimise trace(J_g^-1) (A-optimal), eq. 5.25"),
     "crlb-det": PlannerSpec(_crlb("logdet"), "crlb", "Cramér-Rao bound, minimise log det(J_g^-1) (D-optimal)"),
     "crlb-eig": PlannerSpec(_crlb("maxeig"), "crlb", "Cramér-Rao bound, minimise the largest eigenvalue of J_g^-1 (E-optimal)"),

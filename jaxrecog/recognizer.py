@@ -12,7 +12,9 @@ shapes and no Python branching on data:
    P_th = 0.95) or ``max_steps`` image sets were taken;
 4. the next configuration: the planner scores all configurations under the
    predicted prior (transition per candidate position, eq. 3.7-3.9) and the
-   best not yet visited is chosen;
+   best not yet visited is chosen (optionally, ``exclude_visited_positions``,
+   also none where some camera would return to a position it already used —
+   a departure from the thesis, see :class:`Recognizer`);
 5. the prior for the next step: the level transition for the cameras that move.
 
 The state carries the *prior* for the images the rig will capture next.
@@ -34,7 +36,7 @@ from .features import project_at
 from .hardware.rig import config_from_index, index_from_config
 from .planners import Planner
 
-__all__ = ["Recognizer", "RecognizerState", "Decision", "StepTrace", "restrict_cameras", "image_features"]
+__all__ = ["Recognizer", "RecognizerState", "Decision", "StepTrace", "excluded_by_positions", "restrict_cameras", "image_features"]
 
 
 class RecognizerState(NamedTuple):
@@ -45,12 +47,16 @@ class RecognizerState(NamedTuple):
         config: ``[n_cameras]`` current position of each camera.
         steps: image sets taken so far.
         visited: ``[A]`` configurations already used.
+        visited_positions: per camera ``[V_i]``, the positions that camera
+            already took an image from (read only with
+            ``Recognizer.exclude_visited_positions``).
     """
 
     prior: K.Belief
     config: Int[Array, " n"]
     steps: Int[Array, ""]
     visited: Bool[Array, " A"]
+    visited_positions: tuple[Bool[Array, " _V"], ...] = ()
 
 
 class StepTrace(NamedTuple):
@@ -117,6 +123,18 @@ def image_features(model, config: Int[ArrayLike, " n"], images: Real[ArrayLike, 
     return tuple(gs), jnp.all(jnp.stack(oks))
 
 
+def excluded_by_positions(seen: Sequence[Bool[Array, " _V"]], positions: tuple[int, ...]) -> Bool[Array, " A"]:
+    """``[A]``: configurations in which some camera i is at a position of
+    ``seen[i]``; a camera that has used all its positions excludes nothing
+    (so the product of the cameras' remaining positions is never empty)."""
+    n = len(positions)
+    out = jnp.zeros(positions, bool)
+    for i, s in enumerate(seen):
+        s = s & ~jnp.all(s)
+        out = out | s.reshape((1,) * i + (positions[i],) + (1,) * (n - 1 - i))
+    return out.reshape(-1)
+
+
 class Recognizer(eqx.Module):
     """Sensor model + planner + settings.  ``init`` / ``step`` (see module doc).
 
@@ -131,6 +149,16 @@ class Recognizer(eqx.Module):
         revisit: allow choosing a configuration already used (always true
             for a planner whose ``revisits`` class attribute is true, e.g. a
             :class:`~jaxrecog.planners.FixedPlanner`, which never moves).
+        exclude_visited_positions: also exclude every configuration in which
+            some camera returns to a position it already took an image from
+            (default off).  *A departure from the thesis*, which excludes only
+            configurations already used, so one camera may stay on its view
+            while the other moves: that second capture counts as independent
+            evidence (eq. 4.17) although a shift- or occlusion-driven error of
+            the same view is systematic.  Per camera the exclusion lapses once
+            all its positions are used (e.g. camera 2 after 7 views), so some
+            configuration always remains; configurations already used stay
+            excluded as before.  Ignored where revisits are allowed.
     """
 
     model: object
@@ -140,6 +168,7 @@ class Recognizer(eqx.Module):
     transition: str = eqx.field(static=True, default="uniform")
     rho: float = eqx.field(static=True, default=0.9)
     revisit: bool = eqx.field(static=True, default=False)
+    exclude_visited_positions: bool = eqx.field(static=True, default=False)
 
     @property
     def positions(self) -> tuple[int, ...]:
@@ -164,7 +193,8 @@ class Recognizer(eqx.Module):
             raise ValueError(f"config must give one position per camera ({len(positions)}), got shape {config.shape}")
         dtype = self.model.cameras[0].likelihood.dtype
         prior = K.uniform_belief(self.model.n_objects * self.model.n_poses, tuple(len(self.model.levels) for _ in positions), dtype=dtype)
-        return RecognizerState(prior, config, jnp.zeros((), jnp.int32), jnp.zeros((self.n_configs,), bool))
+        return RecognizerState(prior, config, jnp.zeros((), jnp.int32), jnp.zeros((self.n_configs,), bool),
+                               tuple(jnp.zeros((v,), bool) for v in positions))
 
     @eqx.filter_jit
     def step(self, state: RecognizerState, images: Real[ArrayLike, "n H W"], key: PRNGKeyArray, *,
@@ -188,6 +218,8 @@ class Recognizer(eqx.Module):
 
         here = index_from_config(state.config, positions)
         visited = state.visited.at[here].set(True)
+        seen = state.visited_positions or tuple(jnp.zeros((v,), bool) for v in positions)
+        seen = tuple(s.at[state.config[i]].set(True) for i, s in enumerate(seen))
         predicted = K.transition_per_position(posterior, state.config, positions, kind=self.transition, rho=self.rho)
         scores = self.planner.scores(predicted, key)
         # a non-finite score (a failed estimate) ranks below every finite one,
@@ -196,14 +228,20 @@ class Recognizer(eqx.Module):
         if self.revisit or self.planner.revisits:
             scores_for_choice = usable
         else:
-            masked = jnp.where(visited, -jnp.inf, usable)
-            scores_for_choice = jnp.where(jnp.all(visited), usable, masked)
+            excluded = visited
+            if self.exclude_visited_positions:
+                excluded = excluded | excluded_by_positions(seen, positions)
+            masked = jnp.where(excluded, -jnp.inf, usable)
+            # with the per-camera lapse, everything is excluded only once every
+            # configuration was used (an unused position of any camera leaves
+            # configurations never used): then revisit, as before
+            scores_for_choice = jnp.where(jnp.all(excluded), usable, masked)
         nxt = jnp.argmax(scores_for_choice)
         next_config = jnp.stack(config_from_index(nxt, positions)).astype(jnp.int32)
 
         # the prior for the next images: the predicted prior at the chosen positions
         next_prior = K.Belief(predicted.log_pc, tuple(lp[v] for lp, v in zip(predicted.log_pk, next_config)))
-        new_state = RecognizerState(next_prior, next_config, steps, visited)
+        new_state = RecognizerState(next_prior, next_config, steps, visited, seen)
         step_trace = None
         if trace:
             step_trace = StepTrace(

@@ -1,5 +1,5 @@
 """Pure JAX estimation kernels (likelihood, belief, mutual information, Fisher /
-Cramér-Rao), each with a plain NumPy reference in ``tests/oracles.py``.
+Cramér-Rao, pairwise-distance MI), each with a plain NumPy reference in ``tests/oracles.py``.
 
 Nothing here imports from ``jaxrecog`` proper or ``jaxrecog.hardware``.
 Per-camera values come as tuples, one entry per camera: likelihoods
@@ -43,16 +43,19 @@ from .likelihood import (
     register_likelihood,
 )
 from .mutual_information import MITables, mi_tables, mutual_information, samples_per_configuration
+from .pairwise_mi import DIVERGENCES, PairwiseTables, pairwise_mutual_information, pairwise_tables
 
 __all__ = [
     "Belief",
     "DEFAULT_SIGMA_S",
+    "DIVERGENCES",
     "DiagonalGaussian",
     "FisherDraws",
     "FullGaussian",
     "LIKELIHOODS",
     "Likelihood",
     "MITables",
+    "PairwiseTables",
     "UpdateInfo",
     "as_likelihoods",
     "camera_log_likelihoods",
@@ -73,6 +76,8 @@ __all__ = [
     "mutual_information",
     "object_marginal",
     "object_pose_marginal",
+    "pairwise_mutual_information",
+    "pairwise_tables",
     "pose_marginal",
     "register_likelihood",
     "samples_per_configuration",

@@ -66,7 +66,7 @@ def _expand(a, i, n):
     return a.reshape(shape)
 
 
-def grid_mixture(tabs, extra, feats=()):
+def grid_mixture(tabs, extra, feats=(), guard: bool = True):
     """log Z and posterior means over c' on the product grid (see module doc).
 
     Args:
@@ -76,8 +76,14 @@ def grid_mixture(tabs, extra, feats=()):
             ``[C, J, X_camera, C']``;
             returns the mean of f under the posterior w(c') = exp(...) / Z.
 
+        guard: with ``False`` no underflow fallback: a row whose shifted sum
+            underflows gets log Z = log(tiny) + shift (finite, not exact).  For a
+            caller that has shown its rows of non-zero weight cannot underflow
+            (the pairwise-distance MI); saves the test and the ``lax.cond``.
+
     Returns:
-        ``(logZ [C, J, X_0, ..., X_{n-1}], [mean [C, J, X_0, ...] per feat], n_underflow)``.
+        ``(logZ [C, J, X_0, ..., X_{n-1}], [mean [C, J, X_0, ...] per feat], n_underflow)``
+        (``n_underflow`` is 0 without the guard).
     """
     n = len(tabs)
     dtype = tabs[0].dtype
@@ -100,6 +106,11 @@ def grid_mixture(tabs, extra, feats=()):
 
     z = contract(es)
     mtot = sum(_expand(m, i, n) for i, m in enumerate(ms))
+    if not guard:
+        logz = jnp.log(jnp.maximum(z, float(finfo.tiny))) + mtot
+        means = [contract([e * f if k == cam else e for k, e in enumerate(es)]) / jnp.where(z > 0, z, 1.0)
+                 for cam, f in feats]
+        return logz, means, jnp.zeros((), jnp.int32)
     logz = jnp.log(z) + mtot
     means = []
     for cam, f in feats:
@@ -128,18 +139,130 @@ def grid_mixture(tabs, extra, feats=()):
     return logz, means, n_under
 
 
-__all__ = ["floor_log_probs", "grid_mixture", "lse", "weights"]
+def level_tables(lds, ld_max, ld_exp, log_pk, guard: bool = True):
+    """T_i = logsumexp_k' (LD_i + log P_i(k'|c')) per camera, ``[V_i, C, L_i, J, C]``,
+    from per-camera ``lds`` ``[V_i, C, L_i, J, C, L_i]`` (any table of log
+    component weights: sample log-densities for the Monte Carlo MI, minus
+    pairwise divergences for the pairwise MI) and the belief's per-position
+    level rows ``log_pk`` ``[V_i, C, L_i]``.
+
+    Fast path (``ld_max`` / ``ld_exp`` given, built offline): with
+    M_i = max_k' LD_i and E_i = exp(LD_i - M_i) (``[V_i, C', L_i', C, L_i, J]``),
+
+        T_i = M_i + log sum_k' E_i[..., k'] P_i(k'|c')
+
+    (a batched matrix product over k', no exp over the LD entries online;
+    P_i = ``weights(log P_i)``, values below the smallest normal float flushed
+    to 0).  Guard: the shift M_i ignores the belief, so where the belief puts
+    ~all its mass on levels whose E_i is tiny or flushed (e.g. P_i ~ 0 on the
+    level holding the max of LD_i), the sum underflows and loses precision.
+    If any sum in any camera is below ``tau = L_i * tiny / eps`` (or not a
+    number), the whole call uses the exact logsumexp over LD_i instead, under
+    ``lax.cond`` (nothing is paid for it when no sum underflows; under
+    ``vmap`` both branches run).  Above ``tau`` the flushed terms (each below
+    ``tiny``) change the sum by at most a relative ``eps``, so the two paths
+    agree to rounding.  ``guard=False`` (fast path only) is for a caller that
+    has shown the sums cannot underflow (the pairwise-distance MI).
+    """
+    def exact(_):
+        return [lse(ld + lp[:, None, None, None], axis=-1) for ld, lp in zip(lds, log_pk)]
+
+    if ld_max is None or ld_exp is None:
+        return exact(None)
+    finfo = jnp.finfo(lds[0].dtype)
+    fast, under = [], jnp.zeros((), bool)
+    for mx, ex, lp in zip(ld_max, ld_exp, log_pk):
+        tau = lp.shape[-1] * float(finfo.tiny) / float(finfo.eps)
+        s = jnp.einsum("vCKclj,vCK->vcljC", ex, weights(lp))
+        under = under | jnp.any(~(s >= tau))
+        fast.append(jnp.log(s) + mx)
+    if not guard:
+        return fast
+    return jax.lax.cond(under, exact, lambda _: fast, None)
+
+
+def own_class(t):
+    """``[V, C, L, J, C'] -> [V, C, L, J]``: the entries at c' = c (the table of
+    a sample's own class)."""
+    return jnp.transpose(jnp.diagonal(t, axis1=1, axis2=4), (0, 3, 1, 2))
+
+
+def mixture_information(ts, selfs, log_pc, log_pk, weight_floor: float | None = None, guard: bool = True):
+    """Per-replicate information ``[J, A]`` on the (v_0, v_1, ...) grid, the part
+    the Monte Carlo MI and the pairwise-distance MI share:
+
+        sum_{c, k_0, k_1, ...} P(c) prod_i P_i(k_i|c) [ sum_i S_i[v_i, c, k_i, j]
+            - log sum_c' P(c') exp(sum_i T_i[v_i, c, k_i, j, c']) ]
+
+    Args:
+        ts: per camera ``[V_i, C, L_i, J, C']`` level tables T_i (see
+            :func:`level_tables`; for the pairwise MI J = 1 and T_i = W_i).
+        selfs: per camera ``[V_i, C, L_i, J]`` tables S_i of the conditional
+            term, or ``None`` for 0 (the pairwise state target).
+        log_pc: ``[C]`` log P(c) (already floored, :func:`floor_log_probs`).
+        log_pk: per camera ``[V_i, C, L_i]`` log P_i(k|c) per position.
+        weight_floor: if given, each factor P(c), P_i(k_i|c) of a stratum's
+            weight below ``exp(weight_floor)`` is flushed to 0 (default: the
+            subnormal floor of :func:`weights`).
+        guard: the underflow fallback of :func:`grid_mixture`.
+
+    Returns:
+        ``[J, A]``, A = prod_i V_i row-major; the mean over J is the estimate.
+    """
+    n = len(ts)
+    positions = tuple(t.shape[0] for t in ts)
+    n_c, j = ts[0].shape[1], ts[0].shape[3]
+    dtype = ts[0].dtype
+    # E_s log sum_c' ...: mixture over c' on the (v_0, v_1, ...) grid.
+    grid_tabs = [to_grid(t) for t in ts]  # [C, J, X_i, C']
+    extra = jnp.broadcast_to(log_pc[None, None, :], (n_c, j, n_c))
+    logp, _, _ = grid_mixture(grid_tabs, extra, guard=guard)  # [C, J, X_0, ..., X_{n-1}]
+    if weight_floor is None:
+        pc = weights(log_pc, n + 1)
+        pk = [weights(lp, n + 1) for lp in log_pk]  # [V_i, C, L_i]
+    else:
+        pc, *pk = (jnp.where(lp < weight_floor, 0.0, jnp.exp(jnp.maximum(lp, weight_floor))) for lp in [log_pc, *log_pk])
+    letters = _GRID_LETTERS[:n]
+    caps = letters.upper()
+    shaped = logp.reshape((n_c, j) + sum(((v, t.shape[2]) for v, t in zip(positions, ts)), ()))
+    grid_in = "cj" + "".join(a + b for a, b in zip(letters, caps))
+    spec = "c," + grid_in + "," + ",".join(f"{a}c{b}" for a, b in zip(letters, caps)) + "->j" + letters
+    e_logp = jnp.einsum(spec, pc, shaped, *pk)  # [J, V_0, ..., V_{n-1}]
+    e_self = jnp.zeros((j,) + positions, dtype)
+    if selfs is not None:
+        for i, s in enumerate(selfs):
+            e_i = jnp.einsum("c,vcl,vclj->jv", pc, pk[i], s)
+            e_self = e_self + e_i.reshape((j,) + (1,) * i + (positions[i],) + (1,) * (n - 1 - i))
+    return (e_self - e_logp).reshape(j, -1)
+
+
+__all__ = ["floor_log_probs", "grid_mixture", "level_tables", "lse", "mixture_information", "own_class", "weights"]
 
 
 def check_belief(tables, belief) -> None:
     """The belief fits the sample tables (number of cameras, C); a clear
     ``ValueError`` otherwise.  Shared by the MI and Fisher kernels."""
-    n = len(tables.ld_self)
+    check_belief_sizes(len(tables.ld_self), tables.ld_self[0].shape[1], belief)
+
+
+def check_belief_sizes(n: int, c: int, belief) -> None:
+    """:func:`check_belief` for tables of ``n`` cameras and ``c`` classes."""
     if len(belief.log_pk) != n:
         raise ValueError(f"belief over {len(belief.log_pk)} cameras, tables for {n}")
-    c = tables.ld_self[0].shape[1]
     if belief.log_pc.shape != (c,):
         raise ValueError(f"belief.log_pc has shape {belief.log_pc.shape}, tables have C = {c}")
+    check_belief_values(belief)
+
+
+def check_belief_values(belief) -> None:
+    """A belief with concrete values holds no NaN (a ``ValueError`` naming the
+    array otherwise).  Traced values (under ``jit``) cannot be checked here;
+    the kernels keep their scores free of NaN instead."""
+    for name, x in [("log_pc", belief.log_pc)] + [(f"log_pk[{i}]", x) for i, x in enumerate(belief.log_pk)]:
+        if isinstance(x, jax.core.Tracer):  # under jit: checked by the caller's NaN-free outputs
+            continue
+        if bool(jnp.any(jnp.isnan(jnp.asarray(x)))):
+            raise ValueError(f"belief.{name} contains NaN (a belief must be log-probabilities, -inf allowed)")
 
 
 def to_grid(t):

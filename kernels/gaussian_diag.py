@@ -85,6 +85,14 @@ class DiagonalGaussian(Likelihood):
         d = m1 - m2
         return jnp.sum(0.125 * d * d / v + 0.5 * jnp.log(v) - 0.25 * (jnp.log(v1) + jnp.log(v2)), axis=-1)
 
+    def kl(self) -> Float[Array, "C L C L"]:
+        """KL(N(mu_1, diag v_1) || N(mu_2, diag v_2)):
+        ``1/2 sum_d [v_1 / v_2 + (mu_1 - mu_2)^2 / v_2 - 1 + log v_2 - log v_1]``."""
+        m1, m2 = self.mu[:, :, None, None, :], self.mu[None, None]
+        v1, v2 = self.var[:, :, None, None, :], self.var[None, None]
+        d = m1 - m2
+        return 0.5 * jnp.sum(v1 / v2 + d * d / v2 - 1.0 + jnp.log(v2) - jnp.log(v1), axis=-1)
+
     def scaling_terms(self, g: Float[ArrayLike, "N K"]):
         """``(q [N, C, L], log|2 pi Sigma| [C, L])``, Sigma = diag(var)."""
         k = self.mu.shape[-1]

@@ -104,6 +104,22 @@ class FullGaussian(Likelihood):
         rows = jax.lax.map(row, (self.mu.reshape(c * l, k), cov.reshape(c * l, k, k), half.reshape(c * l)))
         return rows.reshape(c, l, c, l)
 
+    def kl(self) -> Float[Array, "C L C L"]:
+        """KL(N(mu_1, S_1 S_1^T) || N(mu_2, S_2 S_2^T)) =
+        ``1/2 [|S_2^-1 S_1|_F^2 + |S_2^-1 (mu_1 - mu_2)|^2 - K] + log|S_2| - log|S_1|``
+        (triangular solves with S_2, one row of first components at a time)."""
+        c, l, k = self.mu.shape
+        half = _half_logdet(self.chol)  # [C, L]
+
+        def row(args):
+            mu1, chol1, half1 = args
+            a = solve_triangular(self.chol, jnp.broadcast_to(chol1, self.chol.shape), lower=True)  # [C, L, K, K]
+            w = solve_triangular(self.chol, (mu1[None, None] - self.mu)[..., None], lower=True)[..., 0]
+            return 0.5 * (jnp.sum(a * a, (-2, -1)) + jnp.sum(w * w, -1) - k) + half - half1
+
+        rows = jax.lax.map(row, (self.mu.reshape(c * l, k), self.chol.reshape(c * l, k, k), half.reshape(c * l)))
+        return rows.reshape(c, l, c, l)
+
     def scaling_terms(self, g: Float[ArrayLike, "N K"]):
         """``(q [N, C, L], log|2 pi Sigma| [C, L])`` by triangular solves."""
         k = self.mu.shape[-1]

@@ -12,8 +12,10 @@ code needs from a family is, per camera and position:
 - ``sample(z)``: g ~ p(g | c, k, v) from standard-normal draws z (the
   planners' common random numbers);
 - ``mean()`` / ``covariance()``: the per-component moments;
-- ``bhattacharyya()``: the closed-form pairwise divergence between components
-  where the family has one (for deterministic pairwise-distance MI);
+- ``bhattacharyya()`` / ``kl()``: the closed-form pairwise divergences
+  between components where the family has one, and ``divergence(kind)``, the
+  table the pairwise-distance MI planner uses (the closed form, or a
+  moment-matched Gaussian approximation for a family without one);
 - ``scaled(factor)``: the family with its dispersion scaled per level (what
   calibration fits).
 
@@ -190,6 +192,38 @@ class Likelihood(eqx.Module):
                 pairwise-distance planner then needs a documented approximation.
         """
         raise NotImplementedError(f"the {self.kind!r} likelihood has no closed-form Bhattacharyya distance")
+
+    def kl(self) -> Float[Array, "C L C L"]:
+        """KL(p(g|c,k) || p(g|c',k')) = ∫ p(g|c,k) log [p(g|c,k) / p(g|c',k')] dg
+        for every ordered pair of components (closed form where the family has one).
+
+        Raises:
+            NotImplementedError: the family has no closed form (the default); see
+                :meth:`divergence` for the approximation the planners use then.
+        """
+        raise NotImplementedError(f"the {self.kind!r} likelihood has no closed-form KL divergence")
+
+    def divergence(self, kind: str) -> Float[Array, "C L C L"]:
+        """The pairwise divergence table D[c, k, c', k'] of the pairwise-distance
+        MI planner (:func:`jaxrecog.kernels.pairwise_tables`), ``kind`` =
+        ``"bhattacharyya"`` or ``"kl"``.
+
+        The family's closed form (:meth:`bhattacharyya` / :meth:`kl`) where it
+        has one.  Otherwise an *approximation*: the same divergence between the
+        moment-matched Gaussians N(mean(), covariance()) of the components (the
+        full-covariance closed form of ``gaussian_full.py``).  For a heavy-tailed
+        family this is not a bound any more (the pairwise estimator's bounds hold
+        for the exact divergences); it is exact where the family is Gaussian.
+        """
+        if kind not in ("bhattacharyya", "kl"):
+            raise ValueError(f"divergence: kind must be 'bhattacharyya' or 'kl', got {kind!r}")
+        try:
+            return self.bhattacharyya() if kind == "bhattacharyya" else self.kl()
+        except NotImplementedError:
+            from .gaussian_full import FullGaussian, cholesky_lower  # the Gaussian formula lives in its own file
+
+            matched = FullGaussian(self.mean(), cholesky_lower(self.covariance()))
+            return matched.bhattacharyya() if kind == "bhattacharyya" else matched.kl()
 
     def scaling_terms(self, g: Float[Array, "N K"]):
         """Whatever :meth:`scaled_log_density` needs from the features ``g``,

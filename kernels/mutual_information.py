@@ -57,7 +57,7 @@ import jax.numpy as jnp
 import jax.random as jr
 from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray
 
-from ._grid import check_belief, floor_log_probs, grid_mixture, lse, to_grid, weights
+from ._grid import check_belief, floor_log_probs, level_tables, lse, mixture_information, own_class
 from .belief import Belief
 from .likelihood import Likelihood, as_likelihoods
 
@@ -174,39 +174,10 @@ def _shifted_exp(ld):
 
 
 def belief_level_tables(tables: MITables, log_pk):
-    """T_i = logsumexp_k' (LD_i + log P_i(k'|c')) per camera, ``[V_i, C, L_i, J, C]``.
-
-    Fast path (tables with ``ld_max`` / ``ld_exp``): with M_i = max_k' LD_i and
-    E_i = exp(LD_i - M_i) precomputed offline,
-
-        T_i = M_i + log sum_k' E_i[..., k'] P_i(k'|c')
-
-    (a batched matrix product over k', no exp over the LD entries online; P_i = ``weights(log P_i)``,
-    values below the smallest normal float flushed to 0).  Guard: the shift M_i
-    ignores the belief, so where the belief puts ~all its mass on levels whose
-    E_i is tiny or flushed (e.g. P_i ~ 0 on the level holding the max of LD_i),
-    the sum underflows and loses precision.  If any sum in any camera is below
-    ``tau = L_i * tiny / eps`` (or not a number), the whole call uses the exact
-    logsumexp over LD_i instead, under ``lax.cond`` (nothing is paid for it
-    when no sum underflows; under ``vmap`` both branches run).  Above ``tau``
-    the flushed terms (each below ``tiny``) change the sum by at most a relative
-    ``eps``, so the two paths agree to rounding.
-    """
-    dtype = tables.ld[0].dtype
-    finfo = jnp.finfo(dtype)
-
-    def exact(_):
-        return [lse(ld + lp[:, None, None, None], axis=-1) for ld, lp in zip(tables.ld, log_pk)]
-
-    if tables.ld_max is None or tables.ld_exp is None:
-        return exact(None)
-    fast, under = [], jnp.zeros((), bool)
-    for mx, ex, lp in zip(tables.ld_max, tables.ld_exp, log_pk):
-        tau = lp.shape[-1] * float(finfo.tiny) / float(finfo.eps)
-        s = jnp.einsum("vCKclj,vCK->vcljC", ex, weights(lp))
-        under = under | jnp.any(~(s >= tau))
-        fast.append(jnp.log(s) + mx)
-    return jax.lax.cond(under, exact, lambda _: fast, None)
+    """T_i = logsumexp_k' (LD_i + log P_i(k'|c')) per camera, ``[V_i, C, L_i, J, C]``
+    (:func:`._grid.level_tables` on the sample tables: a batched product with
+    the offline E_i = exp(LD_i - M_i), exact logsumexp where that underflows)."""
+    return level_tables(tables.ld, tables.ld_max, tables.ld_exp, log_pk)
 
 
 def per_position_levels(belief: Belief, positions: tuple[int, ...]):
@@ -259,7 +230,6 @@ def mutual_information(
     if levels not in ("belief", "uniform"):
         raise ValueError(f"mutual_information: levels must be 'belief' or 'uniform', got {levels!r}")
     check_belief(tables, belief)
-    n = len(tables.ld_self)
     positions = tuple(t.shape[0] for t in tables.ld_self)
     n_c, j = tables.ld_self[0].shape[1], tables.ld_self[0].shape[3]
     if with_stderr and j < 2:
@@ -280,29 +250,9 @@ def mutual_information(
         log_pk = [lp.astype(dtype) for lp in per_position_levels(belief, positions)]
         ts = belief_level_tables(tables, log_pk)
 
-    # E_s E_g log p(g|a): mixture over c' on the (v_0, v_1, ...) grid.
-    grid_tabs = [to_grid(t) for t in ts]  # [C, J, X_i, C']
-    extra = jnp.broadcast_to(log_pc[None, None, :], (n_c, j, n_c))
-    logp, _, _ = grid_mixture(grid_tabs, extra)  # [C, J, X_0, ..., X_{n-1}]
-    pc = weights(log_pc, n + 1)
-    pk = [weights(lp, n + 1) for lp in log_pk]  # [V_i, C, L_i]
-    letters = "pqrstuvwxy"[:n]
-    caps = "PQRSTUVWXY"[:n]
-    shaped = logp.reshape((n_c, j) + sum(((v, t.shape[2]) for v, t in zip(positions, ts)), ()))
-    grid_in = "cj" + "".join(a + b for a, b in zip(letters, caps))
-    spec = "c," + grid_in + "," + ",".join(f"{a}c{b}" for a, b in zip(letters, caps)) + "->j" + letters
-    e_logp = jnp.einsum(spec, pc, shaped, *pk)  # [J, V_0, ..., V_{n-1}], sum over j = J * E
-
-    # E_s E_g log p(g|s,a): separable per camera.
-    e_self = jnp.zeros((j,) + positions, dtype)
-    for i in range(n):
-        if target == "state":
-            s = tables.ld_self[i]  # [V, C, L, J]
-        else:
-            s = jnp.transpose(jnp.diagonal(ts[i], axis1=1, axis2=4), (0, 3, 1, 2))  # [V, C, L, J]
-        e_i = jnp.einsum("c,vcl,vclj->jv", pc, pk[i], s)
-        e_self = e_self + e_i.reshape((j,) + (1,) * i + (positions[i],) + (1,) * (n - 1 - i))
-    reps = (e_self - e_logp).reshape(j, -1)  # per-replicate MI estimates [J, A]
+    # E_s E_g [log p(g|s,a) - log p(g|a)] per replicate, on the (v_0, v_1, ...) grid
+    selfs = list(tables.ld_self) if target == "state" else [own_class(t) for t in ts]
+    reps = mixture_information(ts, selfs, log_pc, log_pk)  # [J, A]
     mi = jnp.mean(reps, axis=0)
     if not with_stderr:
         return mi

@@ -60,6 +60,22 @@ def bhattacharyya_ref(mu, cov):
     return out
 
 
+def kl_ref(mu, cov):
+    """KL(N(mu[c, l], cov[c, l]) || N(mu[c', l'], cov[c', l'])) for every ordered pair -> [C, L, C, L]:
+    1/2 [tr(S_2^-1 S_1) + d^T S_2^-1 d - K + log det S_2 - log det S_1], one pair at a
+    time with ``numpy.linalg`` (``cov``: ``[C, L, K, K]``)."""
+    mu, cov = np.asarray(mu, float), np.asarray(cov, float)
+    c, l, k = mu.shape
+    out = np.empty((c, l, c, l))
+    for a in np.ndindex(c, l):
+        for b in np.ndindex(c, l):
+            d = mu[b] - mu[a]
+            tr = np.trace(np.linalg.solve(cov[b], cov[a]))
+            ld = np.linalg.slogdet(cov[b])[1] - np.linalg.slogdet(cov[a])[1]
+            out[a + b] = 0.5 * (tr + d @ np.linalg.solve(cov[b], d) - k + ld)
+    return out
+
+
 # --- full joint-state belief (eq. 3.1, 3.7-3.9) ------------------------------------------------
 
 
@@ -242,6 +258,59 @@ def mutual_information_quadrature(mus, vars, log_joint, cfg, target="state", n_g
     for ax in reversed(axes):
         integrand = np.trapezoid(integrand, ax, axis=-1)
     return float(integrand)
+
+
+# --- pairwise-distance MI (Kolchinsky & Tracey 2017) ------------------------------------------
+
+
+def pairwise_mi_ref(mus, covs, log_joint, kind="bhattacharyya", target="state"):
+    """The pairwise-distance MI estimate for every configuration by brute force:
+    every pair of joint states (s, s'), D_a(s, s') = sum_i D_i[v_i](c, k_i; c', k_i')
+    from the NumPy closed forms (:func:`bhattacharyya_ref` / :func:`kl_ref`), and
+
+        I_D(s; g | a) = - sum_s P(s) log sum_s' P(s') exp(-D_a(s, s'))
+
+    ``target="class"``: I_D(s; g) - sum_c P(c) I_D(k; g | c), the within-class
+    term by the same formula over the *joint* levels k = (k_0, k_1, ...) of each
+    class (no factorisation over cameras assumed).
+
+    Args:
+        mus: per camera ``[V_i, C, L_i, K_i]``; covs: per camera ``[V_i, C, L_i, K_i, K_i]``.
+        log_joint: ``[C, L_0, ...]`` log P(s).
+    """
+    ref = bhattacharyya_ref if kind == "bhattacharyya" else kl_ref
+    mus = [np.asarray(m, float) for m in mus]
+    covs = [np.asarray(c, float) for c in covs]
+    log_joint = np.asarray(log_joint, float)
+    ds = [np.stack([ref(m[v], cv[v]) for v in range(m.shape[0])]) for m, cv in zip(mus, covs)]
+    states = list(np.ndindex(*log_joint.shape))
+    configs = list(itertools.product(*[range(m.shape[0]) for m in mus]))
+    out = np.zeros(len(configs))
+    for a, cfg in enumerate(configs):
+        def dist(s, t):
+            return sum(d[v, s[0], s[i + 1], t[0], t[i + 1]] for i, (d, v) in enumerate(zip(ds, cfg)))
+
+        total = 0.0
+        for s in states:
+            if log_joint[s] == -np.inf:
+                continue
+            inner = logsumexp([log_joint[t] - dist(s, t) for t in states])
+            total -= math.exp(log_joint[s]) * inner
+        if target == "class":
+            for c in range(log_joint.shape[0]):
+                log_pc = logsumexp(log_joint[c])
+                if log_pc == -np.inf:
+                    continue
+                within = 0.0
+                ks = list(np.ndindex(*log_joint.shape[1:]))
+                for k in ks:
+                    if log_joint[(c,) + k] == -np.inf:
+                        continue
+                    inner = logsumexp([log_joint[(c,) + q] - log_pc - dist((c,) + k, (c,) + q) for q in ks])
+                    within -= math.exp(log_joint[(c,) + k] - log_pc) * inner
+                total -= math.exp(log_pc) * within
+        out[a] = total
+    return out
 
 
 # --- Fisher information (eq. 5.22-5.28) ------------------------------------------------------

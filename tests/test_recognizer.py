@@ -276,3 +276,60 @@ def test_trials_are_reproducible_whatever_the_batch(tmp_path, moving_model):
     mine = {k: v for k, v in together.seen.items() if k[1] == 2}
     assert mine and mine == alone.seen
     assert list(other.seen.values()) != list(alone.seen.values())  # the seed does matter
+
+
+@pytest.mark.parametrize("planner", ["mi-pairwise", "mi-class-pairwise"])
+def test_pairwise_planners_run_and_do_not_recompile(planner, getkey):
+    model = random_model()
+    rec = Recognizer(model, make_planner(planner, model, key=getkey()), p_threshold=0.96788)
+    state = rec.init(getkey())
+
+    def images():
+        return jr.randint(getkey(), (2, 6, 8), 1, 255).astype(jnp.uint8)
+
+    images()
+    state, dec = rec.step(state, images(), getkey(), trace=True)
+    jax.block_until_ready(dec)
+    with count_compiles() as later:
+        for _ in range(12):
+            if bool(dec.stop):
+                state = rec.init(getkey())
+            state, dec = rec.step(state, images(), getkey(), trace=True)
+            assert bool(dec.valid) and 0 <= int(dec.next_index) < 12
+            assert not np.any(np.isnan(np.asarray(dec.trace.scores)))
+    assert sum(later.values()) == 0, dict(later)
+
+
+@pytest.mark.parametrize("planner", ["mi", "random"])
+def test_exclude_visited_positions(planner, getkey):
+    """With the option, no camera returns to a position it used while it has an
+    unused one (camera 1 has 3 positions: after 3 views it lapses); never a NaN,
+    no recompiles across steps."""
+    model = random_model((4, 3))
+    rec = Recognizer(model, make_planner(planner, model, key=getkey(), samples=32), max_steps=50, p_threshold=1.1,
+                     exclude_visited_positions=True)
+    state = rec.init(config=(0, 0))
+    used = [{0}, {0}]
+    images = jr.randint(getkey(), (2, 6, 8), 1, 255).astype(jnp.uint8)
+    state, dec = rec.step(state, images, getkey())
+    with count_compiles() as later:
+        for step in range(11):
+            nxt = tuple(int(x) for x in np.asarray(dec.next_config))  # host-side: no eager ops in the counter
+            for i, v in enumerate(nxt):
+                if len(used[i]) < model.positions[i]:
+                    assert v not in used[i], (step, nxt, used)
+                used[i].add(v)
+            visited = np.asarray(state.visited)
+            assert not visited[int(dec.next_index)] or visited.all()
+            state, dec = rec.step(state, images, getkey())
+    assert sum(later.values()) == 0, dict(later)
+    # off (the default): the same planner may keep a camera where it was
+    assert not Recognizer(model, rec.planner).exclude_visited_positions
+
+
+def test_excluded_by_positions_lapses_per_camera():
+    from jaxrecog.recognizer import excluded_by_positions
+
+    seen = (jnp.array([True, False, False]), jnp.array([True, True]))  # camera 1 used both its positions
+    ex = np.asarray(excluded_by_positions(seen, (3, 2))).reshape(3, 2)
+    np.testing.assert_array_equal(ex, [[True, True], [False, False], [False, False]])

@@ -1,0 +1,226 @@
+"""Pairwise-distance MI kernel (Kolchinsky & Tracey 2017): divergence tables
+against NumPy closed forms, the kernel against brute-force enumeration of all
+state pairs, the bounds around the Monte Carlo MI, the exact limits, bad input
+and compiles."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from compiles import count_compiles
+from kernel_models import as_jax, as_jax_belief, jitted, random_belief, random_chols, random_model
+from oracles import bhattacharyya_ref, kl_ref, pairwise_mi_ref
+
+from jaxrecog import kernels as K
+
+pytestmark = pytest.mark.usefixtures("strict_dtype_promotion")  # numerics: no implicit promotion
+
+MI_TABLES, MI, _ = jitted()
+PT = jax.jit(K.pairwise_tables, static_argnames=("kind",))
+PMI = jax.jit(K.pairwise_mutual_information, static_argnames=("target", "levels"))
+
+
+def _covs(vars=None, chols=None):
+    if chols is not None:
+        return tuple(c @ np.swapaxes(c, -1, -2) for c in chols)
+    return tuple(v[..., None] * np.eye(v.shape[-1]) for v in vars)
+
+
+class _NoClosedForm(K.DiagonalGaussian):
+    """A diagonal Gaussian that pretends to have no closed-form divergences
+    (not registered): ``divergence`` must fall back to the moment-matched Gaussian."""
+
+    def bhattacharyya(self):
+        raise NotImplementedError
+
+    def kl(self):
+        raise NotImplementedError
+
+
+@pytest.mark.parametrize("family", ["diag", "full"])
+def test_divergence_tables_against_numpy_closed_forms(rng, x64, family):
+    mus, vars = random_model(rng, 3, (2,), (2,), (3,))
+    chols = random_chols(rng, 3, (2,), (2,), (3,), scale=1.0) if family == "full" else None
+    lik = K.gaussian(jnp.asarray(mus[0]), jnp.asarray(vars[0])) if chols is None else K.gaussian(
+        jnp.asarray(mus[0]), chol=jnp.asarray(chols[0]))
+    cov = _covs(vars, chols)[0]
+    for v in range(2):
+        kl = np.asarray(lik.at(v).kl())
+        np.testing.assert_allclose(kl, kl_ref(mus[0][v], cov[v]), rtol=1e-10, atol=1e-12)
+        np.testing.assert_allclose(np.asarray(lik.at(v).divergence("kl")), kl, rtol=0, atol=0)
+        np.testing.assert_allclose(np.asarray(lik.at(v).divergence("bhattacharyya")),
+                                   bhattacharyya_ref(mus[0][v], cov[v]), rtol=1e-10, atol=1e-12)
+        assert np.all(kl >= -1e-12) and np.allclose(np.einsum("ckck->ck", kl), 0.0, atol=1e-12)
+    # the tables are -D with a unit sample axis, per position
+    for kind, ref in (("bhattacharyya", bhattacharyya_ref), ("kl", kl_ref)):
+        t = K.pairwise_tables((lik,), kind=kind)
+        want = np.stack([ref(mus[0][v], cov[v]) for v in range(2)])
+        np.testing.assert_allclose(-np.asarray(t.log_w[0])[:, :, :, 0], want, rtol=1e-10, atol=1e-12)
+
+
+def test_kl_matches_monte_carlo_of_the_log_ratio(rng, x64):
+    """The KL closed form is E_p[log p - log q], estimated from samples of p."""
+    lik = K.DiagonalGaussian(jnp.asarray(rng.normal(size=(2, 1, 2))), jnp.asarray(rng.uniform(0.3, 1.2, size=(2, 1, 2))))
+    z = jnp.asarray(rng.normal(size=(2, 1, 200_000, 2)))
+    g = lik.sample(z)  # [C, L, N, K]
+    ld = lik.log_density(g)  # [C, L, N, C', L']
+    mc = np.asarray(jnp.mean(ld[0, 0, :, 0, 0] - ld[0, 0, :, 1, 0]))
+    np.testing.assert_allclose(mc, float(lik.kl()[0, 0, 1, 0]), rtol=2e-2)
+
+
+def test_moment_matched_fallback_without_closed_forms(rng, x64):
+    """A family without closed forms gets the divergence of its moment-matched
+    Gaussians: exact here (the family is Gaussian), so equal to the closed form."""
+    mus, vars = random_model(rng, 3, (2,), (1,), (3,))
+    exact = K.DiagonalGaussian(jnp.asarray(mus[0][0]), jnp.asarray(vars[0][0]))
+    approx = _NoClosedForm(jnp.asarray(mus[0][0]), jnp.asarray(vars[0][0]))
+    with pytest.raises(NotImplementedError):
+        approx.kl()
+    for kind in K.DIVERGENCES:
+        np.testing.assert_allclose(np.asarray(approx.divergence(kind)), np.asarray(exact.divergence(kind)),
+                                   rtol=1e-10, atol=1e-12)
+    with pytest.raises(ValueError, match="bhattacharyya"):
+        exact.divergence("hellinger")
+
+
+@pytest.mark.parametrize(
+    "levels,positions,dims",
+    [((2,), (3,), (2,)), ((2, 3), (3, 2), (3, 2)), ((2, 1, 2), (2, 2, 2), (1, 2, 1))],
+)
+@pytest.mark.parametrize("target", ["state", "class"])
+@pytest.mark.parametrize("kind", ["bhattacharyya", "kl"])
+def test_matches_brute_force_reference(rng, x64, levels, positions, dims, target, kind):
+    mus, vars = random_model(rng, 3, levels, positions, dims, spread=1.5)
+    b = random_belief(rng, 3, levels)
+    # per-position level rows, as the planner's predicted prior has
+    rows = [np.stack([random_belief(rng, 3, levels).log_pk[i] for _ in range(v)]) for i, v in enumerate(positions)]
+    mi = np.asarray(PMI(PT(as_jax(mus), as_jax(vars), kind=kind), K.Belief(jnp.asarray(b.log_pc), as_jax(rows)), target))
+    assert mi.shape == (int(np.prod(positions)),)
+    for a, cfg in enumerate(np.ndindex(*positions)):
+        single = K.Belief(jnp.asarray(b.log_pc), tuple(jnp.asarray(r[v]) for r, v in zip(rows, cfg)))
+        lj = np.asarray(K.log_joint(single))
+        sub = tuple(m[v:v + 1] for m, v in zip(mus, cfg))
+        ref = pairwise_mi_ref(sub, tuple(c[v:v + 1] for c, v in zip(_covs(vars), cfg)), lj, kind, target)
+        np.testing.assert_allclose(mi[a], ref[0], rtol=1e-10, atol=1e-12)
+
+
+@pytest.mark.parametrize("target", ["state", "class"])
+def test_full_covariance_matches_brute_force(rng, x64, target):
+    levels, positions, dims = (2, 2), (2, 2), (3, 2)
+    mus, _ = random_model(rng, 3, levels, positions, dims)
+    chols = random_chols(rng, 3, levels, positions, dims, scale=1.0)
+    b = random_belief(rng, 3, levels)
+    lj = np.asarray(K.log_joint(as_jax_belief(b)))
+    for kind in K.DIVERGENCES:
+        mi = PMI(PT(as_jax(mus), chols=as_jax(chols), kind=kind), as_jax_belief(b), target)
+        np.testing.assert_allclose(mi, pairwise_mi_ref(mus, _covs(chols=chols), lj, kind, target), rtol=1e-9, atol=1e-12)
+
+
+def test_bhattacharyya_below_monte_carlo_below_kl(rng, getkey, x64):
+    """K&T Theorems 2-3 on I(s; g | a): the Bhattacharyya estimate is a lower bound,
+    the KL estimate an upper bound; the Monte Carlo MI lies between, within 4 se."""
+    for spread in (0.5, 1.0, 2.0):
+        mus, vars = random_model(rng, 4, (2, 3), (3, 2), (2, 2), spread=spread)
+        b = as_jax_belief(random_belief(rng, 4, (2, 3)))
+        mc, se = MI(MI_TABLES(as_jax(mus), as_jax(vars), key=getkey(), samples_per_stratum=300), b, "state", with_stderr=True)
+        lo = PMI(PT(as_jax(mus), as_jax(vars), kind="bhattacharyya"), b, "state")
+        hi = PMI(PT(as_jax(mus), as_jax(vars), kind="kl"), b, "state")
+        mc, se, lo, hi = (np.asarray(x) for x in (mc, se, lo, hi))
+        assert np.all(lo <= mc + 4 * se), (spread, lo - mc, se)
+        assert np.all(mc <= hi + 4 * se), (spread, hi - mc, se)
+        assert np.all(lo <= hi + 1e-12)
+        assert np.all(lo >= -1e-12) and np.all(hi <= float(K.entropy(b, "state")) + 1e-9)
+
+
+@pytest.mark.parametrize("target", ["state", "class"])
+@pytest.mark.parametrize("kind", ["bhattacharyya", "kl"])
+def test_exact_on_separated_and_on_identical_components(rng, x64, target, kind):
+    mus, vars = random_model(rng, 4, (2, 3), (3, 2), (2, 2))
+    b = as_jax_belief(random_belief(rng, 4, (2, 3)))
+    # perfectly separated: every D -> inf, I = H(s) (state) or H(c) (class)
+    sharp = PMI(PT(as_jax(tuple(1e4 * m for m in mus)), as_jax(vars), kind=kind), b, target)
+    np.testing.assert_allclose(sharp, float(K.entropy(b, target)), rtol=1e-10)
+    # identical components at every position: D = 0, I = 0
+    same_mu = tuple(np.broadcast_to(m[:, :1, :1], m.shape).copy() for m in mus)
+    same_var = tuple(np.broadcast_to(v[:, :1, :1], v.shape).copy() for v in vars)
+    np.testing.assert_allclose(PMI(PT(as_jax(same_mu), as_jax(same_var), kind=kind), b, target), 0.0, atol=1e-12)
+
+
+def test_uniform_levels_equal_belief_path_with_uniform_rows(rng, x64):
+    mus, vars = random_model(rng, 4, (2, 3), (3, 2), (2, 2))
+    b = as_jax_belief(random_belief(rng, 4, (2, 3)))
+    t = PT(as_jax(mus), as_jax(vars), kind="bhattacharyya")
+    uni = K.Belief(b.log_pc, tuple(jnp.full_like(x, -np.log(x.shape[1])) for x in b.log_pk))
+    for target in ("state", "class"):
+        np.testing.assert_allclose(PMI(t, b, target, levels="uniform"), PMI(t, uni, target), rtol=1e-12, atol=1e-12)
+
+
+def test_float32_sharp_model_falls_back_and_stays_finite(rng, getkey):
+    """Sharp thesis-like components in float32: exp(-D) underflows; the exact
+    fallbacks keep every score finite and within [0, H]."""
+    mus, vars = random_model(rng, 6, (3, 2), (3, 2), (4, 4), spread=3.0)
+    mus = tuple(m.astype(np.float32) for m in mus)
+    vars = tuple((v * 1e-3).astype(np.float32) for v in vars)
+    b = as_jax_belief(random_belief(rng, 6, (3, 2), concentration=0.2))
+    b = K.Belief(b.log_pc.astype(jnp.float32), tuple(x.astype(jnp.float32) for x in b.log_pk))
+    for kind in K.DIVERGENCES:
+        t = PT(as_jax(mus), as_jax(vars), kind=kind)
+        for target in ("state", "class"):
+            mi = np.asarray(PMI(t, b, target))
+            assert mi.dtype == np.float32 and np.all(np.isfinite(mi))
+            assert np.all(mi <= float(K.entropy(b, target)) + 1e-3)  # exact bound, both targets
+            if target == "state":
+                assert np.all(mi >= -1e-4)  # the state estimate is >= 0 (the class one need not be)
+
+
+def test_bad_input_and_nan_beliefs(rng):
+    mus, vars = random_model(rng, 4, (2, 3), (3, 2), (2, 2))
+    t = PT(as_jax(mus), as_jax(vars), kind="bhattacharyya")
+    b = K.uniform_belief(4, (2, 3))
+    with pytest.raises(ValueError, match="kind"):
+        K.pairwise_tables(as_jax(mus), as_jax(vars), kind="hellinger")
+    with pytest.raises(ValueError, match="exactly one"):
+        K.pairwise_tables(as_jax(mus))
+    with pytest.raises(ValueError, match="target"):
+        K.pairwise_mutual_information(t, b, "object")
+    with pytest.raises(ValueError, match="levels"):
+        K.pairwise_mutual_information(t, b, levels="sticky")
+    with pytest.raises(ValueError, match="cameras"):
+        K.pairwise_mutual_information(t, K.uniform_belief(4, (2,)))
+    with pytest.raises(ValueError, match="C = 4"):
+        K.pairwise_mutual_information(t, K.uniform_belief(5, (2, 3)))
+    nan_pc = K.Belief(b.log_pc.at[1].set(jnp.nan), b.log_pk)
+    nan_pk = K.Belief(b.log_pc, (b.log_pk[0].at[0, 1].set(jnp.nan), b.log_pk[1]))
+    for bad in (nan_pc, nan_pk):
+        with pytest.raises(ValueError, match="contains NaN"):
+            K.pairwise_mutual_information(t, bad)
+        with pytest.raises(ValueError, match="contains NaN"):
+            K.mutual_information(MI_TABLES(as_jax(mus), as_jax(vars), key=jax.random.PRNGKey(0), samples_per_stratum=1), bad)
+        # under jit the values are unknown: no error, and no NaN score either
+        for target in ("state", "class"):
+            mi = np.asarray(PMI(t, bad, target))
+            assert not np.any(np.isnan(mi)), mi
+    # -inf (a class ruled out) is a valid belief, and its scores are finite
+    zero = K.Belief(b.log_pc.at[1].set(-jnp.inf), b.log_pk)
+    assert np.all(np.isfinite(np.asarray(K.pairwise_mutual_information(t, zero))))
+
+
+def test_zero_recompiles_after_warm_up(rng):
+    mus, vars = random_model(rng, 4, (2, 3), (3, 2), (2, 2))
+    mus = tuple(m.astype(np.float32) for m in mus)
+    vars = tuple(v.astype(np.float32) for v in vars)
+    t = K.pairwise_tables(as_jax(mus), as_jax(vars), kind="kl")
+    fn = jax.jit(K.pairwise_mutual_information, static_argnames=("target", "levels"))
+
+    def belief():
+        r = random_belief(rng, 4, (2, 3))
+        rows = tuple(jnp.asarray(np.stack([lp] * v), jnp.float32) for lp, v in zip(r.log_pk, (3, 2)))
+        return K.Belief(jnp.asarray(r.log_pc, jnp.float32), rows)
+
+    for target in ("state", "class"):
+        jax.block_until_ready(fn(t, belief(), target))
+    with count_compiles() as later:
+        for _ in range(5):
+            for target in ("state", "class"):
+                jax.block_until_ready(fn(t, belief(), target))
+    assert sum(later.values()) == 0, dict(later)
