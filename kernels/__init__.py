@@ -32,6 +32,7 @@ from .belief import (
 from .fisher import DEFAULT_SIGMA_S, FisherDraws, crlb_criterion, fisher_draws, fisher_information
 from .gaussian_diag import DiagonalGaussian, log_likelihood
 from .gaussian_full import FullGaussian, log_likelihood_full
+from .gaussian_lowrank import LowRankGaussian
 from .likelihood import (
     LIKELIHOODS,
     Likelihood,
@@ -40,9 +41,11 @@ from .likelihood import (
     gaussian,
     gaussian_likelihoods,
     likelihood_class,
+    likelihood_names,
     register_likelihood,
 )
 from .mutual_information import MITables, mi_tables, mutual_information, samples_per_configuration
+from .student_t import StudentT
 
 __all__ = [
     "Belief",
@@ -52,6 +55,7 @@ __all__ = [
     "FullGaussian",
     "LIKELIHOODS",
     "Likelihood",
+    "LowRankGaussian",
     "MITables",
     "UpdateInfo",
     "as_likelihoods",
@@ -66,6 +70,7 @@ __all__ = [
     "joint",
     "level_marginal",
     "likelihood_class",
+    "likelihood_names",
     "log_joint",
     "log_likelihood",
     "log_likelihood_full",
@@ -75,6 +80,7 @@ __all__ = [
     "object_pose_marginal",
     "pose_marginal",
     "register_likelihood",
+    "StudentT",
     "samples_per_configuration",
     "transition",
     "transition_per_position",
