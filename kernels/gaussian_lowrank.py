@@ -97,7 +97,7 @@ class LowRankGaussian(Likelihood):
         d = g[:, None, None, :] - self.mu[None]                          # [N, C, L, K]
         a = d / self.psi[None]
         wt = jnp.swapaxes(self.W, -1, -2)                                # [C, L, R, K]
-        m = wt @ (self.W / self.psi[..., None]) + jnp.eye(self.rank, dtype=self.W.dtype)
+        m = wt @ (self.W / self.psi[..., None]) + jnp.eye(self.rank, dtype=self.W.dtype)[None, None]
         b = cholesky_lower(m)                                            # [C, L, R, R]
         u = jnp.einsum("clrk,nclk->clrn", wt, a)
         w = solve_triangular(b, u, lower=True)                           # [C, L, R, N]

@@ -87,7 +87,8 @@ def chi2_from_normal(u: Float[ArrayLike, "*B"], nu: Float[ArrayLike, "*B"], step
     freedom from one standard-normal number ``u`` (exact quantile transform).
 
     Start: Wilson-Hilferty, ``w ~ nu (1 - 2/(9 nu) + u sqrt(2/(9 nu)))^3`` (its
-    base clipped at 0.05); then ``steps`` Newton steps in ``y = log w`` on the
+    base clipped at 0.05), or for ``u < 0`` the small-``w`` asymptote of the
+    lower tail where it is smaller; then ``steps`` Newton steps in ``y = log w`` on the
     log of the tail on ``u``'s side (``log P(nu/2, w/2) = log Phi(u)`` for
     ``u < 0``, the upper tail otherwise), each step clipped to ``|dy| <= 1``.
     Branch-free (both tails are computed; ``where`` picks one)."""
@@ -97,6 +98,9 @@ def chi2_from_normal(u: Float[ArrayLike, "*B"], nu: Float[ArrayLike, "*B"], step
     lower = u < 0
     target = jnp.where(lower, log_ndtr(u), log_ndtr(-u))
     half = 0.5 * nu
+    # far in the lower tail P(nu/2, w/2) ~ (w/2)^(nu/2) / Gamma(nu/2 + 1): start there when lower
+    y_small = _LOG_2 + (target + gammaln(half + 1.0)) / half
+    y = jnp.where(lower, jnp.minimum(y, y_small), y)
     tiny = jnp.finfo(jnp.result_type(y)).tiny
     for _ in range(steps):
         x = jnp.exp(y)
