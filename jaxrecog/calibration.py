@@ -28,6 +28,19 @@ data enter through the likelihood's ``scaling_terms`` (for the Gaussians
 ``q [N, C, L]`` and ``log|Σ| [C, L]``), computed once, and its
 ``scaled_log_density``.
 
+Shape parameters.  A family may have per-level shape parameters beside its
+dispersion (``Likelihood.calibration_shapes``; the Student-t: its degrees of
+freedom ``nu``, as an offset ``δ`` on ``log(ν - 2)``).  Then ``θ`` also holds
+``δ`` (one per position, or per level with ``per_level``), with the same
+Gaussian prior (sd ``σ``, pulling ``δ`` toward 0, the trained value), and the
+objective reads the family's ``calibrated_log_density(terms, θ_s, δ)``.  The
+bound ``s >= min_factor`` applies to the variance factors only: when the
+unconstrained optimum violates it, the factors are clipped and ``δ`` is
+re-fitted with them held.  The fitted offsets are applied by
+``Likelihood.shape_shifted`` and reported in :class:`CalibrationInfo`
+(``shape``); ``uncalibrated`` undoes the variance factors only (the fitted
+``ν`` is the model's own parameter from then on).
+
 A calibrated model is an ordinary :class:`~jaxrecog.sensor_model.SensorModel`
 (``Likelihood.scaled``; for the Gaussians ``var · s``, ``chol · sqrt(s)``), so
 every kernel and planner uses it unchanged; the factors are kept in
@@ -65,6 +78,9 @@ __all__ = [
     "holdout_calibration",
     "mahalanobis_terms",
     "fit_factors",
+    "fit_camera",
+    "CameraFit",
+    "apply_shape",
     "apply_calibration",
     "calibration_factors",
     "uncalibrated",
@@ -109,6 +125,9 @@ class CalibrationInfo:
             (positions without images: 0).
         n_images: ``[V]`` calibration images per position.
         settings: the fit's settings (per_level, prior_sd, max_iter, tol).
+        shape: ``[V, L, P]`` shape offsets applied this time (per camera; ``P = 0``
+            for a family without shape parameters), see the module docstring.
+        shape_names: the names of the ``P`` shape parameters, per camera.
     """
 
     factors: tuple[np.ndarray, ...]
@@ -118,6 +137,8 @@ class CalibrationInfo:
     nll_after: tuple[np.ndarray, ...]
     n_images: tuple[np.ndarray, ...]
     settings: dict
+    shape: tuple[np.ndarray, ...] = ()
+    shape_names: tuple[tuple[str, ...], ...] = ()
 
     def to_dict(self) -> dict:
         """JSON-serialisable (for the model file's metadata)."""
@@ -132,6 +153,8 @@ class CalibrationInfo:
             "nll_after": lst(self.nll_after),
             "n_images": lst(self.n_images),
             "settings": dict(self.settings),
+            "shape": lst(self.shape),
+            "shape_names": [list(x) for x in self.shape_names],
         }
 
     def summary(self) -> str:
@@ -147,6 +170,11 @@ class CalibrationInfo:
                 f"NLL {nb:.3f} -> {na:.3f}, L-BFGS iterations <= {int(self.iterations[i].max())}, "
                 f"converged {int(self.converged[i].sum())}/{len(n)}"
             )
+            if i < len(self.shape) and self.shape[i].size:
+                sh = self.shape[i]
+                for j, name in enumerate(self.shape_names[i]):
+                    lines.append(f"camera {i}: {name} offsets (on its unconstrained scale) "
+                                 f"{sh[..., j].min():.3g}..{sh[..., j].max():.3g}")
         return "\n".join(lines)
 
 
@@ -267,85 +295,134 @@ def mahalanobis_terms(mu: Float[ArrayLike, "C L K"], var: Float[ArrayLike, "C L 
     return K.gaussian(mu, var, chol).scaling_terms(g)
 
 
+def _split_theta(theta: Float[Array, " P"], n_levels: int, n_shape: int):
+    """``theta [(1 + S) G]`` (``G`` = 1 or L groups, ``S`` shape parameters) ->
+    ``(log factors [L], shape offsets [L, S])``."""
+    t = theta.reshape(1 + n_shape, theta.shape[0] // (1 + n_shape))
+    return jnp.broadcast_to(t[0], (n_levels,)), jnp.broadcast_to(t[1:].T, (n_levels, n_shape))
+
+
 def _neg_log_posterior(theta: Float[Array, " P"], lik: K.Likelihood, terms,
-                       true_cls: Int[Array, " N"], mask: Bool[Array, " N"]) -> Float[Array, " N"]:
-    """``-log p'(c*_n | g_n)`` per image under factors ``exp(theta)`` (broadcast to L),
-    for one position's likelihood ``lik`` and its ``scaling_terms``."""
-    th = jnp.broadcast_to(theta, (lik.n_levels,))
-    ll = lik.scaled_log_density(terms, th)                               # [N, C, L]
+                       true_cls: Int[Array, " N"], mask: Bool[Array, " N"], n_shape: int = 0) -> Float[Array, " N"]:
+    """``-log p'(c*_n | g_n)`` per image under factors ``exp(theta)`` (broadcast to L)
+    and, with ``n_shape`` shape parameters, the shape offsets in ``theta``
+    (:func:`_split_theta`), for one position's likelihood ``lik`` and its ``scaling_terms``."""
+    if n_shape:
+        th, shape = _split_theta(theta, lik.n_levels, n_shape)
+        ll = lik.calibrated_log_density(terms, th, shape)                # [N, C, L]
+    else:
+        th = jnp.broadcast_to(theta, (lik.n_levels,))
+        ll = lik.scaled_log_density(terms, th)                           # [N, C, L]
     log_c = jax.nn.logsumexp(ll, axis=-1)                                # [N, C]
     log_post = jnp.take_along_axis(log_c, true_cls[:, None], axis=1)[:, 0] - \
         jax.nn.logsumexp(log_c, axis=-1)
     return jnp.where(mask, -log_post, 0.0)
 
 
+def _lbfgs(loss, x0, max_iter, tol):
+    """Minimise ``loss`` from ``x0`` with ``optax.lbfgs`` in a ``lax.while_loop``:
+    ``(x, iterations)``."""
+    opt = optax.lbfgs()   # zoom line search (a backtracking one stalls near the optimum in float32)
+    value_and_grad = optax.value_and_grad_from_state(loss)
+
+    def body(carry):
+        x, state, it = carry
+        value, grad = value_and_grad(x, state=state)
+        updates, state = opt.update(grad, state, x, value=value, grad=grad, value_fn=loss)
+        return optax.apply_updates(x, updates), state, it + 1
+
+    def cond(carry):
+        x, state, it = carry
+        grad = optax.tree_utils.tree_get(state, "grad")
+        gnorm = jnp.linalg.norm(grad)
+        return (it == 0) | ((it < max_iter) & (gnorm >= tol))
+
+    x, _, it = jax.lax.while_loop(cond, body, (x0, opt.init(x0), jnp.asarray(0)))
+    return x, it
+
+
 @eqx.filter_jit
-def _fit_positions(lik, terms, true_cls, mask, prior_sd, max_iter, tol, log_min, *, n_params: int):
+def _fit_positions(lik, terms, true_cls, mask, prior_sd, max_iter, tol, log_min, *, n_params: int,
+                   n_shape: int = 0):
     """vmap over positions (of the camera's likelihood ``lik`` and its
     ``scaling_terms``) of the L-BFGS fit: ``(theta [V, P], iters [V],
-    converged [V], nll0 [V], nll1 [V])``.  ``prior_sd``, ``max_iter``, ``tol``,
-    ``log_min`` are traced scalars (changing them does not recompile).  The
-    unconstrained optimum is clipped to ``theta >= log_min`` afterwards (exact
-    for one factor per position, where ``J_v`` is unimodal in practice)."""
+    converged [V], nll0 [V], nll1 [V])``, ``P = n_params`` (``(1 + n_shape)``
+    groups: the log factors, then each shape offset).  ``prior_sd``,
+    ``max_iter``, ``tol``, ``log_min`` are traced scalars (changing them does
+    not recompile).  The unconstrained optimum's log factors are clipped to
+    ``>= log_min`` afterwards (exact for one factor per position, where ``J_v``
+    is unimodal in practice); with shape offsets, those are then re-fitted
+    with the clipped factors held."""
+    groups = n_params // (1 + n_shape)
 
     def fit_one(lik, terms, true_cls, mask):
         dtype = lik.dtype
         n = jnp.maximum(jnp.sum(mask), 1).astype(dtype)
 
         def loss(theta):
-            nll = _neg_log_posterior(theta, lik, terms, true_cls, mask)
+            nll = _neg_log_posterior(theta, lik, terms, true_cls, mask, n_shape)
             return (jnp.sum(nll) + 0.5 * jnp.sum(theta * theta) / prior_sd**2) / n
 
-        opt = optax.lbfgs()   # zoom line search (a backtracking one stalls near the optimum in float32)
-        value_and_grad = optax.value_and_grad_from_state(loss)
         theta0 = jnp.zeros((n_params,), dtype)
-
-        def body(carry):
-            theta, state, it = carry
-            value, grad = value_and_grad(theta, state=state)
-            updates, state = opt.update(grad, state, theta, value=value, grad=grad, value_fn=loss)
-            return optax.apply_updates(theta, updates), state, it + 1
-
-        def cond(carry):
-            theta, state, it = carry
-            grad = optax.tree_utils.tree_get(state, "grad")
-            gnorm = jnp.linalg.norm(grad)
-            return (it == 0) | ((it < max_iter) & (gnorm >= tol))
-
-        theta, state, it = jax.lax.while_loop(cond, body, (theta0, opt.init(theta0), jnp.asarray(0)))
-        gnorm = jnp.linalg.norm(jax.grad(loss)(theta))
-        theta = jnp.maximum(theta, log_min)
-        nll0 = jnp.sum(_neg_log_posterior(theta0, lik, terms, true_cls, mask)) / n
-        nll1 = jnp.sum(_neg_log_posterior(theta, lik, terms, true_cls, mask)) / n
+        theta, it = _lbfgs(loss, theta0, max_iter, tol)
+        scale = jnp.maximum(theta[:groups], log_min)
+        if n_shape:
+            shape, it2 = _lbfgs(lambda sh: loss(jnp.concatenate([scale, sh])), theta[groups:], max_iter, tol)
+            theta, it = jnp.concatenate([scale, shape]), it + it2
+            gnorm = jnp.linalg.norm(jax.grad(lambda sh: loss(jnp.concatenate([scale, sh])))(shape))
+        else:
+            gnorm = jnp.linalg.norm(jax.grad(loss)(theta))
+            theta = scale
+        nll0 = jnp.sum(_neg_log_posterior(theta0, lik, terms, true_cls, mask, n_shape)) / n
+        nll1 = jnp.sum(_neg_log_posterior(theta, lik, terms, true_cls, mask, n_shape)) / n
         return theta, it, gnorm < tol, nll0, nll1
 
     return jax.vmap(fit_one)(lik, terms, true_cls, mask)
 
 
-def fit_factors(camera: CameraModel, features: CameraFeatures, *, per_level: bool = False,
-                prior_sd: float = 1.0, max_iter: int = 100, tol: float = 1e-5,
-                min_factor: float | None = 1.0):
-    """Fit one camera's variance factors ``s [V, L]`` (module docstring).
+class CameraFit(NamedTuple):
+    """One camera's calibration fit (:func:`fit_camera`), NumPy arrays.
+
+    Attributes:
+        factors: ``[V, L]`` variance factors ``s``.
+        shape: ``[V, L, P]`` shape offsets (``P = 0`` without shape parameters).
+        iterations, converged, nll_before, nll_after, n_images: ``[V]`` (see
+            :class:`CalibrationInfo`).
+    """
+
+    factors: np.ndarray
+    shape: np.ndarray
+    iterations: np.ndarray
+    converged: np.ndarray
+    nll_before: np.ndarray
+    nll_after: np.ndarray
+    n_images: np.ndarray
+
+
+def fit_camera(camera: CameraModel, features: CameraFeatures, *, per_level: bool = False,
+               prior_sd: float = 1.0, max_iter: int = 100, tol: float = 1e-5,
+               min_factor: float | None = 1.0, fit_shape: bool = True) -> CameraFit:
+    """Fit one camera's variance factors ``s [V, L]`` and, with ``fit_shape``,
+    its likelihood's shape offsets (module docstring).
 
     Args:
         camera: the camera's (possibly already calibrated) model.
         features: its held-out features.
-        per_level: one factor per (position, level) instead of per position.
-        prior_sd: sd ``σ`` of the Gaussian prior on ``log s``.
+        per_level: one factor (and shape offset) per (position, level) instead of per position.
+        prior_sd: sd ``σ`` of the Gaussian prior on ``log s`` and the shape offsets.
         max_iter, tol: L-BFGS iteration cap and gradient-norm tolerance (on the
             per-image mean objective).
         min_factor: lower bound on ``s`` (default 1: inflate only, never make the
             model surer than trained); ``None`` = unbounded.
-
-    Returns:
-        ``(s [V, L], iterations [V], converged [V], nll_before [V], nll_after [V], n_images [V])``
-        as NumPy arrays.
+        fit_shape: fit the family's ``calibration_shapes`` too (none for the Gaussians).
     """
     if not prior_sd > 0 or not max_iter >= 1 or not tol > 0 or not (min_factor is None or min_factor > 0):
         raise ValueError(f"need prior_sd > 0, max_iter >= 1, tol > 0, min_factor > 0 or None "
                          f"(got {prior_sd}, {max_iter}, {tol}, {min_factor})")
     lik = camera.likelihood
     V, L, dim = camera.n_positions, lik.n_levels, lik.dim
+    n_shape = len(lik.calibration_shapes) if fit_shape else 0
+    groups = L if per_level else 1
     counts = np.bincount(features.position, minlength=V)
     n_max = 1 << max(int(counts.max()) - 1, 0).bit_length()   # power of two: fewer recompiles
     # group by position into padded [V, n_max] slots
@@ -363,12 +440,45 @@ def fit_factors(camera: CameraModel, features: CameraFeatures, *, per_level: boo
     theta, it, conv, nll0, nll1 = _fit_positions(
         lik, terms, cls, jnp.asarray(mask), jnp.asarray(prior_sd, dtype), jnp.asarray(int(max_iter)),
         jnp.asarray(tol, dtype), jnp.asarray(-jnp.inf if min_factor is None else math.log(min_factor), dtype),
-        n_params=L if per_level else 1)
-    s = np.broadcast_to(np.exp(np.asarray(theta, np.float64)), (V, L)).astype(np.float32)
-    if not np.all(np.isfinite(s)):
+        n_params=groups * (1 + n_shape), n_shape=n_shape)
+    theta = np.asarray(theta, np.float64).reshape(V, 1 + n_shape, groups)
+    s = np.broadcast_to(np.exp(theta[:, 0]), (V, L)).astype(np.float32)
+    shape = np.broadcast_to(np.swapaxes(theta[:, 1:], 1, 2), (V, L, n_shape)).astype(np.float32)
+    if not np.all(np.isfinite(s)) or not np.all(np.isfinite(shape)):
         raise FloatingPointError("calibration diverged (non-finite factor)")
-    return (s, np.asarray(it), np.asarray(conv), np.asarray(nll0, np.float64),
-            np.asarray(nll1, np.float64), counts)
+    return CameraFit(s, shape, np.asarray(it), np.asarray(conv), np.asarray(nll0, np.float64),
+                     np.asarray(nll1, np.float64), counts)
+
+
+def fit_factors(camera: CameraModel, features: CameraFeatures, *, per_level: bool = False,
+                prior_sd: float = 1.0, max_iter: int = 100, tol: float = 1e-5,
+                min_factor: float | None = 1.0):
+    """Fit one camera's variance factors ``s [V, L]`` alone (:func:`fit_camera`
+    without shape parameters).
+
+    Returns:
+        ``(s [V, L], iterations [V], converged [V], nll_before [V], nll_after [V], n_images [V])``
+        as NumPy arrays.
+    """
+    f = fit_camera(camera, features, per_level=per_level, prior_sd=prior_sd, max_iter=max_iter, tol=tol,
+                   min_factor=min_factor, fit_shape=False)
+    return f.factors, f.iterations, f.converged, f.nll_before, f.nll_after, f.n_images
+
+
+def apply_shape(model: SensorModel, shapes: Sequence) -> SensorModel:
+    """A new model whose likelihoods are ``shape_shifted(shapes[i][v])`` per
+    camera ``i`` and position ``v`` (``[V_i, L, P_i]``; ``P_i = 0``: unchanged)."""
+    if len(shapes) != model.n_cameras:
+        raise ValueError(f"{len(shapes)} shape arrays for {model.n_cameras} cameras")
+    cams = []
+    for cam, sh in zip(model.cameras, shapes):
+        sh = np.asarray(sh, np.float32)
+        if sh.size:
+            shj = jnp.asarray(sh, cam.likelihood.dtype)
+            cam = dataclasses.replace(cam, likelihood=jax.vmap(lambda lik_v, s_v: lik_v.shape_shifted(s_v))(
+                cam.likelihood, shj))
+        cams.append(cam)
+    return eqx.tree_at(lambda m: m.cameras, model, tuple(cams))
 
 
 # ---------------------------------------------------------------- apply
@@ -420,7 +530,7 @@ def uncalibrated(model: SensorModel) -> SensorModel:
 
 def calibrate_model(model: SensorModel, calib, *, per_level: bool = False, prior_sd: float = 1.0,
                     max_iter: int = 100, tol: float = 1e-5, min_factor: float | None = 1.0,
-                    split: str = "calib") -> tuple[SensorModel, CalibrationInfo]:
+                    split: str = "calib", fit_shape: bool = True) -> tuple[SensorModel, CalibrationInfo]:
     """Fit variance factors on held-out views and return the calibrated model.
 
     Args:
@@ -432,21 +542,24 @@ def calibrate_model(model: SensorModel, calib, *, per_level: bool = False, prior
         max_iter, tol: L-BFGS cap and gradient-norm tolerance.
         min_factor: lower bound on the factors (default 1: inflation only); ``None`` = unbounded.
         split: which rows of a database to use.
+        fit_shape: also fit the likelihood's shape parameters (Student-t: ``ν``).
 
     Returns:
         ``(calibrated model, CalibrationInfo)``; the model's ``calibration``
         holds the accumulated factors, ``info.factors`` this fit's.
     """
     feats = _as_features(model, calib, split)
-    res = [fit_factors(cam, f, per_level=per_level, prior_sd=prior_sd, max_iter=max_iter, tol=tol,
-                       min_factor=min_factor)
+    res = [fit_camera(cam, f, per_level=per_level, prior_sd=prior_sd, max_iter=max_iter, tol=tol,
+                      min_factor=min_factor, fit_shape=fit_shape)
            for cam, f in zip(model.cameras, feats.cameras)]
-    out = apply_calibration(model, [r[0] for r in res])
+    out = apply_shape(apply_calibration(model, [r.factors for r in res]), [r.shape for r in res])
     info = CalibrationInfo(
-        factors=tuple(r[0] for r in res), iterations=tuple(r[1] for r in res),
-        converged=tuple(r[2] for r in res), nll_before=tuple(r[3] for r in res),
-        nll_after=tuple(r[4] for r in res), n_images=tuple(r[5] for r in res),
+        factors=tuple(r.factors for r in res), iterations=tuple(r.iterations for r in res),
+        converged=tuple(r.converged for r in res), nll_before=tuple(r.nll_before for r in res),
+        nll_after=tuple(r.nll_after for r in res), n_images=tuple(r.n_images for r in res),
         settings={"per_level": per_level, "prior_sd": prior_sd, "max_iter": max_iter, "tol": tol,
-                  "min_factor": min_factor, "split": split},
+                  "min_factor": min_factor, "split": split, "fit_shape": fit_shape},
+        shape=tuple(r.shape for r in res),
+        shape_names=tuple(tuple(c.likelihood.calibration_shapes) if fit_shape else () for c in model.cameras),
     )
     return out, info

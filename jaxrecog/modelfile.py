@@ -12,7 +12,16 @@ older single entry (``"diag"`` / ``"full"``), is still written and is what
 files without ``likelihoods`` are read by.  Version 2 added the optional
 ``calibration`` ``[V, L]`` variance factors (:mod:`jaxrecog.calibration`) and
 the ``calibration`` metadata entry; version-1 files still load, as
-uncalibrated models, with a :class:`ModelFileVersionWarning`.
+uncalibrated models, with a :class:`ModelFileVersionWarning`.  Version 3 added
+the likelihood families with parameters of their own beside the Gaussians'
+(``student-t``: ``mu, scale2, nu``; ``gaussian-lowrank``: ``mu, W, psi``, the
+rank being ``W``'s last axis), the training metadata's ``likelihood_options``
+and the calibration metadata's ``shape`` offsets (:mod:`jaxrecog.calibration`):
+an older reader stops at the version instead of at an unknown kind.  A
+version-2 file is a valid version-3 file (Gaussians only) and loads as it is,
+without a warning.  Every likelihood parameter is checked on load (finite,
+and the family's ``problems()``: e.g. ``nu <= 2``, a non-positive variance, a
+rank larger than K), each failure one line naming the field.
 
 Saving writes a temporary file in the target folder, fsyncs it, then
 ``os.replace``s it over the target (and fsyncs the folder): a crash at any
@@ -53,8 +62,9 @@ __all__ = [
     "load_model_meta",
 ]
 
-FORMAT_VERSION = 2
+FORMAT_VERSION = 3
 _OLD_VERSIONS = (1,)  # still read, as uncalibrated models, with a warning
+_SAME_VERSIONS = (2,)  # read as they are: a subset of version 3 (Gaussian likelihoods only)
 _EIGEN = {"mean_image": "V D", "basis": "V D K", "eigenvalues": "V K"}   # every camera, before its likelihood
 _CALIBRATION = {"calibration": "V L"}
 
@@ -212,7 +222,7 @@ def _read(path: Path) -> tuple[dict[str, np.ndarray], dict]:
             f"model file {path}: format version {version} (older than {FORMAT_VERSION}); "
             f"loaded as an uncalibrated model", ModelFileVersionWarning, stacklevel=3,
         )
-    elif version != FORMAT_VERSION:
+    elif version != FORMAT_VERSION and version not in _SAME_VERSIONS:
         raise ModelFileVersionError(
             f"model file {path}: format version {version}, this jaxrecog reads version "
             f"{FORMAT_VERSION} (retrain or convert the model)"

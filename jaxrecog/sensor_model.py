@@ -228,15 +228,16 @@ class GaussianAccumulator:
         cov = self.s2 / n[..., None] - m[..., :, None] * m[..., None, :]
         return mu, 0.5 * (cov + np.swapaxes(cov, -1, -2))
 
-    def fit(self, family: type[K.Likelihood], var_floor: float | np.ndarray = 0.0) -> K.Likelihood:
+    def fit(self, family: type[K.Likelihood], var_floor: float | np.ndarray = 0.0, **options) -> K.Likelihood:
         """One position's likelihood of ``family`` (eq. 4.23-4.24) from the moments;
-        ``var_floor`` (scalar or per class/level ``[C, L]``) keeps every component proper."""
+        ``var_floor`` (scalar or per class/level ``[C, L]``) keeps every component proper;
+        ``options`` go to ``family.fit`` (its ``fit_options``, and ``holdout``)."""
         want = "full" if self.full else "diag"
         if family.second_moments != want:
             raise ValueError(f"the {family.kind!r} likelihood needs {family.second_moments!r} second moments, "
                              f"this accumulator holds {want!r}")
         floor = np.broadcast_to(np.asarray(var_floor, np.float64), self.n.shape)
-        return family.fit(*self.moments(), floor)
+        return family.fit(*self.moments(), floor, **options)
 
     def finalize(self, var_floor: float | np.ndarray = 0.0):
         """ML Gaussians (eq. 4.23-4.24): ``(mu, var, chol)`` of :meth:`fit` with the

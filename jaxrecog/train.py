@@ -68,6 +68,7 @@ def train_model(
     samples_per_image: int = 100,
     covariance: str = "diag",
     likelihood: str | None = None,
+    likelihood_options: dict | None = None,
     seed: int = 0,
     progress: Callable[[int, int], None] | None = None,
     augment: AugmentParams | None = None,
@@ -87,9 +88,15 @@ def train_model(
         samples_per_image: augmented samples per training image and level.
         covariance: the likelihood kind when ``likelihood`` is not given
             (its older name: ``"diag"``, the default, or ``"full"``).
-        likelihood: a registered likelihood kind
-            (:data:`jaxrecog.kernels.LIKELIHOODS`) that can be fitted from
+        likelihood: a registered likelihood kind or name
+            (:data:`jaxrecog.kernels.LIKELIHOODS`, e.g. ``"gaussian-diag"``,
+            ``"student-t"``, ``"gaussian-lowrank"``) that can be fitted from
             sample moments; overrides ``covariance``.
+        likelihood_options: the family's fit options (its ``fit_options``,
+            e.g. ``{"rank": 4}``, ``{"nu": "auto"}``).  A family that asks for
+            held-out samples (``holdout_fraction``) gets every
+            ``round(1 / fraction)``-th sample of each (class, level) held out
+            of its moments.
         seed: everything random derives from it.
         progress: called as ``progress(done, total)`` after each position.
         augment: augmentation settings (``samples_per_image`` overrides its field).
@@ -109,6 +116,12 @@ def train_model(
         raise ValueError(f"likelihood / covariance: {e}") from None
     if family.fit.__func__ is Likelihood.fit.__func__:
         raise ValueError(f"likelihood {lik_kind!r} cannot be trained from sample moments (no fit)")
+    options = dict(likelihood_options or {})
+    unknown = sorted(set(options) - set(family.fit_options))
+    if unknown:
+        takes = ", ".join(family.fit_options) or "none"
+        raise ValueError(f"likelihood {lik_kind!r} has no option {', '.join(map(repr, unknown))} (it takes: {takes})")
+    holdout = float(family.holdout_fraction(**options))
     levels = levels_for(kind)
     params = dataclasses.replace(augment or AugmentParams(), samples_per_image=samples_per_image)
     db = database if isinstance(database, ImageDatabase) else load_database(database)
@@ -130,7 +143,7 @@ def train_model(
             mean, basis, lam = space.truncate(K)
             liks.append(_fit_position(
                 train[i][v], mean, basis, lam, levels, params, bank, seed, i, v,
-                family=family, var_floor=var_floor, batch_size=batch_size,
+                family=family, var_floor=var_floor, batch_size=batch_size, options=options, holdout=holdout,
             ))
             eigen.append((mean, basis, lam))
             done += 1
@@ -152,8 +165,9 @@ def train_model(
             "n_components": n_components,
             "K": K,
             "samples_per_image": samples_per_image,
-            "covariance": lik_kind,
-            "likelihood": lik_kind,
+            "covariance": family.kind,
+            "likelihood": family.kind,
+            "likelihood_options": options,
             "seed": seed,
             "var_floor": var_floor,
             "augment": {k: (list(x) if isinstance(x, tuple) else x)
@@ -175,9 +189,10 @@ def _stack(*per_position):
 
 
 def _fit_position(images, mean, basis, lam, levels, params, bank, seed, camera, position, *,
-                  family, var_floor, batch_size):
+                  family, var_floor, batch_size, options=None, holdout=0.0):
     """The ``family`` likelihood (``[C, L]`` components) of one camera position
-    from streamed samples."""
+    from streamed samples (``holdout > 0``: every ``round(1 / holdout)``-th
+    sample of each (class, level) goes to ``fit``'s ``holdout`` instead)."""
     C, H, W = images.shape
     D, K = basis.shape
     s = params.max_shift
@@ -205,7 +220,10 @@ def _fit_position(images, mean, basis, lam, levels, params, bank, seed, camera, 
         table_q[c] = np.einsum("bd,bd->b", w, w, dtype=np.float64)
 
     buf = np.empty((batch_size, D), np.float32)
+    period = max(2, round(1.0 / holdout)) if holdout > 0 else 0
+    held: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
     for k in range(len(levels)):
+        seen = np.zeros(C, np.int64)  # samples of each class so far at this level
         rng = plan_rng(seed, camera, position, k)
         plan = draw_plan(rng, C, params, bank, k, (H, W))
         B = len(plan)
@@ -230,9 +248,20 @@ def _fit_position(images, mean, basis, lam, levels, params, bank, seed, camera, 
                 qz = table_q[p.image, idx]
             g = _noisy_features(pz, qz, p.brightness, alpha[sl], beta[sl], gamma[sl],
                                 vt1, vt_mean, D)
-            acc.add(g, p.image, k)
+            if period:
+                first = np.eye(C, dtype=np.int64)[p.image]      # [b, C] one-hot
+                rank = seen[p.image] + np.cumsum(first, axis=0)[np.arange(len(p)), p.image] - 1
+                seen += first.sum(axis=0)
+                out = rank % period == period - 1
+                held.append((g[out], p.image[out], np.full(int(out.sum()), k)))
+                g, cls_ = g[~out], p.image[~out]
+            else:
+                cls_ = p.image
+            acc.add(g, cls_, k)
     floor = var_floor * lam.sum() / (K * C)
-    return acc.fit(family, floor)
+    if period:
+        options = {**(options or {}), "holdout": tuple(np.concatenate(x) for x in zip(*held))}
+    return acc.fit(family, floor, **(options or {}))
 
 
 def _noisy_features(pz, qz, b, alpha, beta, gamma, vt1, vt_mean, D):

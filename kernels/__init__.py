@@ -32,6 +32,7 @@ from .belief import (
 from .fisher import DEFAULT_SIGMA_S, FisherDraws, crlb_criterion, fisher_draws, fisher_information
 from .gaussian_diag import DiagonalGaussian, log_likelihood
 from .gaussian_full import FullGaussian, log_likelihood_full
+from .gaussian_lowrank import LowRankGaussian
 from .likelihood import (
     LIKELIHOODS,
     Likelihood,
@@ -40,10 +41,12 @@ from .likelihood import (
     gaussian,
     gaussian_likelihoods,
     likelihood_class,
+    likelihood_names,
     register_likelihood,
 )
 from .mutual_information import MITables, mi_tables, mutual_information, samples_per_configuration
 from .pairwise_mi import DIVERGENCES, PairwiseTables, pairwise_mutual_information, pairwise_tables
+from .student_t import StudentT
 
 __all__ = [
     "Belief",
@@ -54,6 +57,7 @@ __all__ = [
     "FullGaussian",
     "LIKELIHOODS",
     "Likelihood",
+    "LowRankGaussian",
     "MITables",
     "PairwiseTables",
     "UpdateInfo",
@@ -69,6 +73,7 @@ __all__ = [
     "joint",
     "level_marginal",
     "likelihood_class",
+    "likelihood_names",
     "log_joint",
     "log_likelihood",
     "log_likelihood_full",
@@ -80,6 +85,7 @@ __all__ = [
     "pairwise_tables",
     "pose_marginal",
     "register_likelihood",
+    "StudentT",
     "samples_per_configuration",
     "transition",
     "transition_per_position",

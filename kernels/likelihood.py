@@ -59,6 +59,7 @@ __all__ = [
     "gaussian",
     "gaussian_likelihoods",
     "likelihood_class",
+    "likelihood_names",
     "register_likelihood",
 ]
 
@@ -78,11 +79,21 @@ class Likelihood(eqx.Module):
             these arrays and checks their shapes on load.
         second_moments: what training accumulates for :meth:`fit`: ``"diag"``
             (per-dimension second moments) or ``"full"`` (``K x K``).
+        name: the user-facing name (``jaxrecog train --likelihood``); default
+            the kind.  :func:`likelihood_class` accepts either.
+        fit_options: the keyword options :meth:`fit` takes (e.g. ``("rank",)``);
+            training rejects any other before it starts.
+        calibration_shapes: names of the per-level shape parameters that
+            calibration fits besides the variance factor (e.g. ``("nu",)``),
+            through :meth:`calibrated_log_density` / :meth:`shape_shifted`.
     """
 
     kind: ClassVar[str]
     field_shapes: ClassVar[dict[str, str]]
     second_moments: ClassVar[str] = "diag"
+    name: ClassVar[str | None] = None
+    fit_options: ClassVar[tuple[str, ...]] = ()
+    calibration_shapes: ClassVar[tuple[str, ...]] = ()
 
     def __check_init__(self):
         self.sizes()  # consistent axes across fields (raises otherwise)
@@ -236,8 +247,27 @@ class Likelihood(eqx.Module):
         (default: exactly that; a family may override it with a cheaper form)."""
         return self.scaled(jnp.exp(log_factor)).log_density(terms)
 
+    def calibrated_log_density(self, terms, log_factor: Float[Array, " L"],
+                               shape: Float[Array, "L P"]) -> Float[Array, "N C L"]:
+        """:meth:`scaled_log_density` with the shape parameters moved by ``shape``
+        (``[L, P]``, ``P = len(calibration_shapes)``, unconstrained offsets; see
+        :meth:`shape_shifted`).  Default (no shape parameters): the scaled density."""
+        return self.scaled_log_density(terms, log_factor)
+
+    def shape_shifted(self, shape: Float[Array, "L P"]) -> "Likelihood":
+        """The likelihood with its shape parameters moved by the offsets ``shape``
+        (what calibration applies after the variance factors).  Default: itself."""
+        return self
+
     @classmethod
-    def fit(cls, mean: np.ndarray, second: np.ndarray, floor: np.ndarray) -> "Likelihood":
+    def holdout_fraction(cls, **options) -> float:
+        """The fraction of each component's training samples that :meth:`fit`
+        wants held out of the moments (passed to it as ``holdout``), for the
+        given options.  Default: none."""
+        return 0.0
+
+    @classmethod
+    def fit(cls, mean: np.ndarray, second: np.ndarray, floor: np.ndarray, **options) -> "Likelihood":
         """Fit one position from the training samples' moments (eq. 4.23-4.24).
 
         Args:
@@ -245,6 +275,9 @@ class Likelihood(eqx.Module):
             second: ``[C, L, K]`` sample variances (``second_moments="diag"``)
                 or ``[C, L, K, K]`` sample covariances (``"full"``).
             floor: ``[C, L]`` variance floor that keeps every component proper.
+            **options: the family's own settings (names in ``fit_options``)
+                and, when :meth:`holdout_fraction` is positive, ``holdout =
+                (g [N, K], cls [N], level [N])``: the held-out samples.
 
         Raises:
             NotImplementedError: the family cannot be fitted from moments (the default).
@@ -266,11 +299,23 @@ def register_likelihood(cls: type[Likelihood]) -> type[Likelihood]:
 
 
 def likelihood_class(kind: str) -> type[Likelihood]:
-    """The registered class of ``kind``; a ``ValueError`` naming the known kinds otherwise."""
+    """The registered class of ``kind`` (its kind or its user-facing ``name``);
+    a ``ValueError`` naming the known kinds otherwise."""
     try:
         return LIKELIHOODS[kind]
     except (KeyError, TypeError):
-        raise ValueError(f"unknown likelihood {kind!r}; registered: {', '.join(sorted(LIKELIHOODS))}") from None
+        pass
+    for cls in LIKELIHOODS.values():
+        if cls.name is not None and cls.name == kind:
+            return cls
+    raise ValueError(f"unknown likelihood {kind!r}; registered: {', '.join(sorted(LIKELIHOODS))}") from None
+
+
+def likelihood_names(trainable: bool = True) -> tuple[str, ...]:
+    """The user-facing names (``name``, else the kind) of the registered families,
+    in registration order; ``trainable``: only those with a :meth:`Likelihood.fit`."""
+    return tuple(cls.name or kind for kind, cls in LIKELIHOODS.items()
+                 if not trainable or cls.fit.__func__ is not Likelihood.fit.__func__)
 
 
 def gaussian(mu, var=None, chol=None) -> Likelihood:

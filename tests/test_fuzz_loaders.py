@@ -176,7 +176,7 @@ _JSON = st.recursive(
 
 
 _ARRAYS = [f"camera0.{f}" for f in ("mean_image", "basis", "eigenvalues", "mu", "var")]
-_VERSIONS = [np.array(1), np.array(3), np.array([], np.int64), np.array("2"), np.array([2, 2]),
+_VERSIONS = [np.array(1), np.array(4), np.array([], np.int64), np.array("2"), np.array([2, 2]),
              np.array(2.5), np.array(2**40)]
 _CHANGES = ["nan", "neg", "float64", "int32", "bool", "flat", "empty", "huge"]
 _META_KEYS = ["n_cameras", "positions", "n_objects", "n_poses", "levels", "image_shape", "covariance",

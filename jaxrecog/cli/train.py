@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import argparse
+
 from ..calibration import calibrate_model
 from ..database import load_database
+from ..kernels import likelihood_class, likelihood_names
 from ..modelfile import save_model
 from ..progress import bar
 from ..train import train_model
@@ -13,8 +16,13 @@ from ._options import positive
 NAME = "train"
 ORDER = 20
 HELP = "train a sensor model (DB1/DB2) from an image database"
-DESCRIPTION = ("Train the eigenspace + Gaussian sensor model of an image database and write the\n"
-               "model file (.npz).  DB1 = noise and shifts; DB2 adds occluders of 5..25 %.")
+DESCRIPTION = ("Train the eigenspace + likelihood sensor model of an image database and write the\n"
+               "model file (.npz).  DB1 = noise and shifts; DB2 adds occluders of 5..25 %.\n"
+               "Likelihoods: gaussian-diag (the thesis), gaussian-full, gaussian-lowrank (--rank),\n"
+               "student-t (--nu; heavy tails, so one unmodelled deviation cannot drive a belief to 1).")
+
+#: ``--covariance`` (the older option) -> the ``--likelihood`` it stands for
+_COVARIANCE = {"diag": "gaussian-diag", "full": "gaussian-full"}
 
 
 def add_arguments(p) -> None:
@@ -25,7 +33,15 @@ def add_arguments(p) -> None:
                    help="eigenvectors K per position (integer), or the energy fraction to keep (0..1)")
     p.add_argument("--samples", type=positive, default=100,
                    help="augmented samples per training image and occlusion level")
-    p.add_argument("--covariance", choices=("diag", "full"), default="diag", help="Gaussian covariance form")
+    p.add_argument("--likelihood", choices=likelihood_names(), default=None,
+                   help="sensor-model family (default: gaussian-diag, the thesis's)")
+    p.add_argument("--covariance", choices=tuple(_COVARIANCE), default=None,
+                   help="older alias: 'diag' = --likelihood gaussian-diag, 'full' = --likelihood gaussian-full")
+    p.add_argument("--rank", type=positive, default=None,
+                   help="gaussian-lowrank: factors R, 1 <= R < K (default: min(4, K - 1))")
+    p.add_argument("--nu", type=_nu, default=None,
+                   help="student-t: degrees of freedom, a number > 2, or 'auto' (chosen per level on held-out "
+                        "training samples; the default)")
     p.add_argument("--seed", type=int, default=0, help="seed of the augmentation")
     p.add_argument("--calibrate", action="store_true",
                    help="calibrate the model on the database's 'calib' split (jaxrecog.calibration)")
@@ -37,11 +53,12 @@ def run(args) -> int:
         comps = int(comps)
     elif not 0 < comps <= 1:
         raise UsageError(f"--components must be an integer >= 1 or a fraction in (0, 1], got {args.components}")
+    name, options = _likelihood(args)
     db = load_database(args.database)
     with bar(sum(db.positions), f"train {args.kind}", "pos") as b:
         model, info = train_model(db, kind=args.kind, n_components=comps, samples_per_image=args.samples,
-                                  covariance=args.covariance, seed=args.seed, progress=b.set,
-                                  return_info=True)
+                                  likelihood=name, likelihood_options=options, seed=args.seed,
+                                  progress=b.set, return_info=True)
     params = dict(info.params)
     calibration = None
     if args.calibrate:
@@ -54,3 +71,35 @@ def run(args) -> int:
     print(f"trained {args.kind} (K={params['K']}) in {info.seconds:.1f} s -> {path}")
     print(model.summary())
     return 0
+
+
+def _nu(text: str) -> str | float:
+    """An argparse type: ``auto`` or a number > 2."""
+    if text.strip().lower() == "auto":
+        return "auto"
+    try:
+        v = float(text)
+    except ValueError:
+        v = float("nan")
+    if not v > 2.0 or v == float("inf"):
+        raise argparse.ArgumentTypeError(f"expected 'auto' or a number > 2, got {text!r}")
+    return v
+
+
+def _likelihood(args) -> tuple[str, dict]:
+    """The ``--likelihood`` (or its ``--covariance`` alias) and the family's options."""
+    name = args.likelihood
+    if args.covariance is not None:
+        alias = _COVARIANCE[args.covariance]
+        if name is not None and likelihood_class(name) is not likelihood_class(alias):
+            raise UsageError(f"--covariance {args.covariance} means --likelihood {alias}, "
+                             f"which contradicts --likelihood {name}")
+        name = alias
+    name = name or "gaussian-diag"
+    family = likelihood_class(name)
+    options = {k: v for k, v in (("rank", args.rank), ("nu", args.nu)) if v is not None}
+    for k in options:
+        if k not in family.fit_options:
+            raise UsageError(f"--{k} applies to {'gaussian-lowrank' if k == 'rank' else 'student-t'}, "
+                             f"not to --likelihood {name}")
+    return name, options
