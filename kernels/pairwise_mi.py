@@ -21,12 +21,40 @@ and with the per-position level rows P_i[v](k|c) of the predicted prior
 
 which is the Monte Carlo kernel's T_i table (:mod:`.mutual_information`)
 with one "sample" per stratum and log-density -D instead of log p(g_ij | c', k').
-The same grid code evaluates it on the whole (v_0, v_1, ...) grid
-(:func:`._grid.mixture_information`, shared with the Monte Carlo kernel), and
-the same offline trick removes the exps online: the tables hold
-M_i = max_k' (-D_i) and E_i = exp(-D_i - M_i), so W_i = M_i + log sum_k' E_i P_i
-is a batched matrix product (:func:`._grid.level_tables`, exact fallback on
-underflow).
+
+Evaluation on the whole (v_0, v_1, ...) grid, x_i = (v_i, k_i) a row of
+camera i's table in the grid layout ``[C, X_i = V_i L_i, C']``: with
+M_i = max_c' W_i and E_i = exp(W_i - M_i),
+
+    log sum_s' P(s') exp(-D_a(s, s')) = sum_i M_i[c, x_i] + log sum_c' P(c') prod_i E_i[c, x_i, c']
+
+a batched matrix product over c' (16.5 MFLOP at thesis size), then one log
+per grid point and the weighted sum over the strata, one fused loop step per
+class c (a reduce with broadcast weights over the whole grid is ~5x slower
+with XLA on the CPU).
+
+Fast path (the recognizer's predicted prior): under both transitions of
+:func:`~jaxrecog.kernels.transition_per_position` a camera's level rows are
+uniform, P_i[v](k|c) = 1/L_i, at every position but its current one (a
+camera that moves re-draws its levels, eq. 3.9).  For uniform rows W_i, M_i
+and E_i do not depend on the belief and are precomputed
+(:func:`pairwise_tables`); online only the current position's L_i rows are
+computed (W_i = M'_i + log sum_k' E'_i P_i, with M'_i = max_k' (-D_i) and
+E'_i = exp(-D_i - M'_i) offline: a small matrix product, no exp over D) and
+put in place, for the largest camera by recomputing its rows of the grid
+product instead of copying its table.  The kernel checks the precondition
+on the belief itself (at most one position per camera whose rows are not
+exactly uniform) and otherwise computes W_i at every position, under
+``lax.cond`` (only the branch taken runs; under ``vmap`` both run).  Both
+paths evaluate the same formula and agree to rounding.
+
+No underflow fallback is needed: D(s, s) = 0 gives W_i[c, k, c] >= log P_i(k|c)
+and W_i <= 0, so E_i[c, x_i, c] >= P_i(k_i|c) and the shifted sum of stratum s
+is >= P(s); strata with a weight factor below exp(floor) are dropped (weight 0;
+their share of I is < 1e-7 nats in float32), so every sum that counts is above
+the underflow threshold.  Inner level weights are floored (float32: >= e^-61),
+so the sum over k' (which holds E' = 1 times P >= e^-61) never underflows
+either.
 
 Class target (``target="class"``): I(c; g) = I(s; g) - sum_c P(c) I(k; g | c)
 (chain rule, k = (k_0, k_1, ...)).  Given c, the prior over the levels and the
@@ -57,14 +85,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
-from ._grid import (
-    check_belief_sizes,
-    floor_log_probs,
-    level_tables,
-    lse,
-    mixture_information,
-    own_class,
-)
+from ._grid import check_belief_sizes, floor_log_probs, lse
 from .belief import Belief
 from .likelihood import as_likelihoods
 from .mutual_information import per_position_levels
@@ -74,27 +95,55 @@ __all__ = ["PairwiseTables", "pairwise_tables", "pairwise_mutual_information", "
 #: The divergences :func:`pairwise_tables` accepts (the lower and the upper bound).
 DIVERGENCES = ("bhattacharyya", "kl")
 
+_GRID_LETTERS = "pqrstuvwxy"
+
 
 class PairwiseTables(NamedTuple):
     """Per-camera divergence tables of the pairwise-distance MI (fixed shapes per
-    model; built once, belief-free).
+    model; built once, belief-free).  X_i = V_i L_i rows (v, k), row-major.
 
     Attributes:
-        log_w: per camera ``[V_i, C, L_i, 1, C', L_i']``, minus the divergence,
-            -D_i[v, c, k, c', k'] (D(p_ck || p_c'k') for KL), with a unit
-            "sample" axis so the Monte Carlo grid code applies unchanged.
-        w_max: per camera ``[V_i, C, L_i, 1, C']``, M_i = max_k' (-D_i).
-        w_exp: per camera ``[V_i, C', L_i', C, L_i, 1]``, E_i = exp(-D_i - M_i),
-            flushed to 0 below the smallest normal float (the axis order of
-            :attr:`MITables.ld_exp`).
-        t_uniform: per camera ``[V_i, C, L_i, 1, C']``, W_i under uniform
-            levels, logsumexp_k' (-D_i) - log L_i.
+        log_w: per camera ``[V_i, C, L_i, C', L_i']``, minus the divergence,
+            -D_i[v, c, k, c', k'] (D(p_ck || p_c'k') for KL); not used online.
+        w_max: per camera ``[C, X_i, C']``, M'_i = max_k' (-D_i).
+        w_exp: per camera ``[V_i, C', C, L_i, L_i']``, E'_i = exp(-D_i - M'_i),
+            flushed to 0 below the smallest normal float (this axis order
+            makes the contraction over k' a batched matrix-vector product).
+        u_log: per camera ``[C, X_i, C']``, W_i under uniform levels,
+            logsumexp_k' (-D_i) - log L_i.
+        u_max: per camera ``[C, X_i]``, M_i = max_c' of ``u_log``.
+        u_exp: per camera ``[C, X_i, C']``, E_i = exp(u_log - u_max), flushed
+            to 0 below the smallest normal float.
+        u_self: per camera ``[C, X_i]``, ``u_log`` at c' = c.
     """
 
-    log_w: tuple[Float[Array, "_V C _L 1 C _L"], ...]
-    w_max: tuple[Float[Array, "_V C _L 1 C"], ...]
-    w_exp: tuple[Float[Array, "_V C _L C _L 1"], ...]
-    t_uniform: tuple[Float[Array, "_V C _L 1 C"], ...]
+    log_w: tuple[Float[Array, "_V C _L C _L"], ...]
+    w_max: tuple[Float[Array, "C _X C"], ...]
+    w_exp: tuple[Float[Array, "_V C C _L _L"], ...]
+    u_log: tuple[Float[Array, "C _X C"], ...]
+    u_max: tuple[Float[Array, "C _X"], ...]
+    u_exp: tuple[Float[Array, "C _X C"], ...]
+    u_self: tuple[Float[Array, "C _X"], ...]
+
+
+def _shifted(w):
+    """(M, E) with M = max over the last axis and E = exp(w - M), values below
+    the smallest normal float flushed to 0 (no subnormals: ~100x slower on x86)."""
+    m = jnp.max(w, axis=-1)
+    floor = math.log(float(jnp.finfo(w.dtype).tiny))
+    s = w - m[..., None]
+    return m, jnp.where(s < floor, 0.0, jnp.exp(jnp.maximum(s, floor)))
+
+
+def _to_grid(t):
+    """``[V, C, L, ...] -> [C, V*L, ...]``: per-position rows as grid rows."""
+    v, c, l = t.shape[:3]
+    return jnp.moveaxis(t, 1, 0).reshape((c, v * l) + t.shape[3:])
+
+
+def _own_class(t):
+    """``[C, X, C'] -> [C, X]``: the entries at c' = c."""
+    return jnp.transpose(jnp.diagonal(t, axis1=0, axis2=2))
 
 
 def pairwise_tables(
@@ -115,23 +164,115 @@ def pairwise_tables(
     if kind not in DIVERGENCES:
         raise ValueError(f"pairwise_tables: kind must be one of {DIVERGENCES}, got {kind!r}")
     liks = as_likelihoods(likelihoods, vars, chols, where="pairwise_tables")
-    ws, mxs, exs, tus = [], [], [], []
+    out = {name: [] for name in PairwiseTables._fields}
     for lik in liks:
         d = jax.lax.map(lambda lik_v: lik_v.divergence(kind), lik)  # [V, C, L, C', L']
         # D >= 0 up to rounding and D(s, s) = 0 exactly: keeps W_i[c, k, c] >= log P_i(k|c)
         n_c, n_l = d.shape[1], d.shape[2]
         eye = (jnp.eye(n_c, dtype=bool)[:, None, :, None] & jnp.eye(n_l, dtype=bool)[None, :, None, :])
-        d = jnp.where(eye[None], 0.0, jnp.maximum(d, 0.0))
-        w = -d[:, :, :, None]  # [V, C, L, 1, C', L']
-        m = jnp.max(w, axis=-1)
-        floor = math.log(float(jnp.finfo(w.dtype).tiny))
-        s = w - m[..., None]
-        e = jnp.where(s < floor, 0.0, jnp.exp(jnp.maximum(s, floor)))
-        ws.append(w)
-        mxs.append(m)
-        exs.append(jnp.transpose(e, (0, 4, 5, 1, 2, 3)))
-        tus.append(lse(w, axis=-1) - math.log(n_l))
-    return PairwiseTables(tuple(ws), tuple(mxs), tuple(exs), tuple(tus))
+        w = -jnp.where(eye[None], 0.0, jnp.maximum(d, 0.0))  # [V, C, L, C', L']
+        m, e = _shifted(w)
+        u = _to_grid(lse(w, axis=-1) - math.log(n_l))  # [C, X, C']
+        um, ue = _shifted(u)
+        out["log_w"].append(w)
+        out["w_max"].append(_to_grid(m))
+        out["w_exp"].append(jnp.transpose(e, (0, 3, 1, 2, 4)))
+        out["u_log"].append(u)
+        out["u_max"].append(um)
+        out["u_exp"].append(ue)
+        out["u_self"].append(_own_class(u))
+    return PairwiseTables(*(tuple(out[name]) for name in PairwiseTables._fields))
+
+
+def _level_rows(w_exp, w_max, lp):
+    """W_i = M'_i + log sum_k' E'_i P_i(k'|c') for the positions in ``lp``
+    (``[V, C, L]``, floored log P_i), grid layout ``[C, V*L, C']``; ``w_exp``
+    ``[V, C', C, L, L']`` and ``w_max`` ``[C, V*L, C']`` of the same positions."""
+    p = jnp.exp(lp)  # lp >= floor_log_probs' floor: no flush needed
+    s = jnp.einsum("vCclK,vCK->cvlC", w_exp, p)
+    return jnp.log(s.reshape(w_max.shape)) + w_max
+
+
+def _transition_form(log_pk):
+    """Whether every camera's level rows are exactly uniform at all positions
+    but at most one (the form of :func:`~jaxrecog.kernels.transition_per_position`),
+    and that position per camera (0 when all are uniform)."""
+    ok, cur = jnp.ones((), bool), []
+    for lp in log_pk:
+        u = jnp.asarray(-math.log(lp.shape[-1]), lp.dtype)
+        other = jnp.any(lp != u, axis=(1, 2))  # [V]
+        ok = ok & (jnp.sum(other.astype(jnp.int32)) <= 1)
+        cur.append(jnp.argmax(other).astype(jnp.int32))
+    return ok, cur
+
+
+def _information(es, ms, selfs, log_pc, wks, weight_floor, patch=None):
+    """I_D on the grid from grid-layout E_i ``[C, X_i, C']``, M_i ``[C, X_i]``,
+    S_i ``[C, X_i]`` (class target; ``None`` for the state target), floored
+    log P(c) and the strata's weight factors ``wks`` ``[C, V_i, L_i]``.
+
+    ``patch = (big, start, e_rows)``: camera ``big``'s E rows
+    ``[start, start + L)`` hold stale values in ``es`` and are replaced by
+    ``e_rows`` ``[C, L, C']`` (a copy of one class's rows per step of the loop,
+    not of the table).
+
+    One loop over the classes c of the stratum: the grid product over c' for
+    that class (``[X_0, X_1, ...]``, it stays in cache), its log and its
+    weighted sum; log Z over the whole grid (1 MB at thesis size) is never
+    materialised.  Measured on the 2-core CPU: a reduce with broadcast weights
+    over the materialised grid cost ~1-2 ms, this loop ~0.4 ms."""
+    n = len(es)
+    n_c = es[0].shape[0]
+    dtype = es[0].dtype
+    xs = tuple(e.shape[1] for e in es)
+    positions = tuple(w.shape[1] for w in wks)
+    n_levels = tuple(w.shape[2] for w in wks)
+    small = min(range(n), key=lambda i: xs[i])
+    pc_inner = jnp.exp(log_pc)  # floored: >= e^-61, no flush
+    es = list(es)
+    es[small] = es[small] * pc_inner[None, None, :]
+    if patch is not None and patch[0] == small:
+        patch = (patch[0], patch[1], patch[2] * pc_inner[None, None, :])
+    # weights of the strata (c, k_0, ...) per configuration, factors below the floor flushed
+    flush = lambda lp: jnp.where(lp < weight_floor, 0.0, jnp.exp(jnp.maximum(lp, weight_floor)))
+    pc = flush(log_pc)
+    ws = [flush(w) for w in wks]  # [C, V_i, L_i]
+    wg = [w.reshape(n_c, -1) for w in ws]  # [C, X_i]
+    wg[0] = wg[0] * pc[:, None]
+    letters = _GRID_LETTERS[:n]
+    spec = ",".join(f"c{l}z" for l in letters) + f"->c{letters}"
+    z = jnp.einsum(spec, *es)  # [C, X_0, ..., X_{n-1}]
+    if patch is not None:
+        big, start, rows = patch
+        ops = list(es)
+        ops[big] = rows
+        starts = [jnp.zeros((), jnp.int32)] * (n + 1)
+        starts[1 + big] = start
+        z = jax.lax.dynamic_update_slice(z, jnp.einsum(spec, *ops), starts)
+    tiny = float(jnp.finfo(dtype).tiny)
+
+    def body(c, acc):
+        # one fusion per class: its slice of the grid, log, weights, accumulate
+        # (only rows of weight 0 can be below tiny, module docstring)
+        logz = jnp.log(jnp.maximum(jax.lax.dynamic_index_in_dim(z, c, 0, keepdims=False), tiny))
+        for i, w in enumerate(wg):
+            wc = jax.lax.dynamic_index_in_dim(w, c, 0, keepdims=False)
+            logz = logz * wc.reshape((1,) * i + (xs[i],) + (1,) * (n - 1 - i))
+        return acc + logz
+
+    acc = jax.lax.fori_loop(0, n_c, body, jnp.zeros(xs, dtype))
+    split = sum(((v, l) for v, l in zip(positions, n_levels)), ())
+    e_logp = jnp.sum(acc.reshape(split), axis=tuple(range(1, 2 * n, 2)))  # [V_0, ..., V_{n-1}]
+    # sum_s P(s) sum_i M_i[c, x_i]: small contractions, one per camera
+    vs, ks = letters, letters.upper()
+    w_in = [f"c{a}{b}" for a, b in zip(vs, ks)]
+    for i, m in enumerate(ms):
+        e_logp = e_logp + jnp.einsum(",".join(["c"] + w_in + [w_in[i]]) + "->" + vs, pc, *ws, m.reshape(ws[i].shape))
+    if selfs is not None:
+        for i, (s, w) in enumerate(zip(selfs, ws)):
+            e_i = jnp.einsum("c,cvl,cvl->v", pc, w, s.reshape(w.shape))
+            e_logp = e_logp - e_i.reshape((1,) * i + (positions[i],) + (1,) * (n - 1 - i))
+    return -e_logp.reshape(-1)
 
 
 def pairwise_mutual_information(
@@ -139,6 +280,7 @@ def pairwise_mutual_information(
     belief: Belief,
     target: str = "state",
     levels: str = "belief",
+    fast: bool = True,
 ) -> Float[Array, " A"]:
     """I_D(s; g | a) (``target="state"``) or I_D(c; g | a) (``"class"``) for every
     configuration a, in nats (see the module docstring for the equations).
@@ -152,6 +294,10 @@ def pairwise_mutual_information(
             (P_i(k|c) = 1/L_i everywhere, the belief-free tables; as
             :func:`~jaxrecog.kernels.mutual_information`, exact only where every
             camera moves under the uniform transition).  Static.
+        fast: with ``levels="belief"``, use the precomputed uniform-level
+            tables where the belief has the transition's form (see the module
+            docstring; the same value to rounding).  ``False`` always computes
+            every position's level rows (for tests and benchmarks).  Static.
 
     Returns:
         ``[A]`` values, row-major over (v_0, v_1, ...).  Never NaN: a belief
@@ -165,24 +311,58 @@ def pairwise_mutual_information(
         raise ValueError(f"pairwise_mutual_information: levels must be 'belief' or 'uniform', got {levels!r}")
     check_belief_sizes(len(tables.log_w), tables.log_w[0].shape[1], belief)
     positions = tuple(w.shape[0] for w in tables.log_w)
+    n_levels = tuple(w.shape[2] for w in tables.log_w)
+    n = len(positions)
     n_c = tables.log_w[0].shape[1]
     dtype = tables.log_w[0].dtype
     log_pc = floor_log_probs(belief.log_pc.astype(dtype))  # no subnormals (see _grid)
-    if levels == "uniform":
-        log_pk = [jnp.full((v, n_c, w.shape[2]), -math.log(w.shape[2]), dtype) for v, w in zip(positions, tables.log_w)]
-        ts = list(tables.t_uniform)
-    else:
-        log_pk = [lp.astype(dtype) for lp in per_position_levels(belief, positions)]
-        # inner weights floored (f32: >= e^-61): the shifted sum over k' holds the term
-        # E = 1 at its max times P >= e^-61 > tau, so it never underflows (no fallback)
-        ts = level_tables(tables.log_w, tables.w_max, tables.w_exp, [floor_log_probs(lp) for lp in log_pk], guard=False)
-    # No underflow fallback on the grid either: D(s, s) = 0 gives W_i[c, k, c] >= log P_i(k|c)
-    # and W_i <= 0, so the shifted sum over c' of stratum s is >= P(s).  Strata whose weight has
-    # a factor below exp(floor) are dropped (weight 0; their share of I is < 1e-7 nats in
-    # float32), so every stratum that counts has a sum >= e^(log tau + 1) > tau.
+    # strata with a weight factor below exp(floor) are dropped (module docstring)
     finfo = jnp.finfo(dtype)
     tau = n_c * float(finfo.tiny) / float(finfo.eps)
-    floor = (math.log(tau) + 1.0) / (len(positions) + 1)
-    selfs = None if target == "state" else [own_class(t) for t in ts]
-    mi = mixture_information(ts, selfs, log_pc, log_pk, weight_floor=floor, guard=False)[0]
+    floor = (math.log(tau) + 1.0) / (n + 1)
+    klass = target == "class"
+
+    def grid_weights(lps):
+        return [jnp.moveaxis(lp, 1, 0) for lp in lps]  # [C, V, L]
+
+    if levels == "uniform":
+        wks = [jnp.full((n_c, v, l), -math.log(l), dtype) for v, l in zip(positions, n_levels)]
+        mi = _information(tables.u_exp, tables.u_max, tables.u_self if klass else None, log_pc, wks, floor)
+        return jnp.where(jnp.isnan(mi), -jnp.inf, mi)
+
+    log_pk = [floor_log_probs(lp.astype(dtype)) for lp in per_position_levels(belief, positions)]
+    wks = grid_weights(log_pk)
+
+    def general(_):
+        ws = [_level_rows(e, m, lp) for e, m, lp in zip(tables.w_exp, tables.w_max, log_pk)]
+        mes = [_shifted(w) for w in ws]
+        selfs = [_own_class(w) for w in ws] if klass else None
+        return _information([e for _, e in mes], [m for m, _ in mes], selfs, log_pc, wks, floor)
+
+    def transition_form(cur):
+        big = max(range(n), key=lambda i: positions[i] * n_levels[i])
+        es, ms, selfs, patch = [], [], [], None
+        for i, (c, l) in enumerate(zip(cur, n_levels)):
+            start = c * l
+            zero = jnp.zeros((), jnp.int32)
+            lp = jax.lax.dynamic_slice_in_dim(log_pk[i], c, 1, axis=0)
+            e_rows = jax.lax.dynamic_slice_in_dim(tables.w_exp[i], c, 1, axis=0)
+            m_rows = jax.lax.dynamic_slice_in_dim(tables.w_max[i], start, l, axis=1)
+            w = _level_rows(e_rows, m_rows, lp)  # [C, L, C']
+            m, e = _shifted(w)
+            ms.append(jax.lax.dynamic_update_slice(tables.u_max[i], m, (zero, start)))
+            if klass:
+                selfs.append(jax.lax.dynamic_update_slice(tables.u_self[i], _own_class(w), (zero, start)))
+            if i == big:
+                es.append(tables.u_exp[i])
+                patch = (i, start, e)
+            else:
+                es.append(jax.lax.dynamic_update_slice(tables.u_exp[i], e, (zero, start, zero)))
+        return _information(es, ms, selfs if klass else None, log_pc, wks, floor, patch)
+
+    if fast:
+        ok, cur = _transition_form(log_pk)
+        mi = jax.lax.cond(ok, lambda _: transition_form(cur), general, None)
+    else:
+        mi = general(None)
     return jnp.where(jnp.isnan(mi), -jnp.inf, mi)

@@ -12,12 +12,13 @@ from kernel_models import as_jax, as_jax_belief, jitted, random_belief, random_c
 from oracles import bhattacharyya_ref, kl_ref, pairwise_mi_ref
 
 from jaxrecog import kernels as K
+from jaxrecog.kernels import pairwise_mi
 
 pytestmark = pytest.mark.usefixtures("strict_dtype_promotion")  # numerics: no implicit promotion
 
 MI_TABLES, MI, _ = jitted()
 PT = jax.jit(K.pairwise_tables, static_argnames=("kind",))
-PMI = jax.jit(K.pairwise_mutual_information, static_argnames=("target", "levels"))
+PMI = jax.jit(K.pairwise_mutual_information, static_argnames=("target", "levels", "fast"))
 
 
 def _covs(vars=None, chols=None):
@@ -51,11 +52,11 @@ def test_divergence_tables_against_numpy_closed_forms(rng, x64, family):
         np.testing.assert_allclose(np.asarray(lik.at(v).divergence("bhattacharyya")),
                                    bhattacharyya_ref(mus[0][v], cov[v]), rtol=1e-10, atol=1e-12)
         assert np.all(kl >= -1e-12) and np.allclose(np.einsum("ckck->ck", kl), 0.0, atol=1e-12)
-    # the tables are -D with a unit sample axis, per position
+    # the tables are -D, per position
     for kind, ref in (("bhattacharyya", bhattacharyya_ref), ("kl", kl_ref)):
         t = K.pairwise_tables((lik,), kind=kind)
         want = np.stack([ref(mus[0][v], cov[v]) for v in range(2)])
-        np.testing.assert_allclose(-np.asarray(t.log_w[0])[:, :, :, 0], want, rtol=1e-10, atol=1e-12)
+        np.testing.assert_allclose(-np.asarray(t.log_w[0]), want, rtol=1e-10, atol=1e-12)
 
 
 def test_kl_matches_monte_carlo_of_the_log_ratio(rng, x64):
@@ -153,6 +154,87 @@ def test_uniform_levels_equal_belief_path_with_uniform_rows(rng, x64):
     uni = K.Belief(b.log_pc, tuple(jnp.full_like(x, -np.log(x.shape[1])) for x in b.log_pk))
     for target in ("state", "class"):
         np.testing.assert_allclose(PMI(t, b, target, levels="uniform"), PMI(t, uni, target), rtol=1e-12, atol=1e-12)
+
+
+def _transition_beliefs(rng, n_c, levels, positions):
+    """Predicted priors of the recognizer's form (transition_per_position, both
+    kinds, several current positions) from random posteriors."""
+    out = []
+    for kind in ("uniform", "sticky"):
+        for current in [(0,) * len(positions), tuple(v - 1 for v in positions), tuple(v // 2 for v in positions)]:
+            post = as_jax_belief(random_belief(rng, n_c, levels))
+            out.append((kind, current, K.transition_per_position(post, current, positions, kind=kind, rho=0.7)))
+    return out
+
+
+@pytest.mark.parametrize("target", ["state", "class"])
+@pytest.mark.parametrize(
+    "levels,positions,dims", [((2,), (3,), (2,)), ((2, 3), (3, 2), (3, 2)), ((2, 1, 2), (2, 2, 2), (1, 2, 1))]
+)
+def test_fast_path_equals_general_path(rng, x64, levels, positions, dims, target):
+    """The transition-form fast path (precomputed uniform rows, current position
+    recomputed) gives the general computation's values on the recognizer's
+    predicted priors, and a general belief (non-uniform rows at several
+    positions) takes the general computation; both against brute force."""
+    mus, vars = random_model(rng, 3, levels, positions, dims, spread=1.5)
+    t = PT(as_jax(mus), as_jax(vars), kind="bhattacharyya")
+    cases = _transition_beliefs(rng, 3, levels, positions)
+    rows = [np.stack([random_belief(rng, 3, levels).log_pk[i] for _ in range(v)]) for i, v in enumerate(positions)]
+    general = K.Belief(jnp.asarray(random_belief(rng, 3, levels).log_pc), as_jax(rows))
+    cases.append(("general", None, general))
+    for kind, current, b in cases:
+        ok, cur = pairwise_mi._transition_form(b.log_pk)
+        if current is None:
+            assert not bool(ok), kind
+        else:
+            assert bool(ok) and tuple(int(c) for c in cur) == current, (kind, current)
+        fast = np.asarray(PMI(t, b, target, fast=True))
+        slow = np.asarray(PMI(t, b, target, fast=False))
+        np.testing.assert_allclose(fast, slow, rtol=1e-12, atol=1e-12, err_msg=f"{kind} {current}")
+    # one transition belief and the general one against enumeration
+    for _, _, b in (cases[1], cases[-1]):
+        mi = np.asarray(PMI(t, b, target))
+        for a, cfg in enumerate(np.ndindex(*positions)):
+            single = K.Belief(b.log_pc, tuple(r[v] for r, v in zip(b.log_pk, cfg)))
+            sub = tuple(m[v:v + 1] for m, v in zip(mus, cfg))
+            ref = pairwise_mi_ref(sub, tuple(c[v:v + 1] for c, v in zip(_covs(vars), cfg)),
+                                  np.asarray(K.log_joint(single)), "bhattacharyya", target)
+            np.testing.assert_allclose(mi[a], ref[0], rtol=1e-10, atol=1e-12)
+
+
+def test_fast_path_float32_thesis_like(rng):
+    """float32 at a larger size (C = 8, L = 4, 6 x 3 positions): fast and general
+    paths agree to float32 rounding on transition beliefs, sharp and graded."""
+    levels, positions = (4, 4), (6, 3)
+    for spread in (0.3, 3.0):
+        mus, vars = random_model(rng, 8, levels, positions, (5, 5), spread=spread)
+        mus = tuple(m.astype(np.float32) for m in mus)
+        vars = tuple((v * 0.1).astype(np.float32) for v in vars)
+        for kind in K.DIVERGENCES:
+            t = PT(as_jax(mus), as_jax(vars), kind=kind)
+            for _, _, b in _transition_beliefs(rng, 8, levels, positions):
+                b = K.Belief(b.log_pc.astype(jnp.float32), tuple(x.astype(jnp.float32) for x in b.log_pk))
+                for target in ("state", "class"):
+                    fast = np.asarray(PMI(t, b, target, fast=True))
+                    slow = np.asarray(PMI(t, b, target, fast=False))
+                    assert fast.dtype == np.float32
+                    np.testing.assert_allclose(fast, slow, rtol=2e-5, atol=2e-5)
+
+
+def test_fast_path_under_vmap(rng, x64):
+    """vmap over a batch mixing transition-form and general beliefs: the cond
+    becomes a select, the values are those of the unbatched calls."""
+    levels, positions = (2, 3), (3, 2)
+    mus, vars = random_model(rng, 3, levels, positions, (2, 2))
+    t = PT(as_jax(mus), as_jax(vars), kind="kl")
+    bs = [b for _, _, b in _transition_beliefs(rng, 3, levels, positions)][:3]
+    rows = [np.stack([random_belief(rng, 3, levels).log_pk[i] for _ in range(v)]) for i, v in enumerate(positions)]
+    bs.append(K.Belief(jnp.asarray(random_belief(rng, 3, levels).log_pc), as_jax(rows)))
+    stacked = jax.tree.map(lambda *x: jnp.stack(x), *bs)
+    for target in ("state", "class"):
+        got = np.asarray(jax.vmap(lambda b: K.pairwise_mutual_information(t, b, target))(stacked))
+        want = np.stack([np.asarray(PMI(t, b, target)) for b in bs])
+        np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12)
 
 
 def test_float32_sharp_model_falls_back_and_stays_finite(rng, getkey):
