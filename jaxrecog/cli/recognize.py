@@ -114,7 +114,7 @@ def _trial(args, model, rig, rec, state, k_run):
         probs.append(np.asarray(dec.trace.object_probs, dtype=float))
         rows.append((r.step + 1, fmt_cfg(r.config), int(dec.object), int(dec.pose), f"{float(dec.probability):.3f}",
                      " ".join(f"{100 * x:.0f}%" for x in r.capture.occluded) or "-",
-                     "stop" if bool(dec.stop) else fmt_cfg(np.asarray(dec.next_config))))
+                     "stop" if bool(dec.stop) else fmt_cfg(tuple(int(v) for v in np.asarray(dec.next_config)))))
         last[:] = [dec]
 
     spec = TrialSpec(0, args.object, args.pose, start, occl)
