@@ -193,6 +193,10 @@ def batched_step(recognizer: Recognizer, *, vectorize: bool = False, trace: bool
     vectorize, trace = bool(vectorize), bool(trace)
     if mesh is not None and len(mesh.devices.flat) == 1:
         mesh = None
+    if mesh is not None:
+        # replicate the model and planner tables once, not at every call
+        params, static = eqx.partition(recognizer, eqx.is_array)
+        recognizer = eqx.combine(jax.device_put(params, NamedSharding(mesh, PartitionSpec())), static)
 
     def step(states, fresh: Bool[ArrayLike, " B"], configs: Int[ArrayLike, "B n"], images: Shaped[ArrayLike, "B n H W"],
              key: PRNGKeyArray, trials: Int[ArrayLike, " B"], steps: Int[ArrayLike, " B"]):
