@@ -566,3 +566,40 @@ def test_recognize_rejects_a_nan_capture(tiny, monkeypatch, capsys):
     err = capsys.readouterr().err
     assert err.count("jaxrecog: error:") == 1 and "Traceback" not in err
     assert "image of camera 0 at position 2 (step 1): 30 pixel(s) are NaN" in err
+
+
+def test_experiment_view_choice_and_devices_flags(fake_experiments, tmp_path, capsys):
+    """--exclude-visited, --motion-cost and --devices reach the Settings; off by default; an
+    experiment TOML may set them; bad values are usage errors (exit 2) with one clear line."""
+    out = tmp_path / "exp"
+    assert cli.main(["--quiet", "experiment", "i", "--out", str(out), "--planners", "mi"]) == 0
+    s = fake_experiments["run_case"][1]
+    assert (s.exclude_visited_positions, s.motion_cost, s.devices) == (False, 0.0, 1)
+    assert cli.main(["--quiet", "experiment", "i", "--out", str(out), "--planners", "mi", "--exclude-visited",
+                     "--motion-cost", "0.25", "--devices", "1"]) == 0
+    s = fake_experiments["run_case"][1]
+    assert (s.exclude_visited_positions, s.motion_cost, s.devices) == (True, 0.25, 1)
+    toml = tmp_path / "e.toml"
+    toml.write_text('case = "i"\n[settings]\nmotion_cost = 0.5\nexclude_visited_positions = true\n')
+    assert cli.main(["--quiet", "experiment", str(toml), "--out", str(out)]) == 0
+    s = fake_experiments["run_case"][1]
+    assert (s.exclude_visited_positions, s.motion_cost) == (True, 0.5)
+    capsys.readouterr()
+    assert cli.main(["experiment", "i", "--out", str(out), "--motion-cost", "-1"]) == 2
+    assert "motion cost" in capsys.readouterr().err
+    import jax
+
+    n = len(jax.devices())
+    assert cli.main(["experiment", "i", "--out", str(out), "--devices", str(n + 3)]) == 2
+    err = capsys.readouterr().err
+    assert f"--devices {n + 3}" in err and f"{n} exist" in err
+
+
+def test_recognize_view_choice_flags(tiny, capsys):
+    rig = f"dataset:{tiny['db']}"
+    assert cli.main(["--quiet", "recognize", str(tiny["model"]), "--rig", rig, "--samples", "64", "--start", "0,0",
+                     "--exclude-visited"]) == 0
+    assert "result: object" in capsys.readouterr().out
+    # a replayed database has no geometry: no travel times to weigh
+    assert cli.main(["recognize", str(tiny["model"]), "--rig", rig, "--samples", "64", "--motion-cost", "1"]) == 2
+    assert "geometry" in capsys.readouterr().err
