@@ -366,7 +366,7 @@ def test_bench_merges_json_and_reports_failures(tmp_path):
 def test_progress_quiet_off_a_terminal():
     import io
 
-    from jaxrecog import progress
+    from jaxrecog import _progress as progress
 
     class TTY(io.StringIO):
         def isatty(self):

@@ -13,7 +13,7 @@ from .. import experiments as ex  # as a module: tests stub its prepare / run_ca
 from .. import plots
 from ..modelfile import load_model
 from ..planners import make_planner
-from ..progress import enabled as progress_bars
+from .._progress import enabled as progress_bars
 from ..recognizer import Recognizer
 from ._common import key, model_positions, model_report
 from ._options import PLANNERS, positive

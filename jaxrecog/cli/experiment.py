@@ -7,10 +7,10 @@ from pathlib import Path
 from typing import Any
 
 from .. import experiments as ex  # as a module: tests stub its prepare / run_case / run_dataset
-from ..config import ConfigFileError, read_toml
+from .._config import ConfigFileError, read_toml
 from ..driver import trial_mesh
 from ..planners import DEFAULT_MIN_PER_STRATUM
-from ..progress import enabled as progress_bars
+from .._progress import enabled as progress_bars
 from ._common import UsageError
 from ._options import PLANNERS, choice_options, positive
 from ._reports import QUICK, make_settings, trace_plot, write_report

@@ -8,7 +8,7 @@ from ..calibration import calibrate_model
 from ..database import load_database
 from ..kernels import likelihood_class, likelihood_names
 from ..modelfile import save_model
-from ..progress import bar
+from .._progress import bar
 from ..train import train_model
 from ._common import UsageError
 from ._options import positive
