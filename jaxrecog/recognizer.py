@@ -221,7 +221,8 @@ class Recognizer(eqx.Module):
         seen = state.visited_positions or tuple(jnp.zeros((v,), bool) for v in positions)
         seen = tuple(s.at[state.config[i]].set(True) for i, s in enumerate(seen))
         predicted = K.transition_per_position(posterior, state.config, positions, kind=self.transition, rho=self.rho)
-        scores = self.planner.scores(predicted, key)
+        # a planner that looks past this prior predicts with the recognizer's transition
+        scores = self.planner.with_transition(self.transition, self.rho).scores(predicted, key)
         # a non-finite score (a failed estimate) ranks below every finite one,
         # but above a configuration excluded as visited
         usable = jnp.where(jnp.isfinite(scores), scores, jnp.finfo(scores.dtype).min)
