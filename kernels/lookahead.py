@@ -129,8 +129,9 @@ def lookahead_information(
         score: the one-step score, ``Belief`` with per-position level rows
             ``[V_i, C, L_i]`` -> ``[A]`` (higher = better; a failed estimate
             ``-inf``, never NaN), e.g. a ``functools.partial`` of
-            :func:`~jaxrecog.kernels.pairwise_mutual_information`.  It is traced
-            ``top_k * S + 1`` times in a vmap: keep it cheap.
+            :func:`~jaxrecog.kernels.pairwise_mutual_information`.  It is
+            evaluated ``top_k * S + 1`` times (all but one under the vmap):
+            the cost of a call is about that many one-step calls.
         prior: the predicted prior, level rows ``[C, L_i]`` or per position
             ``[V_i, C, L_i]`` (:func:`~jaxrecog.kernels.transition_per_position`).
         draws: :func:`lookahead_draws` (``S = draws.j.shape[0]`` outcomes).
