@@ -53,7 +53,7 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--configs", default="8x16,4x8", help="comma-separated TOPKxOUTCOMES")
-    ap.add_argument("--batch-size", type=int, default=32)
+    ap.add_argument("--batch-size", type=int, default=32, help="one-step calls per lax.map chunk (0: one vmap)")
     ap.add_argument("--out", type=Path, default=Path("out/bench/lookahead.json"))
     args = ap.parse_args(argv)
 
@@ -85,7 +85,7 @@ def main(argv=None):
         @jax.jit
         def la(b, draws, k=k):
             score = functools.partial(K.pairwise_mutual_information, pw)
-            return K.lookahead_information(outcome_tables, score, b, draws=draws, top_k=k, batch_size=args.batch_size)
+            return K.lookahead_information(outcome_tables, score, b, draws=draws, top_k=k, batch_size=args.batch_size or None)
 
         res = _timeit(lambda: la(prior, draws), args.repeat)
         res["one_step_calls"] = k * s + 1
