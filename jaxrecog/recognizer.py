@@ -230,7 +230,8 @@ class Recognizer(eqx.Module):
         seen = state.visited_positions or tuple(jnp.zeros((v,), bool) for v in positions)
         seen = tuple(s.at[state.config[i]].set(True) for i, s in enumerate(seen))
         predicted = K.transition_per_position(posterior, state.config, positions, kind=self.transition, rho=self.rho)
-        scores = self.planner.scores(predicted, key)
+        # a planner that looks past this prior predicts with the recognizer's transition
+        scores = self.planner.with_transition(self.transition, self.rho).scores(predicted, key)
         if self.motion is not None:
             scores = self.motion.apply(scores, state.config)
         # a non-finite score (a failed estimate) ranks below every finite one,
