@@ -12,6 +12,7 @@ import jax
 import jax.numpy as jnp
 import jax.random as jr
 import numpy as np
+from builders import random_sensor_model
 import pytest
 from compiles import count_compiles
 from kernel_models import as_jax, as_jax_belief, random_belief, random_model
@@ -20,7 +21,6 @@ from oracles import lookahead_ref
 from jaxrecog import kernels as K
 from jaxrecog.planners import LookaheadMIPlanner, make_planner
 from jaxrecog.recognizer import Recognizer
-from jaxrecog.sensor_model import CameraModel, SensorModel
 
 pytestmark = pytest.mark.usefixtures("strict_dtype_promotion")  # numerics: no implicit promotion
 
@@ -182,20 +182,7 @@ def test_never_nan_on_concentrated_and_degenerate_beliefs(rng, getkey, x64, dtyp
             assert np.all(np.isfinite(out)), out
 
 
-def _recognizer_model(positions=(4, 3), n_objects=3, n_poses=2, levels=(0.0, 0.1), k=3, hw=(6, 8), seed=0):
-    rng = np.random.default_rng(seed)
-    d = hw[0] * hw[1]
-    cams = []
-    for v in positions:
-        basis = np.linalg.qr(rng.normal(size=(v, d, k)))[0].astype(np.float32)
-        cams.append(CameraModel(
-            mean_image=jnp.asarray(rng.normal(0, 0.01, (v, d)), jnp.float32),
-            basis=jnp.asarray(basis),
-            eigenvalues=jnp.ones((v, k), jnp.float32),
-            mu=jnp.asarray(rng.normal(0, 0.3, (v, n_objects * n_poses, len(levels), k)), jnp.float32),
-            var=jnp.asarray(rng.uniform(0.01, 0.05, (v, n_objects * n_poses, len(levels), k)), jnp.float32),
-        ))
-    return SensorModel(tuple(cams), n_objects, n_poses, tuple(levels), hw, "diag")
+_recognizer_model = random_sensor_model
 
 
 @pytest.mark.parametrize("name,transition", [("mi-lookahead", "uniform"), ("mi-class-lookahead", "sticky")])

@@ -13,6 +13,7 @@ import jax
 import jax.numpy as jnp
 import jax.random as jr
 import numpy as np
+from builders import random_sensor_model
 import pytest
 from compiles import count_compiles
 
@@ -25,23 +26,9 @@ from jaxrecog.motion import MotionCost, check_weight, rig_travel_times, with_mot
 from jaxrecog.planners import make_planner
 from jaxrecog.recognizer import Recognizer
 from jaxrecog.results import TrialResult, summarize, table_markdown
-from jaxrecog.sensor_model import CameraModel, SensorModel
 
 
-def random_model(positions=(4, 3), n_objects=3, n_poses=2, levels=(0.0, 0.1), k=3, hw=(6, 8), seed=0):
-    rng = np.random.default_rng(seed)
-    d = hw[0] * hw[1]
-    cams = []
-    for v in positions:
-        basis = np.linalg.qr(rng.normal(size=(v, d, k)))[0].astype(np.float32)
-        cams.append(CameraModel(
-            mean_image=jnp.asarray(rng.normal(0, 0.01, (v, d)), jnp.float32),
-            basis=jnp.asarray(basis),
-            eigenvalues=jnp.ones((v, k), jnp.float32),
-            mu=jnp.asarray(rng.normal(0, 0.3, (v, n_objects * n_poses, len(levels), k)), jnp.float32),
-            var=jnp.asarray(rng.uniform(0.01, 0.05, (v, n_objects * n_poses, len(levels), k)), jnp.float32),
-        ))
-    return SensorModel(tuple(cams), n_objects, n_poses, tuple(levels), hw, "diag")
+random_model = random_sensor_model
 
 
 def small_table() -> CameraTable:
