@@ -51,7 +51,7 @@ def add_arguments(p) -> None:
                    metavar="DEG", help="in-plane rotation by a uniform angle in +-DEG degrees about the image centre")
     g.add_argument("--scale", type=_fraction_or_angle(1.0, "a fraction"), default=0.0, metavar="FRAC",
                    help="scaling by 1 + a, a uniform in +-FRAC, about the image centre")
-    g.add_argument("--blur", type=_sigma_range, default=(0.0, 0.0), metavar="SIGMA|LO,HI",
+    g.add_argument("--blur", type=_sigma_range, default="0", metavar="SIGMA|LO,HI",
                    help="Gaussian blur, sigma uniform in [LO, HI] pixels (one number: [0, SIGMA])")
     g.add_argument("--gain", type=_fraction_or_angle(1.0, "a fraction"), default=0.0, metavar="FRAC",
                    help="local gain: a smooth multiplicative field 1 + c, |c| <= FRAC, bilinearly upsampled "
@@ -67,9 +67,15 @@ def run(args) -> int:
     elif not 0 < comps <= 1:
         raise UsageError(f"--components must be an integer >= 1 or a fraction in (0, 1], got {args.components}")
     name, options = _likelihood(args)
+    blur = args.blur  # a TOML file may give a number or a list [LO, HI]
+    if not isinstance(blur, tuple):
+        try:
+            blur = _sigma_range(",".join(map(str, blur)) if isinstance(blur, list) else str(blur))
+        except argparse.ArgumentTypeError as e:
+            raise UsageError(f"blur: {e}") from None
     try:
-        augment = AugmentParams(max_rotation=args.rotation, max_scale=args.scale, blur_sigma=args.blur,
-                                gain_amplitude=args.gain, gain_cells=args.gain_cells)
+        augment = AugmentParams(max_rotation=float(args.rotation), max_scale=float(args.scale), blur_sigma=blur,
+                                gain_amplitude=float(args.gain), gain_cells=int(args.gain_cells))
     except ValueError as e:
         raise UsageError(str(e)) from None
     db = load_database(args.database)
