@@ -9,6 +9,8 @@ level.  One sample is (pixel model, before 8-bit rounding and clipping)::
                              degrees and scaling by 1 + a, a ~ U(-max_scale, max_scale),
                              about the image centre ((W-1)/2, (H-1)/2):
                              ``cv2.warpAffine``, bilinear, border replicated
+                             (θ > 0: counter-clockwise on screen, OpenCV's sense);
+                             applied to the shifted image, float32, not rounded
     G_σ                      Gaussian blur, σ ~ U(blur_sigma) pixels (``cv2.GaussianBlur``,
                              kernel size from σ, border replicated; σ = 0: none)
     g = 1 + resize(c)        local gain: a smooth multiplicative field, the
@@ -25,6 +27,8 @@ and ``g`` model what a real capture does off the training grid (a slightly
 turned or nearer camera, defocus, uneven lighting); they are *off by
 default* (``max_rotation = max_scale = gain_amplitude = 0``, ``blur_sigma =
 (0, 0)``), and then the samples are bit-exact those of the model without them.
+When one is on, training computes every sample in pixel space (one OpenCV
+call per sample and step), so it is slower than the level-0 shift table.
 Their random numbers come from a separate generator
 (``SeedSequence((seed, camera, position, level, 2))``), so switching them on
 does not change the shifts, occluders, brightness or noise of any sample.
