@@ -16,6 +16,7 @@ import tomllib
 from typing import Any
 
 from .controller_sim import LinkFaults
+from .motion import MotionSpeeds
 from .pan_tilt import DEFAULT_PAN_TILT, pan_tilt_driver
 from .positions import CameraTable, default_table
 
@@ -106,11 +107,14 @@ class RigConfig:
     ptus: tuple[PTUConfig, ...] = ()
     cameras: tuple[CameraConfig, ...] = ()
     simulation: SimulationConfig = SimulationConfig()
+    #: axis speeds for planned travel times (``[motion]``; :mod:`.motion`)
+    motion: MotionSpeeds = MotionSpeeds()
 
     @classmethod
     def from_dict(cls, d: dict[str, Any], base_dir: str | os.PathLike = ".") -> "RigConfig":
         """Build from parsed TOML; relative camera paths are resolved against ``base_dir``."""
-        top = _fields(d, "rig file", {"kind", "image_shape", "n_poses", "table", "controller", "ptu", "camera", "simulation"})
+        top = _fields(d, "rig file", {"kind", "image_shape", "n_poses", "table", "controller", "ptu", "camera", "simulation",
+                                         "motion"})
         kind = top.get("kind", "hardware")
         if kind not in KINDS:
             raise ConfigError(f"kind = {kind!r}: must be one of {KINDS}")
@@ -151,7 +155,8 @@ class RigConfig:
         faults_d = {k: tuple(v) if isinstance(v, list) else v for k, v in faults_d.items()}
         faults = _build(LinkFaults, faults_d, "[simulation.faults]")
         sim = _build(SimulationConfig, sim_d, "[simulation]", faults=faults)
-        cfg = cls(kind, table, (shape[0], shape[1]), n_poses, controller, ptus, tuple(cams), sim)
+        motion = _build(MotionSpeeds, top.get("motion", {}), "[motion]", ptu_deg_s_per_camera=())
+        cfg = cls(kind, table, (shape[0], shape[1]), n_poses, controller, ptus, tuple(cams), sim, motion)
         cfg.validate()
         return cfg
 
@@ -174,6 +179,15 @@ class RigConfig:
                     raise ConfigError(f"[[ptu]] #{i + 1}: port must be set for a hardware rig")
         elif self.ptus and len(self.ptus) != n:
             raise ConfigError(f"{len(self.ptus)} [[ptu]] entries for {n} cameras: give one per camera or none")
+
+    def travel_times(self):
+        """Per camera ``[V_i, V_i]`` travel seconds between its positions
+        (:func:`.motion.camera_travel_times` with this rig's table, mounts and
+        speeds)."""
+        from .motion import camera_travel_times
+
+        return camera_travel_times(self.table, MotionSpeeds.from_config(self),
+                                   tuple(self.ptu(i) for i in range(self.table.n_cameras)))
 
     def ptu(self, camera: int) -> PTUConfig:
         """The PTU entry of ``camera`` (defaults when a simulated rig leaves them out)."""

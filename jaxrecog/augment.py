@@ -3,14 +3,35 @@
 Each training image ``x`` yields ``samples_per_image`` samples per occlusion
 level.  One sample is (pixel model, before 8-bit rounding and clipping)::
 
-    y = m ⊙ S_d x + b·1 + n,
+    y = m ⊙ (g ⊙ G_σ A_{θ,a} S_d x) + b·1 + n,
     d ~ U{-s..s}²            integer pixel shift, edge pixels replicated
+    A_{θ,a}                  in-plane rotation by θ ~ U(-max_rotation, max_rotation)
+                             degrees and scaling by 1 + a, a ~ U(-max_scale, max_scale),
+                             about the image centre ((W-1)/2, (H-1)/2):
+                             ``cv2.warpAffine``, bilinear, border replicated
+                             (θ > 0: counter-clockwise on screen, OpenCV's sense);
+                             applied to the shifted image, float32, not rounded
+    G_σ                      Gaussian blur, σ ~ U(blur_sigma) pixels (``cv2.GaussianBlur``,
+                             kernel size from σ, border replicated; σ = 0: none)
+    g = 1 + resize(c)        local gain: a smooth multiplicative field, the
+                             bilinear upsampling (``cv2.resize``, INTER_LINEAR) of a
+                             ``gain_cells × gain_cells`` grid c ~ U(-gain_amplitude,
+                             gain_amplitude) to H × W (so |g - 1| <= gain_amplitude)
     m                        occlusion mask (0 on the occluder, 1 elsewhere)
     b ~ N(0, brightness_sigma²)   global brightness change of the image
     n ~ N(0, noise_sigma² I)      per-pixel camera noise
 
 so the occluder is a black object in the scene that the camera then images
-with the same brightness change and noise as everything else.
+with the same brightness change and noise as everything else.  ``A``, ``G``
+and ``g`` model what a real capture does off the training grid (a slightly
+turned or nearer camera, defocus, uneven lighting); they are *off by
+default* (``max_rotation = max_scale = gain_amplitude = 0``, ``blur_sigma =
+(0, 0)``), and then the samples are bit-exact those of the model without them.
+When one is on, training computes every sample in pixel space (one OpenCV
+call per sample and step), so it is slower than the level-0 shift table.
+Their random numbers come from a separate generator
+(``SeedSequence((seed, camera, position, level, 2))``), so switching them on
+does not change the shifts, occluders, brightness or noise of any sample.
 
 *DB1* has one level, 0 (no occluder).  *DB2* adds levels 5, 10, 15, 20, 25 % of
 the image area; each sample's occluder is one of square, rectangle, circle,
@@ -49,6 +70,8 @@ __all__ = [
     "occluder_bank",
     "draw_plan",
     "plan_rng",
+    "capture_rng",
+    "capture_transform",
     "ShiftWindows",
     "apply_geometry",
     "augment_images",
@@ -86,8 +109,40 @@ class AugmentParams:
     #: Gaussians that differ by sampling noise alone — differences the
     #: recognizer would otherwise read as evidence.
     shared_draws: bool = True
+    #: in-plane rotation: θ ~ U(-max_rotation, max_rotation), degrees (0 = off)
+    max_rotation: float = 0.0
+    #: scale 1 + a, a ~ U(-max_scale, max_scale), a fraction < 1 (0 = off)
+    max_scale: float = 0.0
+    #: Gaussian blur σ ~ U(lo, hi) pixels; ``(0, 0)`` = off
+    blur_sigma: tuple[float, float] = (0.0, 0.0)
+    #: local gain field amplitude, a fraction < 1 (0 = off)
+    gain_amplitude: float = 0.0
+    #: control grid of the gain field: ``gain_cells × gain_cells`` values (>= 2)
+    gain_cells: int = 3
+
+    @property
+    def capture(self) -> bool:
+        """Whether any of rotation, scale, blur, local gain is on."""
+        return bool(self.max_rotation > 0 or self.max_scale > 0 or self.blur_sigma[1] > 0
+                    or self.gain_amplitude > 0)
 
     def __post_init__(self):
+        object.__setattr__(self, "blur_sigma", tuple(float(x) for x in self.blur_sigma))
+        for name in ("max_rotation", "max_scale", "gain_amplitude"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v >= 0):
+                raise ValueError(f"{name} must be a finite number >= 0, got {v}")
+        if self.max_rotation > 180:
+            raise ValueError(f"max_rotation must be <= 180 degrees, got {self.max_rotation}")
+        if self.max_scale >= 1:
+            raise ValueError(f"max_scale must be < 1 (a fraction of the size), got {self.max_scale}")
+        if self.gain_amplitude >= 1:
+            raise ValueError(f"gain_amplitude must be < 1 (a fraction of the gain), got {self.gain_amplitude}")
+        if len(self.blur_sigma) != 2 or not all(np.isfinite(x) and x >= 0 for x in self.blur_sigma) \
+                or self.blur_sigma[0] > self.blur_sigma[1]:
+            raise ValueError(f"blur_sigma must be (lo, hi) with 0 <= lo <= hi, got {self.blur_sigma}")
+        if self.gain_cells < 2:
+            raise ValueError(f"gain_cells must be >= 2, got {self.gain_cells}")
         if self.samples_per_image < 2:
             raise ValueError("samples_per_image must be at least 2 (a variance needs two samples)")
         if self.noise_sigma < 0 or self.brightness_sigma < 0 or self.max_shift < 0:
@@ -206,7 +261,9 @@ def occluder_bank(levels: tuple[float, ...], image_shape: tuple[int, int],
 @dataclasses.dataclass(frozen=True)
 class SamplePlan:
     """Random parameters of ``B`` samples (all ``[B]``): source image, shift,
-    occluder template (-1 = none) and its top-left corner, brightness offset."""
+    occluder template (-1 = none) and its top-left corner, brightness offset;
+    and, when :attr:`AugmentParams.capture` is on (else ``None``): rotation
+    (degrees), scale offset ``a``, blur σ, gain grid ``[B, cells, cells]``."""
 
     image: np.ndarray
     dy: np.ndarray
@@ -215,12 +272,17 @@ class SamplePlan:
     y0: np.ndarray
     x0: np.ndarray
     brightness: np.ndarray
+    rotation: np.ndarray | None = None
+    scale: np.ndarray | None = None
+    blur: np.ndarray | None = None
+    gain: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.image.shape[0])
 
     def take(self, sl: slice) -> "SamplePlan":
-        return SamplePlan(*(getattr(self, f.name)[sl] for f in dataclasses.fields(self)))
+        return SamplePlan(*(None if (v := getattr(self, f.name)) is None else v[sl]
+                            for f in dataclasses.fields(self)))
 
 
 def plan_rng(seed: int, camera: int, position: int, level: int) -> np.random.Generator:
@@ -228,10 +290,22 @@ def plan_rng(seed: int, camera: int, position: int, level: int) -> np.random.Gen
     return np.random.default_rng(np.random.SeedSequence((int(seed), camera, position, level)))
 
 
+def capture_rng(seed: int, camera: int, position: int, level: int) -> np.random.Generator:
+    """The generator of the capture transforms (rotation, scale, blur, gain) of one
+    (camera, position, level): separate from :func:`plan_rng`, order-independent."""
+    return np.random.default_rng(np.random.SeedSequence((int(seed), camera, position, level, 2)))
+
+
 def draw_plan(rng: np.random.Generator, n_images: int, params: AugmentParams,
-              bank: OccluderBank, level: int, image_shape: tuple[int, int]) -> SamplePlan:
+              bank: OccluderBank, level: int, image_shape: tuple[int, int],
+              capture: np.random.Generator | None = None) -> SamplePlan:
     """Parameters for ``samples_per_image`` samples of each of ``n_images`` images
-    (sample ``j`` of image ``i`` is row ``i * samples_per_image + j``)."""
+    (sample ``j`` of image ``i`` is row ``i * samples_per_image + j``).
+
+    ``capture``: the generator of the capture transforms (:func:`capture_rng`),
+    needed when ``params.capture``; it draws, in this order and whatever is on,
+    rotation, scale, blur σ and gain grid, so one transform's draws never
+    depend on which others are on."""
     H, W = image_shape
     n = params.samples_per_image
     B = n_images * n
@@ -255,7 +329,38 @@ def draw_plan(rng: np.random.Generator, n_images: int, params: AugmentParams,
         x0 = np.zeros(m, np.int64)
     if params.shared_draws:  # row i * n + j takes draw j
         dy, dx, template, y0, x0, brightness = (np.tile(a, n_images) for a in (dy, dx, template, y0, x0, brightness))
-    return SamplePlan(image, dy, dx, template, y0, x0, brightness)
+    if not params.capture:
+        return SamplePlan(image, dy, dx, template, y0, x0, brightness)
+    if capture is None:
+        raise ValueError("rotation, scale, blur or gain is on: draw_plan needs the capture generator")
+    g = params.gain_cells
+    rotation = capture.uniform(-1.0, 1.0, size=m) * params.max_rotation
+    scale = capture.uniform(-1.0, 1.0, size=m) * params.max_scale
+    lo, hi = params.blur_sigma
+    blur = lo + capture.random(m) * (hi - lo)
+    gain = capture.uniform(-1.0, 1.0, size=(m, g, g)) * params.gain_amplitude
+    if params.shared_draws:
+        rotation, scale, blur = (np.tile(a, n_images) for a in (rotation, scale, blur))
+        gain = np.tile(gain, (n_images, 1, 1))
+    return SamplePlan(image, dy, dx, template, y0, x0, brightness, rotation, scale, blur, gain)
+
+
+def capture_transform(image: np.ndarray, rotation: float, scale: float, blur: float,
+                      gain: np.ndarray) -> np.ndarray:
+    """``g ⊙ G_σ A_{θ,a} x`` of one image (module docstring), ``float32 [H, W]``.
+    Steps whose parameter is zero are skipped (so they are exact identities)."""
+    out = np.asarray(image, dtype=np.float32)
+    H, W = out.shape
+    if rotation != 0.0 or scale != 0.0:
+        M = cv2.getRotationMatrix2D(((W - 1) / 2.0, (H - 1) / 2.0), float(rotation), 1.0 + float(scale))
+        out = cv2.warpAffine(out, M, (W, H), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    if blur > 0.0:
+        out = cv2.GaussianBlur(out, (0, 0), sigmaX=float(blur), sigmaY=float(blur),
+                               borderType=cv2.BORDER_REPLICATE)
+    if np.any(gain != 0.0):
+        field = cv2.resize(np.asarray(gain, np.float32), (W, H), interpolation=cv2.INTER_LINEAR)
+        out = out * (1.0 + field)
+    return out
 
 
 # --------------------------------------------------------------------------
@@ -278,7 +383,9 @@ class ShiftWindows:
 
 def apply_geometry(images: np.ndarray | ShiftWindows, plan: SamplePlan, bank: OccluderBank, level: int,
                    max_shift: int, *, return_masks: bool = False):
-    """``m ⊙ S_d x`` for every sample of ``plan``: shift then occlude, ``uint8 [B, H, W]``.
+    """``m ⊙ S_d x`` for every sample of ``plan``: shift then occlude, ``uint8 [B, H, W]``;
+    with capture transforms in the plan (``plan.rotation`` not ``None``),
+    ``m ⊙ (g ⊙ G_σ A_{θ,a} S_d x)``, ``float32 [B, H, W]`` (not rounded).
 
     Shifts are vectorised through a sliding-window view of the edge-padded
     images (pass a :class:`ShiftWindows` to reuse it across batches); occluders are pasted per sample (a slice each).  With
@@ -288,10 +395,13 @@ def apply_geometry(images: np.ndarray | ShiftWindows, plan: SamplePlan, bank: Oc
     s = win.max_shift
     # a shift by (dy, dx) moves content down/right: out[y, x] = x[y - dy, x - dx]
     out = win.view[plan.image, s - plan.dy, s - plan.dx]  # [B, H, W] copy
+    if plan.rotation is not None:
+        out = np.stack([capture_transform(out[b], plan.rotation[b], plan.scale[b], plan.blur[b], plan.gain[b])
+                        for b in range(len(plan))]) if len(plan) else out.astype(np.float32)
     masks = np.zeros(out.shape, bool) if return_masks else None
     temps = bank.templates[level]
     if temps:
-        keep = [1 - t for t in temps]
+        keep = [(1 - t).astype(out.dtype, copy=False) for t in temps]
         for b in range(len(plan)):
             j = plan.template[b]
             t = keep[j]
@@ -317,7 +427,7 @@ def augment_images(images: np.ndarray, *, level: int, levels: tuple[float, ...],
     C, H, W = images.shape
     bank = occluder_bank(levels, (H, W), params, seed)
     rng = plan_rng(seed, camera, position, level)
-    plan = draw_plan(rng, C, params, bank, level, (H, W))
+    plan = draw_plan(rng, C, params, bank, level, (H, W), capture_rng(seed, camera, position, level))
     geo, masks = apply_geometry(images, plan, bank, level, params.max_shift, return_masks=True)
     noise_rng = np.random.default_rng(np.random.SeedSequence((int(seed), camera, position, level, 1)))
     y = geo.astype(np.float32) + plan.brightness[:, None, None].astype(np.float32)

@@ -62,6 +62,7 @@ def run_campaign(
     store: TrialStore | None = None,
     progress: Callable[[int], None] | None = None,
     trace: bool = False,
+    devices: int | None = None,
 ) -> list[TrialResult]:
     """Run the trials (skipping those already in ``store`` with the same object,
     pose and initial configuration) and return every result, old and new,
@@ -81,6 +82,8 @@ def run_campaign(
         store: where finished trials are appended (and read back on resume).
         progress: called with the number of trials finished at each finish.
         trace: keep per-step object probabilities in each result.
+        devices: shard the lockstep batch over this many devices
+            (:func:`jaxrecog.driver.trial_mesh`; the results are the same as on one).
     """
     ids = [s.trial for s in specs]
     if len(set(ids)) != len(ids):
@@ -101,5 +104,6 @@ def run_campaign(
         if progress is not None:
             progress(1)
 
-    run_trials(recognizer, rig, todo, key=key, batch=batch, seed=seed, trace=trace, on_result=finished)
+    run_trials(recognizer, rig, todo, key=key, batch=batch, seed=seed, trace=trace, on_result=finished,
+               devices=devices)
     return [done[k] for k in sorted(done) if k in by_id]

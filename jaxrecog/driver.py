@@ -26,6 +26,18 @@ The data path of one step (``docs/architecture.md`` lists it too):
    (with its trace only when tracing); the next step's configurations are its
    ``next_config``.
 
+Devices: ``devices=N`` shards the lockstep batch over N devices (a 1-D
+:class:`jax.sharding.Mesh` with the axis ``"trials"``): the per-slot states,
+images and inputs are split along the batch (``PartitionSpec("trials")``),
+the recognizer (model, planner tables) is replicated, and each device runs the
+same per-slot ``lax.map`` over its share (``jax.shard_map``), so a trial's
+result is the same as on one device.  The batch is rounded up to a multiple of
+N (extra lockstep slots, which take trials like the others).
+
+Travel: where the recognizer has a :class:`~jaxrecog.motion.MotionCost`, each
+result's ``travel_s`` is the seconds its moves took under that motion model
+(the initial configuration is free); otherwise NaN.
+
 Keys: trial ``t`` step ``n`` uses ``fold_in(fold_in(key, t), n)`` and the
 rig's capture noise is reseeded with ``(seed, t, n)``, so a trial's result
 does not depend on the batch, the slot or the trials beside it.
@@ -34,6 +46,7 @@ does not depend on the batch, the slot or the trials beside it.
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import Any, Callable, Iterable, Sequence
 
 import equinox as eqx
@@ -41,13 +54,18 @@ import jax
 import jax.numpy as jnp
 import jax.random as jr
 import numpy as np
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from jaxtyping import ArrayLike, Bool, Int, PRNGKeyArray, Shaped
 
+from .hardware.motion import path_travel_s
 from .hardware.rig import Capture, Rig
 from .recognizer import Decision, Recognizer, RecognizerState
 from .results import TrialResult
 
-__all__ = ["TrialSpec", "StepRecord", "run_trials", "batched_step"]
+__all__ = ["TrialSpec", "StepRecord", "run_trials", "batched_step", "trial_mesh", "TRIALS_AXIS"]
+
+#: The mesh axis the lockstep batch is sharded along (:func:`trial_mesh`).
+TRIALS_AXIS = "trials"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -88,12 +106,7 @@ def _slot_step(recognizer: Recognizer, trace: bool, state: RecognizerState, fres
     return recognizer.step(state, images, k, trace=trace)
 
 
-@eqx.filter_jit
-def _batched_step(recognizer: Recognizer, states: RecognizerState, fresh, configs, images, key, trials, steps,
-                  vectorize: bool, trace: bool):
-    # module level, the recognizer an argument: jit's cache is keyed on its
-    # structure and static fields, so every campaign with the same (or an
-    # equal-shaped) recognizer reuses one compiled step
+def _map_slots(recognizer: Recognizer, states, fresh, configs, images, key, trials, steps, vectorize: bool, trace: bool):
     def one(args):
         state, fresh_b, config, imgs, trial, step = args
         return _slot_step(recognizer, trace, state, fresh_b, config, imgs, key, trial, step)
@@ -104,7 +117,59 @@ def _batched_step(recognizer: Recognizer, states: RecognizerState, fresh, config
     return jax.lax.map(one, xs)
 
 
-def batched_step(recognizer: Recognizer, *, vectorize: bool = False, trace: bool = False):
+@eqx.filter_jit
+def _batched_step(recognizer: Recognizer, states: RecognizerState, fresh, configs, images, key, trials, steps,
+                  vectorize: bool, trace: bool, mesh: Mesh | None = None):
+    # module level, the recognizer an argument: jit's cache is keyed on its
+    # structure and static fields, so every campaign with the same (or an
+    # equal-shaped) recognizer reuses one compiled step
+    if mesh is None:
+        return _map_slots(recognizer, states, fresh, configs, images, key, trials, steps, vectorize, trace)
+    # sharded: each device maps its own slots; the recognizer's arrays (model,
+    # planner tables, λ) and the key are replicated
+    params, static = eqx.partition(recognizer, eqx.is_array)
+
+    def local(params, key, states, fresh, configs, images, trials, steps):
+        rec = eqx.combine(params, static)
+        return _map_slots(rec, states, fresh, configs, images, key, trials, steps, vectorize, trace)
+
+    shard, rep = PartitionSpec(TRIALS_AXIS), PartitionSpec()
+    f = jax.shard_map(local, mesh=mesh, in_specs=(rep, rep, shard, shard, shard, shard, shard, shard),
+                      out_specs=shard, check_vma=False)
+    return f(params, key, states, fresh, configs, images, trials, steps)
+
+
+def trial_mesh(devices: int | Sequence[jax.Device] | None) -> Mesh | None:
+    """The 1-D mesh (axis :data:`TRIALS_AXIS`) a campaign shards its batch
+    over: ``devices`` = a count (the first N of ``jax.devices()``) or the
+    devices themselves; ``None`` or 1 = no sharding (one device, the default
+    path).  More devices than exist is a ``ValueError`` naming how many do."""
+    if devices is None:
+        return None
+    if isinstance(devices, (int, np.integer)) and not isinstance(devices, bool):
+        n = int(devices)
+        if n < 1:
+            raise ValueError(f"devices must be >= 1, got {n}")
+        have = jax.devices()
+        if n > len(have):
+            raise ValueError(
+                f"asked for {n} devices but {len(have)} exist ({len(have)} x {have[0].platform}: "
+                f"{', '.join(str(d) for d in have[:4])}{', ...' if len(have) > 4 else ''}); on a CPU-only "
+                f"machine XLA_FLAGS=--xla_force_host_platform_device_count={n} (set before jax is imported) "
+                f"makes {n} host devices")
+        if n == 1:
+            return None
+        devs = have[:n]
+    else:
+        devs = list(devices)
+        if not devs:
+            raise ValueError("devices: an empty list")
+        if len(devs) == 1:
+            return None
+    return Mesh(np.array(devs), (TRIALS_AXIS,))
+
+
+def batched_step(recognizer: Recognizer, *, vectorize: bool = False, trace: bool = False, mesh: Mesh | None = None):
     """``(states, fresh[B], configs[B, n], images[B, n, H, W], key, trials[B],
     steps[B]) -> (states, decisions)``: one step of ``B`` lockstep slots in one
     jitted call.  Where ``fresh`` is true the slot first restarts from the
@@ -121,12 +186,28 @@ def batched_step(recognizer: Recognizer, *, vectorize: bool = False, trace: bool
     cond into a select that always runs both branches.  Measured on 2 cores
     (DB2 model, 16 trials): MI 6.6 ms/trial alone vs 17.9 ms/trial vmapped;
     CRLB 115 ms vs 652 ms.  ``vectorize=True`` gives the ``vmap`` form.
+
+    ``mesh`` (:func:`trial_mesh`): shard the ``B`` slots over its devices
+    (``B`` must be a multiple of their number); the result is the same.
     """
     vectorize, trace = bool(vectorize), bool(trace)
+    if mesh is not None and len(mesh.devices.flat) == 1:
+        mesh = None
+    if mesh is not None:
+        # replicate the model and planner tables once, not at every call
+        params, static = eqx.partition(recognizer, eqx.is_array)
+        recognizer = eqx.combine(jax.device_put(params, NamedSharding(mesh, PartitionSpec())), static)
 
     def step(states, fresh: Bool[ArrayLike, " B"], configs: Int[ArrayLike, "B n"], images: Shaped[ArrayLike, "B n H W"],
              key: PRNGKeyArray, trials: Int[ArrayLike, " B"], steps: Int[ArrayLike, " B"]):
-        return _batched_step(recognizer, states, fresh, configs, images, key, trials, steps, vectorize, trace)
+        if mesh is not None:
+            n = len(mesh.devices.flat)
+            if len(fresh) % n:
+                raise ValueError(f"batch {len(fresh)} is not a multiple of the mesh's {n} devices")
+            sh = NamedSharding(mesh, PartitionSpec(TRIALS_AXIS))
+            states, fresh, configs, images, trials, steps = jax.device_put(
+                (states, fresh, configs, images, trials, steps), sh)
+        return _batched_step(recognizer, states, fresh, configs, images, key, trials, steps, vectorize, trace, mesh)
 
     return step
 
@@ -158,6 +239,7 @@ def run_trials(
     trace: bool = False,
     on_step: Callable[[StepRecord], None] | None = None,
     on_result: Callable[[TrialResult], None] | None = None,
+    devices: int | Sequence[jax.Device] | None = None,
 ) -> list[TrialResult]:
     """Run every trial of ``specs`` to its stop and return the results in the
     order the trials finish.
@@ -175,6 +257,9 @@ def run_trials(
             step traces to ``on_step``.
         on_step: called after every step of every trial with a :class:`StepRecord`.
         on_result: called with each :class:`TrialResult` as its trial finishes.
+        devices: shard the batch over this many devices (or these devices;
+            :func:`trial_mesh`); ``batch`` is rounded up to a multiple of
+            their number.  Default: one device.
     """
     rigs = [rigs] if isinstance(rigs, Rig) else list(rigs)
     if not rigs:
@@ -185,6 +270,10 @@ def run_trials(
             raise ValueError(f"rig positions {tuple(r.positions)} differ from the model's {positions}")
     if batch < 1:
         raise ValueError(f"batch must be >= 1, got {batch}")
+    mesh = trial_mesh(devices)
+    if mesh is not None:
+        n_dev = len(mesh.devices.flat)
+        batch = -(-batch // n_dev) * n_dev  # extra slots take trials like the others
     queue = list(specs)
     ids = [s.trial for s in queue]
     if len(set(ids)) != len(ids):
@@ -192,7 +281,8 @@ def run_trials(
     queue.reverse()  # pop() takes the next trial
     n_cams = len(positions)
     h, w = rigs[0].image_shape
-    step = batched_step(recognizer, trace=trace)
+    step = batched_step(recognizer, trace=trace, mesh=mesh)
+    times = None if recognizer.motion is None else [np.asarray(t) for t in recognizer.motion.times]
     states = _initial_states(recognizer, batch)
     slots: list[_Slot | None] = [None] * batch
     showing: list[int | None] = [None] * len(rigs)  # the trial each rig's scene is set up for
@@ -255,6 +345,7 @@ def run_trials(
                     occluded_fraction=tuple(sl.occluded),
                     configurations=tuple(sl.configs),
                     object_probs=tuple(sl.probs),
+                    travel_s=math.nan if times is None else path_travel_s(times, sl.configs),
                 )
                 results.append(res)
                 if on_result is not None:

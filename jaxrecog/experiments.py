@@ -119,6 +119,15 @@ class Settings:
         exclude_visited_positions: never send a camera back to a position it
             already used (:class:`~jaxrecog.recognizer.Recognizer`; a departure
             from the thesis, off by default).
+        motion_cost: λ >= 0 of motion-cost-aware planning, score units per
+            second (nats/s for MI): each configuration's score is lowered by
+            λ times the seconds the rig needs to move there
+            (:mod:`jaxrecog.motion`; not in the thesis; 0 = off).  Every
+            campaign on a rig with a geometry (the synthetic cases) reports
+            the travel time per trial, whatever λ.
+        devices: shard each lockstep batch over this many devices
+            (:func:`jaxrecog.driver.trial_mesh`; the batch is rounded up to a
+            multiple); the results are the same as on one device.
     """
 
     workdir: Path | str = Path("out/experiments")  # a str becomes a Path (__post_init__)
@@ -135,9 +144,16 @@ class Settings:
     transition: str = "uniform"
     stride: int = 1
     exclude_visited_positions: bool = False
+    motion_cost: float = 0.0
+    devices: int = 1
 
     def __post_init__(self):
         object.__setattr__(self, "workdir", Path(self.workdir))
+        from .motion import check_weight
+
+        object.__setattr__(self, "motion_cost", check_weight(self.motion_cost))
+        if isinstance(self.devices, bool) or not isinstance(self.devices, int) or self.devices < 1:
+            raise ValueError(f"devices must be an integer >= 1, got {self.devices!r}")
         if self.trials_per_object < 1:
             raise ValueError("trials_per_object must be >= 1")
         if isinstance(self.stride, bool) or not isinstance(self.stride, int) or self.stride < 1:
@@ -169,9 +185,11 @@ def _run_id(settings: Settings, model_path: Path) -> str:
     never mixes trials run under other settings or another model."""
     import hashlib
 
-    fields = {k: v for k, v in dataclasses.asdict(settings).items() if k not in ("workdir", "batch")}
-    if not fields["exclude_visited_positions"]:  # added later: off keeps the digests of earlier runs
-        del fields["exclude_visited_positions"]
+    fields = {k: v for k, v in dataclasses.asdict(settings).items() if k not in ("workdir", "batch", "devices")}
+    # added later: off keeps the digests of earlier runs
+    for k in ("exclude_visited_positions", "motion_cost"):
+        if not fields[k]:
+            del fields[k]
     h = hashlib.sha256(json.dumps(fields, sort_keys=True, default=str).encode())
     h.update(hashlib.sha256(Path(model_path).read_bytes()).digest())
     return h.hexdigest()[:10]
@@ -308,13 +326,22 @@ def case_trials(case: Case, settings: Settings, rig, n_objects: int, n_poses: in
     )
 
 
-def make_recognizer(model, planner_name: str, settings: Settings):
+def make_recognizer(model, planner_name: str, settings: Settings, travel=None):
+    """The campaign's recognizer.  ``travel``: per-camera travel-time tables
+    of the rig (:func:`jaxrecog.motion.rig_travel_times`) — the motion cost
+    ``settings.motion_cost`` uses them and every result records its travel
+    time; ``None`` (a rig without a geometry) allows only ``motion_cost = 0``."""
+    from .motion import MotionCost
     from .recognizer import Recognizer
 
+    if travel is None and settings.motion_cost > 0:
+        raise ValueError(f"motion_cost = {settings.motion_cost} needs the rig's travel times (its geometry); "
+                         "this rig has none (a replayed image database)")
     planner = make_planner(planner_name, model, key=jr.PRNGKey(settings.seed), samples=settings.samples,
                            min_per_stratum=settings.min_per_stratum)
+    motion = None if travel is None else MotionCost(travel, settings.motion_cost)
     return Recognizer(model, planner, p_threshold=settings.p_threshold, max_steps=settings.max_steps, transition=settings.transition,
-                      exclude_visited_positions=settings.exclude_visited_positions)
+                      exclude_visited_positions=settings.exclude_visited_positions, motion=motion)
 
 
 def case_model(prepared: Prepared, case: Case):
@@ -400,15 +427,19 @@ def _campaign(
 ) -> CaseReport:
     """Each planner on the same trials (``specs``) on ``rig``; finished trials
     go to ``workdir/trials/<store_name(planner)>.jsonl`` (resumable)."""
+    from .motion import rig_travel_times
+
     rows, results, seconds = {}, {}, {}
+    travel = rig_travel_times(rig[0] if isinstance(rig, (list, tuple)) else rig)
     for planner in planners:
-        rec = make_recognizer(model, planner, settings)
+        rec = make_recognizer(model, planner, settings, travel)
         store = TrialStore(settings.workdir / "trials" / f"{store_name(planner)}.jsonl")
         t0 = time.perf_counter()
         with _progress_bar(len(specs), f"{case.name} {planner}" if case.name == "dataset" else f"case {case.name} {planner}", progress) as bar:
             already = len(store.load())
             bar.update(min(already, len(specs)))
-            res = run_campaign(rec, rig, specs, key=jr.PRNGKey(settings.seed + 1), batch=settings.batch, seed=settings.seed, store=store, progress=bar.update)
+            res = run_campaign(rec, rig, specs, key=jr.PRNGKey(settings.seed + 1), batch=settings.batch, seed=settings.seed, store=store, progress=bar.update,
+                               devices=settings.devices)
         seconds[planner] = time.perf_counter() - t0
         results[planner] = res
         rows[planner] = summarize(res, model.n_objects)
@@ -525,6 +556,8 @@ def run_trace(settings: Settings, *, object: int = 5, planner: str = "mi", case:
         raise ValueError(f"trial must be in [0, {settings.trials_per_object}), got {trial}")
     (spec,) = [s for s in case_trials(c, settings, rig, model.n_objects, model.n_poses, objects=[object])
                if s.trial == object * settings.trials_per_object + trial]
-    rec = make_recognizer(model, planner, settings)
+    from .motion import rig_travel_times
+
+    rec = make_recognizer(model, planner, settings, rig_travel_times(rig))
     (res,) = run_campaign(rec, rig, [spec], key=jr.PRNGKey(settings.seed + 1), batch=1, seed=settings.seed, trace=True)
     return res

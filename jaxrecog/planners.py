@@ -11,6 +11,10 @@ recognizer takes the argmax; it never branches on the planner's kind.
 - :class:`PairwiseMIPlanner` — the deterministic pairwise-distance estimate of
   the same I(s; g | a) or I(c; g | a) (Kolchinsky & Tracey 2017; Bhattacharyya:
   a lower bound, KL: an upper bound), no samples (DESIGN.md §7).
+- :class:`LookaheadMIPlanner` — the two-step value of a first configuration:
+  its pairwise MI plus the expected pairwise MI of the best second
+  configuration after each sampled outcome (non-myopic; issue 15,
+  :func:`~jaxrecog.kernels.lookahead_information`).
 - :class:`CRLBPlanner` — minus a criterion of the Cramér-Rao bound J_g(a)^-1
   (eq. 5.14-5.28): trace (A-optimal, default), log-det (D) or the largest
   eigenvalue (E).
@@ -24,6 +28,8 @@ these planners.
 
 from __future__ import annotations
 
+import dataclasses
+import functools
 import math
 from typing import Callable, ClassVar, NamedTuple
 
@@ -38,6 +44,7 @@ __all__ = [
     "Planner",
     "MIPlanner",
     "PairwiseMIPlanner",
+    "LookaheadMIPlanner",
     "CRLBPlanner",
     "RandomPlanner",
     "FixedPlanner",
@@ -47,6 +54,7 @@ __all__ = [
     "ALIASES",
     "PlannerSpec",
     "DEFAULT_MIN_PER_STRATUM",
+    "DEFAULT_LOOKAHEAD_TOP_K",
     "planner_names",
     "planner_spec",
     "planners_markdown",
@@ -56,6 +64,10 @@ __all__ = [
 #: Monte Carlo floor of samples per state stratum used by campaigns, the CLI and
 #: :func:`make_planner` (see :func:`samples_per_stratum` for why 8, not 1).
 DEFAULT_MIN_PER_STRATUM = 8
+
+#: First configurations the lookahead planners evaluate two steps deep by
+#: default (the best by one-step score; fewer where the model has fewer).
+DEFAULT_LOOKAHEAD_TOP_K = 8
 
 
 def _n_configs(model) -> int:
@@ -101,6 +113,15 @@ class Planner(eqx.Module):
 
     def scores(self, prior: K.Belief, key: PRNGKeyArray) -> Float[Array, " A"]:
         raise NotImplementedError
+
+    def with_transition(self, kind: str, rho: float) -> "Planner":
+        """This planner for a recognizer whose level transition is ``kind`` /
+        ``rho`` (the recognizer calls it before scoring).  A one-step planner
+        never predicts past the prior it is given: itself.  A planner that
+        looks further ahead (:class:`LookaheadMIPlanner`) needs the transition
+        between its steps to be the recognizer's."""
+        del kind, rho
+        return self
 
 
 class MIPlanner(Planner):
@@ -161,6 +182,80 @@ class PairwiseMIPlanner(Planner):
         return K.pairwise_mutual_information(self.tables, prior, target=self.target, levels=self.levels)
 
 
+class LookaheadMIPlanner(Planner):
+    """Two-step lookahead on the pairwise-distance MI
+    (:func:`~jaxrecog.kernels.lookahead_information`): for each of the ``top_k``
+    configurations a_1 of largest one-step score,
+
+        I_D(x; g_1 | a_1) + E_{g_1} [ max_{a_2 != a_1} I_D(x; g_2 | a_2, g_1, a_1) ]
+
+    with I_D the Bhattacharyya pairwise estimate (``divergence``) of
+    I(s; g) or I(c; g) (``target``), the outcomes g_1 a systematic sample of
+    ``outcomes`` draws from the Monte Carlo tables (fresh offset and sample
+    indices from the step's key, common to every a_1), the posterior after
+    g_1 by Bayes' rule and the level transition ``transition`` / ``rho``
+    between the steps (set to the recognizer's by :meth:`with_transition`).
+    Configurations outside the ``top_k`` keep their one-step order below the
+    evaluated ones.
+
+    Attributes:
+        tables: :class:`~jaxrecog.kernels.MITables` without ``ld_max`` /
+            ``ld_exp`` (only ``ld`` is read: the outcomes' log-likelihoods).
+        pairwise: the divergence tables of the one-step score.
+    """
+
+    tables: K.MITables
+    pairwise: K.PairwiseTables
+    target: str = eqx.field(static=True, default="state")
+    top_k: int = eqx.field(static=True, default=8)
+    outcomes: int = eqx.field(static=True, default=16)
+    transition: str = eqx.field(static=True, default="uniform")
+    rho: float = eqx.field(static=True, default=0.9)
+    batch_size: int | None = eqx.field(static=True, default=32)
+
+    def __check_init__(self):
+        if self.target not in ("state", "class"):
+            raise ValueError(f"target must be 'state' or 'class', got {self.target!r}")
+        if not 1 <= int(self.top_k) <= self.n_configs:
+            raise ValueError(f"top_k = {self.top_k}: a lookahead over more first configurations than exist "
+                             f"(A = {self.n_configs}); need 1 <= top_k <= A")
+        if int(self.outcomes) < 1:
+            raise ValueError(f"outcomes must be >= 1, got {self.outcomes}")
+        if self.transition not in ("uniform", "sticky"):
+            raise ValueError(f"transition must be 'uniform' or 'sticky', got {self.transition!r}")
+
+    @classmethod
+    def from_model(cls, model, *, key: PRNGKeyArray, samples: int = 1024, target: str = "state", top_k: int | None = None,
+                   outcomes: int = 16, divergence: str = "bhattacharyya", transition: str = "uniform", rho: float = 0.9,
+                   batch_size: int | None = 32, min_per_stratum: int = DEFAULT_MIN_PER_STRATUM) -> "LookaheadMIPlanner":
+        """The outcome tables (J from :func:`samples_per_stratum`) and the divergence tables.
+
+        ``top_k``: first configurations looked at two steps deep, at most A
+        (default ``min(DEFAULT_LOOKAHEAD_TOP_K, A)``); ``outcomes``: sampled
+        g_1 per first configuration; ``batch_size``: one-step calls per chunk
+        (memory), ``None`` for one vmap."""
+        n = _n_configs(model)
+        top_k = min(DEFAULT_LOOKAHEAD_TOP_K, n) if top_k is None else top_k
+        if not 1 <= int(top_k) <= n:  # before building any table
+            raise ValueError(f"top_k = {top_k}: a lookahead over more first configurations than exist "
+                             f"(A = {n}); need 1 <= top_k <= A")
+        tables = _tables(model, key, samples, "full", min_per_stratum)._replace(ld_max=None, ld_exp=None)
+        pairwise = K.pairwise_tables(model.likelihoods, kind=divergence)
+        return cls(n, tables, pairwise, target, int(top_k), int(outcomes), transition, float(rho), batch_size)
+
+    def with_transition(self, kind, rho):
+        if (kind, float(rho)) == (self.transition, self.rho):
+            return self
+        return dataclasses.replace(self, transition=kind, rho=float(rho))
+
+    def scores(self, prior, key):
+        ld = self.tables.ld[0]
+        draws = K.lookahead_draws(key, self.outcomes, ld.shape[3], dtype=ld.dtype)
+        score = functools.partial(K.pairwise_mutual_information, self.pairwise, target=self.target)
+        return K.lookahead_information(self.tables, score, prior, draws=draws, top_k=self.top_k,
+                                       transition=self.transition, rho=self.rho, batch_size=self.batch_size)
+
+
 class CRLBPlanner(Planner):
     """Minus the chosen criterion of J_g(a)^-1 (eq. 5.25): smaller bound = better."""
 
@@ -213,6 +308,13 @@ def _pairwise(target: str, divergence: str):
     return build
 
 
+def _lookahead(target: str):
+    def build(model, *, key, samples, min_per_stratum, **options):
+        return LookaheadMIPlanner.from_model(model, key=key, samples=samples, target=target,
+                                             min_per_stratum=min_per_stratum, **options)
+    return build
+
+
 def _crlb(criterion: str):
     def build(model, *, key, samples, min_per_stratum, **options):
         return CRLBPlanner.from_model(model, key=key, samples=samples, criterion=criterion,
@@ -259,6 +361,10 @@ PLANNERS: dict[str, PlannerSpec] = {
                                   "pairwise-distance I(s; g | a), KL (an upper bound; deterministic)"),
     "mi-class-pairwise-kl": PlannerSpec(_pairwise("class", "kl"), "mi",
                                         "pairwise-distance I(c; g | a), KL (deterministic; levels marginalised)"),
+    "mi-lookahead": PlannerSpec(_lookahead("state"), "mi",
+                                "two-step lookahead: pairwise I(s; g_1 | a_1) + E max_a2 I(s; g_2 | a_2, g_1), top-k first moves (options top_k, outcomes)"),
+    "mi-class-lookahead": PlannerSpec(_lookahead("class"), "mi",
+                                      "two-step lookahead on the pairwise I(c; g): I(c; g_1 | a_1) + E max_a2 I(c; g_2 | a_2, g_1)"),
     "crlb": PlannerSpec(_crlb("trace"), "crlb", "Cramér-Rao bound, minimise trace(J_g^-1) (A-optimal), eq. 5.25"),
     "crlb-det": PlannerSpec(_crlb("logdet"), "crlb", "Cramér-Rao bound, minimise log det(J_g^-1) (D-optimal)"),
     "crlb-eig": PlannerSpec(_crlb("maxeig"), "crlb", "Cramér-Rao bound, minimise the largest eigenvalue of J_g^-1 (E-optimal)"),

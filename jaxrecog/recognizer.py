@@ -11,8 +11,10 @@ shapes and no Python branching on data:
 3. the stop test: the best (object, pose) reaches ``p_threshold`` (thesis
    P_th = 0.95) or ``max_steps`` image sets were taken;
 4. the next configuration: the planner scores all configurations under the
-   predicted prior (transition per candidate position, eq. 3.7-3.9) and the
-   best not yet visited is chosen (optionally, ``exclude_visited_positions``,
+   predicted prior (transition per candidate position, eq. 3.7-3.9), minus
+   λ · seconds to move there where the recognizer has a
+   :class:`~jaxrecog.motion.MotionCost` (not in the thesis; λ = 0 is the
+   planner's own choice), and the best not yet visited is chosen (optionally, ``exclude_visited_positions``,
    also none where some camera would return to a position it already used —
    a departure from the thesis, see :class:`Recognizer`);
 5. the prior for the next step: the level transition for the cameras that move.
@@ -34,6 +36,7 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Int, PRNGKeyArray, Real
 from . import kernels as K
 from .features import project_at
 from .hardware.rig import config_from_index, index_from_config
+from .motion import MotionCost
 from .planners import Planner
 
 __all__ = ["Recognizer", "RecognizerState", "Decision", "StepTrace", "excluded_by_positions", "restrict_cameras", "image_features"]
@@ -66,7 +69,8 @@ class StepTrace(NamedTuple):
 
     Attributes:
         scores: ``[A]`` planner scores of all configurations (higher = better;
-            a failed estimate is ``-inf``).
+            a failed estimate is ``-inf``), minus λ · travel seconds where the
+            recognizer has a motion cost (the scores the choice was made on).
         object_probs: ``[M]`` object marginal (summed over poses).
         class_probs: ``[C]`` (object, pose) marginal.
         posterior: the belief after this step's images.
@@ -169,6 +173,11 @@ class Recognizer(eqx.Module):
     rho: float = eqx.field(static=True, default=0.9)
     revisit: bool = eqx.field(static=True, default=False)
     exclude_visited_positions: bool = eqx.field(static=True, default=False)
+    motion: MotionCost | None = None
+
+    def __check_init__(self):
+        if self.motion is not None and tuple(self.motion.positions) != tuple(self.positions):
+            raise ValueError(f"motion cost tables have positions {self.motion.positions}, the model {tuple(self.positions)}")
 
     @property
     def positions(self) -> tuple[int, ...]:
@@ -221,7 +230,10 @@ class Recognizer(eqx.Module):
         seen = state.visited_positions or tuple(jnp.zeros((v,), bool) for v in positions)
         seen = tuple(s.at[state.config[i]].set(True) for i, s in enumerate(seen))
         predicted = K.transition_per_position(posterior, state.config, positions, kind=self.transition, rho=self.rho)
-        scores = self.planner.scores(predicted, key)
+        # a planner that looks past this prior predicts with the recognizer's transition
+        scores = self.planner.with_transition(self.transition, self.rho).scores(predicted, key)
+        if self.motion is not None:
+            scores = self.motion.apply(scores, state.config)
         # a non-finite score (a failed estimate) ranks below every finite one,
         # but above a configuration excluded as visited
         usable = jnp.where(jnp.isfinite(scores), scores, jnp.finfo(scores.dtype).min)

@@ -30,6 +30,10 @@ class TrialResult:
     configurations: tuple[tuple[int, ...], ...] = ()  # per step
     object_probs: tuple[tuple[float, ...], ...] = ()  # per step (optional trace)
     invalid_steps: int = 0  # image sets the recognizer could not use (belief left unchanged)
+    #: seconds the trial's moves took under the recognizer's motion model
+    #: (:mod:`jaxrecog.hardware.motion`; the initial configuration is free);
+    #: NaN where unknown (no travel-time tables, or a store written before)
+    travel_s: float = math.nan
 
     @property
     def correct(self) -> bool:
@@ -38,12 +42,16 @@ class TrialResult:
     def to_json(self) -> str:
         d = dataclasses.asdict(self)
         d["correct"] = self.correct
+        if d["travel_s"] != d["travel_s"]:
+            d["travel_s"] = None  # unknown: null, strict JSON
         return json.dumps(d, separators=(",", ":"))
 
     @classmethod
     def from_dict(cls, d: dict) -> "TrialResult":
         fields = {f.name for f in dataclasses.fields(cls)}
         kw = {k: v for k, v in d.items() if k in fields}
+        if kw.get("travel_s", 0.0) is None:
+            del kw["travel_s"]
         for k in ("occluded_fraction", "configurations", "object_probs"):
             if k in kw:
                 kw[k] = tuple(tuple(x) for x in kw[k])
@@ -106,13 +114,23 @@ class ObjectRow:
     #: wrong and stopped on the threshold (p >= P_th), % of the row's trials:
     #: the number that shows an over-confident belief (NaN: not recorded)
     confident_errors: float = math.nan
+    #: mean seconds of travel per trial (NaN: not recorded)
+    travel_s: float = math.nan
+
+
+def _mean_travel(rs: Sequence[TrialResult]) -> float:
+    """Mean travel seconds, NaN unless every trial recorded it."""
+    ts = [r.travel_s for r in rs]
+    return math.nan if not ts or any(t != t for t in ts) else sum(ts) / len(ts)
 
 
 def summarize(results: Iterable[TrialResult], n_objects: int) -> list[ObjectRow]:
     """Per-object rows and the average row (mean over objects, as the thesis).
 
     A trial is a *confident error* when it stopped on the threshold (its
-    ``stopped`` flag: exit probability >= P_th) on the wrong object or pose."""
+    ``stopped`` flag: exit probability >= P_th) on the wrong object or pose.
+    ``travel_s`` is the mean travel time per trial (NaN unless every trial of
+    the row recorded one)."""
     by_obj: dict[int, list[TrialResult]] = {m: [] for m in range(n_objects)}
     for r in results:
         by_obj[r.object].append(r)
@@ -128,6 +146,7 @@ def summarize(results: Iterable[TrialResult], n_objects: int) -> list[ObjectRow]
                     sum(r.exit_prob for r in rs) / len(rs),
                     sum(r.steps for r in rs) / len(rs),
                     100.0 * sum(r.stopped and not r.correct for r in rs) / len(rs),
+                    _mean_travel(rs),
                 )
             )
         else:
@@ -142,6 +161,7 @@ def summarize(results: Iterable[TrialResult], n_objects: int) -> list[ObjectRow]
                 sum(r.exit_prob for r in filled) / len(filled),
                 sum(r.views for r in filled) / len(filled),
                 sum(r.confident_errors for r in filled) / len(filled),
+                sum(r.travel_s for r in filled) / len(filled),
             )
         )
     return rows
@@ -156,15 +176,22 @@ def table_markdown(rows: Sequence[ObjectRow], title: str = "", reference: Sequen
     """The thesis-shaped table as Markdown, with the confident-error column
     (wrong and stopped at p >= P_th, % of trials; the thesis does not report
     it); ``reference`` adds the thesis's (rate, exit prob, views) per row for
-    comparison."""
+    comparison.  A mean-travel column (seconds per trial) is added when some
+    row recorded travel times."""
+    travel = any(r.travel_s == r.travel_s for r in rows)
     head = "| Object | Trials | Recog. rate (%) | Mean exit prob. | Mean no. of views | Confident errors (%) |"
     sep = "|---|---:|---:|---:|---:|---:|"
+    if travel:
+        head += " Mean travel (s) |"
+        sep += "---:|"
     if reference is not None:
         head += " Thesis rate / exit / views |"
         sep += "---|"
     lines = ([f"**{title}**", ""] if title else []) + [head, sep]
     for i, r in enumerate(rows):
         line = f"| {r.label} | {r.trials} | {r.rate:.1f} | {r.exit_prob:.2f} | {r.views:.2f} | {_num(r.confident_errors, 1)} |"
+        if travel:
+            line += f" {_num(r.travel_s, 2)} |"
         if reference is not None:
             ref = reference[i] if i < len(reference) else None
             line += f" {_num(ref[0], 1)} / {_num(ref[1], 2)} / {_num(ref[2], 1)} |" if ref else " |"

@@ -24,7 +24,10 @@ residual of ``u`` and the squared rest)::
 This is the unclipped, unrounded pixel model; the 8-bit images of
 :func:`~jaxrecog.augment.augment_images` differ only where ``y`` leaves
 ``[0, 255]`` and by rounding (variance 1/12 gray level²).  Level-0 samples
-take ``Vᵀ z`` from a table of all ``(2s+1)²`` shifts of each image.
+take ``Vᵀ z`` from a table of all ``(2s+1)²`` shifts of each image, unless
+the capture transforms (rotation, scale, blur, local gain; off by default) are
+on: then every sample's ``z`` is computed in pixel space, as at the occluded
+levels.
 """
 
 from __future__ import annotations
@@ -38,7 +41,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .augment import AugmentParams, SamplePlan, ShiftWindows, apply_geometry, draw_plan, levels_for, occluder_bank, plan_rng
+from .augment import (AugmentParams, SamplePlan, ShiftWindows, apply_geometry, capture_rng, draw_plan, levels_for,
+                      occluder_bank, plan_rng)
 from .database import ImageDatabase, load_database
 from .eigenspace import choose_n_components, position_eigenspace
 from .kernels import Likelihood, likelihood_class
@@ -99,7 +103,10 @@ def train_model(
             of its moments.
         seed: everything random derives from it.
         progress: called as ``progress(done, total)`` after each position.
-        augment: augmentation settings (``samples_per_image`` overrides its field).
+        augment: augmentation settings (``samples_per_image`` overrides its field),
+            including the capture transforms (``max_rotation``, ``max_scale``,
+            ``blur_sigma``, ``gain_amplitude``, ``gain_cells``; off by default),
+            all recorded in the info's ``params["augment"]``.
         var_floor: variance floor relative to the mean training-image variance
             per component, ``floor_v = var_floor * sum(λ_v) / (K * C)``.
         batch_size: samples projected per matmul.
@@ -225,7 +232,7 @@ def _fit_position(images, mean, basis, lam, levels, params, bank, seed, camera, 
     for k in range(len(levels)):
         seen = np.zeros(C, np.int64)  # samples of each class so far at this level
         rng = plan_rng(seed, camera, position, k)
-        plan = draw_plan(rng, C, params, bank, k, (H, W))
+        plan = draw_plan(rng, C, params, bank, k, (H, W), capture_rng(seed, camera, position, k))
         B = len(plan)
         m = params.samples_per_image if params.shared_draws else B
         alpha = rng.standard_normal((m, K)) * sigma
@@ -236,7 +243,7 @@ def _fit_position(images, mean, basis, lam, levels, params, bank, seed, camera, 
         for start in range(0, B, batch_size):
             sl = slice(start, min(start + batch_size, B))
             p = plan.take(sl)
-            if bank.templates[k]:
+            if bank.templates[k] or params.capture:
                 w = buf[: len(p)]  # reused float32 buffer: no page faults per batch
                 np.copyto(w, apply_geometry(win, p, bank, k, s).reshape(len(p), D),
                           casting="unsafe")

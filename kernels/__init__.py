@@ -1,5 +1,5 @@
 """Pure JAX estimation kernels (likelihood, belief, mutual information, Fisher /
-Cramér-Rao, pairwise-distance MI), each with a plain NumPy reference in ``tests/oracles.py``.
+Cramér-Rao, pairwise-distance MI, two-step lookahead), each with a plain NumPy reference in ``tests/oracles.py``.
 
 Nothing here imports from ``jaxrecog`` proper or ``jaxrecog.hardware``.
 Per-camera values come as tuples, one entry per camera: likelihoods
@@ -44,6 +44,7 @@ from .likelihood import (
     likelihood_names,
     register_likelihood,
 )
+from .lookahead import LookaheadDraws, lookahead_draws, lookahead_information, outcome_strata
 from .mutual_information import MITables, mi_tables, mutual_information, samples_per_configuration
 from .pairwise_mi import DIVERGENCES, PairwiseTables, pairwise_mutual_information, pairwise_tables
 from .student_t import StudentT
@@ -57,6 +58,7 @@ __all__ = [
     "FullGaussian",
     "LIKELIHOODS",
     "Likelihood",
+    "LookaheadDraws",
     "LowRankGaussian",
     "MITables",
     "PairwiseTables",
@@ -77,10 +79,13 @@ __all__ = [
     "log_joint",
     "log_likelihood",
     "log_likelihood_full",
+    "lookahead_draws",
+    "lookahead_information",
     "mi_tables",
     "mutual_information",
     "object_marginal",
     "object_pose_marginal",
+    "outcome_strata",
     "pairwise_mutual_information",
     "pairwise_tables",
     "pose_marginal",

@@ -36,9 +36,11 @@ its Monte Carlo estimate is not dominated by rare samples.
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import NamedTuple
 
+import jax
 import jax.numpy as jnp
 import jax.random as jr
 from jax.scipy.linalg import solve_triangular
@@ -117,15 +119,29 @@ def fisher_information(
         raise ValueError(f"fisher_information: n_objects * n_poses = {n_objects * n_poses} != C = {n_c}")
     if not sigma_s > 0:
         raise ValueError(f"fisher_information: sigma_s must be > 0, got {sigma_s}")
+    if levels not in ("belief", "uniform"):
+        raise ValueError(f"fisher_information: levels must be 'belief' or 'uniform', got {levels!r}")
+    if with_stderr and j < 2:
+        raise ValueError("fisher_information: with_stderr needs samples_per_stratum >= 2")
+    return _fisher_information(tables, belief, key, n_objects, n_poses, float(sigma_s), levels, with_stderr)
+
+
+@functools.partial(jax.jit, static_argnames=("n_objects", "n_poses", "sigma_s", "levels", "with_stderr"))
+def _fisher_information(tables: MITables, belief: Belief, key: PRNGKeyArray, n_objects: int, n_poses: int,
+                        sigma_s: float, levels: str, with_stderr: bool):
+    """The body of :func:`fisher_information` (arguments checked), compiled as
+    one program (one XLA compilation per shape when called eagerly, instead of
+    one per operation)."""
+    n = len(tables.ld)
+    positions = tuple(t.shape[0] for t in tables.ld)
+    n_c, j = tables.ld[0].shape[1], tables.ld[0].shape[3]
     dtype = tables.ld[0].dtype
     s2 = float(sigma_s) ** 2
     log_pc = floor_log_probs(belief.log_pc.astype(dtype))  # no subnormals (see _grid)
     if levels == "uniform":
         log_pk = [jnp.full((v, n_c, t.shape[2]), -math.log(t.shape[2]), dtype) for v, t in zip(positions, tables.ld)]
-    elif levels == "belief":
-        log_pk = [lp.astype(dtype) for lp in per_position_levels(belief, positions)]
     else:
-        raise ValueError(f"fisher_information: levels must be 'belief' or 'uniform', got {levels!r}")
+        log_pk = [lp.astype(dtype) for lp in per_position_levels(belief, positions)]
 
     cls = jnp.arange(n_c)
     obj = (cls // n_poses).astype(dtype)
@@ -178,8 +194,6 @@ def fisher_information(
     if not with_stderr:
         fis = (fis / j).reshape((-1, n + 2, n + 2))
         return 0.5 * (fis + jnp.swapaxes(fis, -1, -2))
-    if j < 2:
-        raise ValueError("fisher_information: with_stderr needs samples_per_stratum >= 2")
     reps = fis.reshape((j, -1, n + 2, n + 2))
     return jnp.mean(reps, axis=0), jnp.std(reps, axis=0, ddof=1) / math.sqrt(j)
 

@@ -23,7 +23,7 @@ import numpy as np
 
 from jaxrecog import ImageDatabase, write_database
 
-__all__ = ["render_view", "make_database", "write_synthetic_database", "moving_database"]
+__all__ = ["render_view", "make_database", "write_synthetic_database", "moving_database", "random_sensor_model"]
 
 
 def render_view(
@@ -144,3 +144,26 @@ def moving_database() -> ImageDatabase:
                     pose.append(p)
                     split.append(s)
     return ImageDatabase.from_arrays(np.stack(imgs), cam, pos, obj, pose, split)
+
+
+def random_sensor_model(positions=(4, 3), n_objects=3, n_poses=2, levels=(0.0, 0.1), k=3, hw=(6, 8), seed=0):
+    """A random diagonal-Gaussian :class:`~jaxrecog.sensor_model.SensorModel`
+    (orthonormal bases, means ~ N(0, 0.3^2), variances in [0.01, 0.05]) for the
+    recognizer and planner tests that need a model but no images."""
+    import jax.numpy as jnp
+
+    from jaxrecog.sensor_model import CameraModel, SensorModel
+
+    rng = np.random.default_rng(seed)
+    d = hw[0] * hw[1]
+    cams = []
+    for v in positions:
+        basis = np.linalg.qr(rng.normal(size=(v, d, k)))[0].astype(np.float32)
+        cams.append(CameraModel(
+            mean_image=jnp.asarray(rng.normal(0, 0.01, (v, d)), jnp.float32),
+            basis=jnp.asarray(basis),
+            eigenvalues=jnp.ones((v, k), jnp.float32),
+            mu=jnp.asarray(rng.normal(0, 0.3, (v, n_objects * n_poses, len(levels), k)), jnp.float32),
+            var=jnp.asarray(rng.uniform(0.01, 0.05, (v, n_objects * n_poses, len(levels), k)), jnp.float32),
+        ))
+    return SensorModel(tuple(cams), n_objects, n_poses, tuple(levels), hw, "diag")

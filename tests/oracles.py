@@ -263,7 +263,14 @@ def mutual_information_quadrature(mus, vars, log_joint, cfg, target="state", n_g
 # --- pairwise-distance MI (Kolchinsky & Tracey 2017) ------------------------------------------
 
 
-def pairwise_mi_ref(mus, covs, log_joint, kind="bhattacharyya", target="state"):
+def pairwise_divergences_ref(mus, covs, kind="bhattacharyya"):
+    """Per camera ``[V_i, C, L_i, C, L_i]`` divergences from the NumPy closed forms."""
+    ref = bhattacharyya_ref if kind == "bhattacharyya" else kl_ref
+    return [np.stack([ref(m[v], cv[v]) for v in range(m.shape[0])])
+            for m, cv in zip((np.asarray(m, float) for m in mus), (np.asarray(c, float) for c in covs))]
+
+
+def pairwise_mi_ref(mus, covs, log_joint, kind="bhattacharyya", target="state", ds=None):
     """The pairwise-distance MI estimate for every configuration by brute force:
     every pair of joint states (s, s'), D_a(s, s') = sum_i D_i[v_i](c, k_i; c', k_i')
     from the NumPy closed forms (:func:`bhattacharyya_ref` / :func:`kl_ref`), and
@@ -277,14 +284,12 @@ def pairwise_mi_ref(mus, covs, log_joint, kind="bhattacharyya", target="state"):
     Args:
         mus: per camera ``[V_i, C, L_i, K_i]``; covs: per camera ``[V_i, C, L_i, K_i, K_i]``.
         log_joint: ``[C, L_0, ...]`` log P(s).
+        ds: the divergences of :func:`pairwise_divergences_ref`, if already computed.
     """
-    ref = bhattacharyya_ref if kind == "bhattacharyya" else kl_ref
-    mus = [np.asarray(m, float) for m in mus]
-    covs = [np.asarray(c, float) for c in covs]
     log_joint = np.asarray(log_joint, float)
-    ds = [np.stack([ref(m[v], cv[v]) for v in range(m.shape[0])]) for m, cv in zip(mus, covs)]
+    ds = pairwise_divergences_ref(mus, covs, kind) if ds is None else ds
     states = list(np.ndindex(*log_joint.shape))
-    configs = list(itertools.product(*[range(m.shape[0]) for m in mus]))
+    configs = list(itertools.product(*[range(d.shape[0]) for d in ds]))
     out = np.zeros(len(configs))
     for a, cfg in enumerate(configs):
         def dist(s, t):
@@ -311,6 +316,66 @@ def pairwise_mi_ref(mus, covs, log_joint, kind="bhattacharyya", target="state"):
                 total -= math.exp(log_pc) * within
         out[a] = total
     return out
+
+
+# --- two-step lookahead (issue 15) -----------------------------------------------------------
+
+
+def lookahead_ref(mus, vars, zs, log_posterior, current, u, js, *, target="state", kind="uniform", rho=0.9,
+                  divergence="bhattacharyya", chols=None):
+    """The two-step value of every first configuration by brute force on the full joint
+    state, with the pairwise-distance MI (:func:`pairwise_mi_ref`) as the one-step score:
+
+        V(a_1) = I_D(a_1 | P_1) + (1/S) sum_m max_{a_2 != a_1} I_D(a_2 | P_2(m))
+
+    P_1 = the joint transition (:func:`joint_transition_ref`) of ``log_posterior``
+    from ``current`` to a_1 (a camera moves where a_1 differs); outcome m: the
+    stratum of point (m + u) / S of the cumulative P_1 over the joint states in
+    C order (c, k_0, k_1, ...), its sample ``js[m]`` from the kernels' standard
+    draws ``zs`` (as :func:`mutual_information_ref`), the full-joint Bayes update
+    (:func:`joint_update_ref`) of P_1 with that sample's log-likelihoods and the
+    joint transition from a_1 to each a_2.
+
+    Returns:
+        ``(V [A], one-step scores [A])``.
+    """
+    mus = [np.asarray(m, float) for m in mus]
+    vars, chols = _as_float_arrays(vars), _as_float_arrays(chols)
+    zs = [np.asarray(z, float) for z in zs]
+    covs = [c @ np.swapaxes(c, -1, -2) for c in chols] if chols is not None else [v[..., None] * np.eye(v.shape[-1]) for v in vars]
+    ds = pairwise_divergences_ref(mus, covs, divergence)
+    positions = [m.shape[0] for m in mus]
+    configs = list(itertools.product(*[range(v) for v in positions]))
+    n_out = len(js)
+
+    def predicted(log_joint, cur, cfg):
+        return joint_transition_ref(log_joint, [a != b for a, b in zip(cfg, cur)], kind, rho)
+
+    def one_step(log_joint, cur):
+        return np.array([pairwise_mi_ref(mus, covs, predicted(log_joint, cur, cfg), divergence, target, ds=ds)[a]
+                         for a, cfg in enumerate(configs)])
+
+    log_posterior = np.asarray(log_posterior, float)
+    one = one_step(log_posterior, current)
+    value = np.zeros(len(configs))
+    for a, cfg in enumerate(configs):
+        lj = predicted(log_posterior, current, cfg)
+        p = np.exp(lj).ravel()
+        cdf = np.cumsum(p)
+        t = (np.arange(n_out) + u) / n_out * cdf[-1]
+        flat = np.minimum(np.searchsorted(cdf, t, side="right"), p.size - 1)
+        best = []
+        for m, f in enumerate(flat):
+            s = np.unravel_index(f, lj.shape)
+            c, ks = s[0], s[1:]
+            gs = [_sample_ref(mus, vars, chols, zs, i, cfg[i], c, ks[i], js[m]) for i in range(len(mus))]
+            lls = [_camera_loglik_ref(g, mus, vars, chols, i, v) for i, (g, v) in enumerate(zip(gs, cfg))]
+            post = joint_update_ref(lj, lls)
+            inner = one_step(post, cfg)
+            inner[a] = -np.inf
+            best.append(inner.max() if len(configs) > 1 else 0.0)
+        value[a] = one[a] + np.mean(best)
+    return value, one
 
 
 # --- Fisher information (eq. 5.22-5.28) ------------------------------------------------------

@@ -149,6 +149,35 @@ def test_train_writes_a_loadable_model_and_config_file(tiny, tmp_path):
     assert p.returncode == 2 and "absent.toml" in p.stderr
 
 
+def test_train_capture_augmentation_in_the_model_file_and_inspect(tiny, tmp_path):
+    out = tmp_path / "cap.npz"
+    p = run("-q", "train", tiny["db"], "--out", out, "--kind", "DB1", "--components", 3, "--samples", 4,
+            "--rotation", 4, "--scale", 0.05, "--blur", "0.5,1.5", "--gain", 0.1, "--gain-cells", 4)
+    assert p.returncode == 0, p.stderr
+    from jaxrecog.modelfile import load_model_meta
+
+    aug = load_model_meta(out)["training"]["augment"]
+    assert aug["max_rotation"] == 4.0 and aug["max_scale"] == 0.05 and aug["gain_amplitude"] == 0.1
+    assert list(aug["blur_sigma"]) == [0.5, 1.5] and aug["gain_cells"] == 4
+    p = run("inspect", out)
+    assert p.returncode == 0, p.stderr
+    assert ("capture rotation +-4 deg, scale +-0.05, blur sigma 0.5..1.5 px, gain +-0.1 (4x4 grid)"
+            in p.stdout), p.stdout
+    p = run("inspect", tiny["model"])  # trained without: says so
+    assert "noise_sigma 4.0, brightness_sigma 8.0, max_shift 3; capture off" in p.stdout, p.stdout
+    cfg = tmp_path / "cap.toml"
+    cfg.write_text("[train]\nblur = 1.0\nrotation = 2\n")  # TOML numbers, not strings
+    p = run("-q", "--config", cfg, "train", tiny["db"], "--out", out, "--kind", "DB1", "--components", 3,
+            "--samples", 4)
+    assert p.returncode == 0, p.stderr
+    aug = load_model_meta(out)["training"]["augment"]
+    assert list(aug["blur_sigma"]) == [0.0, 1.0] and aug["max_rotation"] == 2.0
+    for bad, needle in ((["--rotation", "-1"], "--rotation"), (["--blur", "2,1"], "--blur"),
+                        (["--scale", "1"], "--scale"), (["--gain-cells", "1"], "--gain-cells")):
+        p = run("train", tiny["db"], "--out", out, *bad)
+        assert p.returncode == 2 and needle in p.stderr, p.stderr
+
+
 def test_train_bad_database_and_calibrate(tiny, tmp_path):
     p = run("train", tmp_path / "nodb", "--out", tmp_path / "m.npz")
     assert p.returncode == 1
@@ -366,7 +395,7 @@ def test_bench_merges_json_and_reports_failures(tmp_path):
 def test_progress_quiet_off_a_terminal():
     import io
 
-    from jaxrecog import progress
+    from jaxrecog import _progress as progress
 
     class TTY(io.StringIO):
         def isatty(self):
@@ -566,3 +595,40 @@ def test_recognize_rejects_a_nan_capture(tiny, monkeypatch, capsys):
     err = capsys.readouterr().err
     assert err.count("jaxrecog: error:") == 1 and "Traceback" not in err
     assert "image of camera 0 at position 2 (step 1): 30 pixel(s) are NaN" in err
+
+
+def test_experiment_view_choice_and_devices_flags(fake_experiments, tmp_path, capsys):
+    """--exclude-visited, --motion-cost and --devices reach the Settings; off by default; an
+    experiment TOML may set them; bad values are usage errors (exit 2) with one clear line."""
+    out = tmp_path / "exp"
+    assert cli.main(["--quiet", "experiment", "i", "--out", str(out), "--planners", "mi"]) == 0
+    s = fake_experiments["run_case"][1]
+    assert (s.exclude_visited_positions, s.motion_cost, s.devices) == (False, 0.0, 1)
+    assert cli.main(["--quiet", "experiment", "i", "--out", str(out), "--planners", "mi", "--exclude-visited",
+                     "--motion-cost", "0.25", "--devices", "1"]) == 0
+    s = fake_experiments["run_case"][1]
+    assert (s.exclude_visited_positions, s.motion_cost, s.devices) == (True, 0.25, 1)
+    toml = tmp_path / "e.toml"
+    toml.write_text('case = "i"\n[settings]\nmotion_cost = 0.5\nexclude_visited_positions = true\n')
+    assert cli.main(["--quiet", "experiment", str(toml), "--out", str(out)]) == 0
+    s = fake_experiments["run_case"][1]
+    assert (s.exclude_visited_positions, s.motion_cost) == (True, 0.5)
+    capsys.readouterr()
+    assert cli.main(["experiment", "i", "--out", str(out), "--motion-cost", "-1"]) == 2
+    assert "motion cost" in capsys.readouterr().err
+    import jax
+
+    n = len(jax.devices())
+    assert cli.main(["experiment", "i", "--out", str(out), "--devices", str(n + 3)]) == 2
+    err = capsys.readouterr().err
+    assert f"--devices {n + 3}" in err and f"{n} exist" in err
+
+
+def test_recognize_view_choice_flags(tiny, capsys):
+    rig = f"dataset:{tiny['db']}"
+    assert cli.main(["--quiet", "recognize", str(tiny["model"]), "--rig", rig, "--samples", "64", "--start", "0,0",
+                     "--exclude-visited"]) == 0
+    assert "result: object" in capsys.readouterr().out
+    # a replayed database has no geometry: no travel times to weigh
+    assert cli.main(["recognize", str(tiny["model"]), "--rig", rig, "--samples", "64", "--motion-cost", "1"]) == 2
+    assert "geometry" in capsys.readouterr().err

@@ -10,7 +10,7 @@ import json
 import numpy as np
 import pytest
 
-from jaxrecog.config import ConfigFileError, section
+from jaxrecog._config import ConfigFileError, section
 from jaxrecog.hardware.problems import DEBUG_HINT
 
 

@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import jax.random as jr
 import numpy as np
 import pytest
-from builders import moving_database as _moving_database
+from builders import random_sensor_model, moving_database as _moving_database
 from compiles import count_compiles
 
 from jaxrecog import ImageDatabase, train_model
@@ -20,25 +20,9 @@ from jaxrecog.features import project_camera
 from jaxrecog.hardware import DatasetRig
 from jaxrecog.planners import FixedPlanner, MIPlanner, RandomPlanner, make_planner
 from jaxrecog.recognizer import Recognizer, restrict_cameras
-from jaxrecog.sensor_model import CameraModel, SensorModel
 
 
-def random_model(positions=(4, 3), n_objects=3, n_poses=2, levels=(0.0, 0.1), k=3, hw=(6, 8), seed=0):
-    rng = np.random.default_rng(seed)
-    d = hw[0] * hw[1]
-    cams = []
-    for v in positions:
-        basis = np.linalg.qr(rng.normal(size=(v, d, k)))[0].astype(np.float32)
-        cams.append(
-            CameraModel(
-                mean_image=jnp.asarray(rng.normal(0, 0.01, (v, d)), jnp.float32),
-                basis=jnp.asarray(basis),
-                eigenvalues=jnp.ones((v, k), jnp.float32),
-                mu=jnp.asarray(rng.normal(0, 0.3, (v, n_objects * n_poses, len(levels), k)), jnp.float32),
-                var=jnp.asarray(rng.uniform(0.01, 0.05, (v, n_objects * n_poses, len(levels), k)), jnp.float32),
-            )
-        )
-    return SensorModel(tuple(cams), n_objects, n_poses, tuple(levels), hw, "diag")
+random_model = random_sensor_model
 
 
 @pytest.mark.parametrize("positions", [(5,), (4, 3), (3, 2, 2)])

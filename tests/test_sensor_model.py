@@ -126,3 +126,34 @@ def test_identical_images_get_identical_gaussians_with_shared_draws():
         same_mu = np.array_equal(np.asarray(cam.mu[:, 2:4]), np.asarray(cam.mu[:, 4:6]))  # object 1 vs 2
         same_var = np.array_equal(np.asarray(cam.var[:, 2:4]), np.asarray(cam.var[:, 4:6]))
         assert (same_mu and same_var) == shared
+
+
+def test_noiseless_training_with_capture_transforms_matches_projected_pixel_samples(db):
+    """Rotation, scale, blur and local gain reach the trained Gaussians: with no
+    noise they are those of the (8-bit) pixel samples of augment_images."""
+    p = AugmentParams(noise_sigma=0.0, brightness_sigma=0.0, samples_per_image=8, max_rotation=5.0,
+                      max_scale=0.05, blur_sigma=(0.3, 1.2), gain_amplitude=0.15)
+    m = train_model(db, kind="DB2", n_components=4, augment=p, samples_per_image=8, var_floor=0.0)
+    plain = train_model(db, kind="DB2", n_components=4, samples_per_image=8, var_floor=0.0,
+                        augment=dataclasses.replace(p, max_rotation=0.0, max_scale=0.0, blur_sigma=(0.0, 0.0),
+                                                    gain_amplitude=0.0))
+    for cam, pos, k in [(0, 1, 3), (1, 2, 0)]:
+        aug = augment_images(db.train_images(cam)[pos], level=k, levels=DB2_LEVELS, params=p,
+                             camera=cam, position=pos)
+        g = np.array([[np.asarray(project(m, cam, pos, a)) for a in per] for per in aug])
+        var = np.asarray(m.cameras[cam].var[pos, :, k])
+        np.testing.assert_allclose(m.cameras[cam].mu[pos, :, k], g.mean(axis=1), atol=1e-3 * np.sqrt(var.max()) + 1e-5)
+        np.testing.assert_allclose(var, g.var(axis=1), rtol=0.05, atol=1e-7)
+        assert not np.allclose(var, np.asarray(plain.cameras[cam].var[pos, :, k]), rtol=0.05)
+
+
+def test_capture_pixel_path_agrees_with_the_shift_table_at_level_0(db):
+    """A gain of 1e-12 (float32: exactly 1) sends level 0 through the per-sample
+    pixel path instead of the table of shifts: the same model up to float32."""
+    p = AugmentParams(samples_per_image=6)
+    a = train_model(db, kind="DB1", n_components=4, augment=p, samples_per_image=6)
+    b = train_model(db, kind="DB1", n_components=4, augment=dataclasses.replace(p, gain_amplitude=1e-12),
+                    samples_per_image=6)
+    for ca, cb in zip(a.cameras, b.cameras):
+        np.testing.assert_allclose(ca.mu, cb.mu, rtol=1e-5, atol=1e-6)
+        np.testing.assert_allclose(ca.var, cb.var, rtol=1e-4, atol=1e-9)

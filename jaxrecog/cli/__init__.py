@@ -24,9 +24,9 @@ import types
 from typing import Any, Callable, Sequence
 
 from .. import __version__
-from ..config import ConfigFileError, load_settings, section
+from .._config import ConfigFileError, load_settings, section
 from ..hardware.problems import problem_message
-from ..progress import set_quiet
+from .._progress import set_quiet
 from ._common import CLIError, UsageError
 from ._options import Formatter, global_options
 

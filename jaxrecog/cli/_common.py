@@ -78,6 +78,22 @@ def _calibration_lines(model) -> list[str]:
     return lines
 
 
+def _augment_line(aug: dict) -> str:
+    """The training augmentation of a model file, one line (older files lack the
+    capture transforms: they were off)."""
+    parts = [f"{k} {aug[k]}" for k in ("noise_sigma", "brightness_sigma", "max_shift") if k in aug]
+    blur = aug.get("blur_sigma") or (0.0, 0.0)
+    capture = [
+        f"rotation +-{aug.get('max_rotation', 0.0):g} deg",
+        f"scale +-{aug.get('max_scale', 0.0):g}",
+        f"blur sigma {float(blur[0]):g}..{float(blur[1]):g} px",
+        f"gain +-{aug.get('gain_amplitude', 0.0):g} ({aug.get('gain_cells', 3)}x{aug.get('gain_cells', 3)} grid)",
+    ]
+    on = (aug.get("max_rotation", 0) or aug.get("max_scale", 0) or float(blur[1]) > 0
+          or aug.get("gain_amplitude", 0))
+    return ", ".join(parts) + "; capture " + (", ".join(capture) if on else "off")
+
+
 def model_report(path, model=None) -> str:
     """What ``inspect`` (and ``demo``) prints for a model file: its summary, how
     it was trained and, when calibrated, the variance factors per camera and position."""
@@ -89,4 +105,7 @@ def model_report(path, model=None) -> str:
     if train:
         keys = ("kind", "K", "samples_per_image", "covariance", "seed")
         lines.append("  training: " + ", ".join(f"{k} {train[k]}" for k in keys if k in train))
+        aug = train.get("augment")
+        if isinstance(aug, dict):
+            lines.append("  augmentation: " + _augment_line(aug))
     return "\n".join(lines + _calibration_lines(model))

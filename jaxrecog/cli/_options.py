@@ -9,6 +9,7 @@ from ..planners import DEFAULT_MIN_PER_STRATUM, planner_names
 __all__ = [
     "PLANNERS", "Formatter", "config_tuple", "int_at_least", "positive", "nonneg", "probability",
     "global_options", "table_options", "planner_size_options", "skip_invalid_option",
+    "motion_weight", "choice_options",
 ]
 
 #: The choices of ``--planner`` / ``--planners``: the planner registry's names
@@ -67,6 +68,32 @@ def probability(text: str) -> float:
     if not 0.0 < v <= 1.0:
         raise argparse.ArgumentTypeError(f"expected a probability in (0, 1], got {text!r}")
     return v
+
+
+def motion_weight(text: str) -> float:
+    """An argparse type: the motion cost λ, a finite number >= 0."""
+    from ..motion import check_weight
+
+    try:
+        return check_weight(text)
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
+
+
+def choice_options(p: argparse.ArgumentParser, *, unset: bool = False) -> None:
+    """How the next configuration is chosen beyond the planner's scores
+    (``experiment`` and ``recognize``): ``--exclude-visited`` and
+    ``--motion-cost``.  Both depart from the thesis and are off by default.
+    ``unset``: leave them ``None`` when not given (``experiment``, where an
+    experiment TOML may set them)."""
+    g = p.add_argument_group("view choice (departures from the thesis, off by default)")
+    g.add_argument("--exclude-visited", action="store_true", default=None if unset else False,
+                   help="never send a camera back to a position it already took an image from (the thesis "
+                        "excludes only whole configurations already used, so one camera may stay on its view)")
+    g.add_argument("--motion-cost", type=motion_weight, metavar="LAMBDA", default=None if unset else 0.0,
+                   help="score(a) - LAMBDA * seconds to move the rig to a: LAMBDA >= 0 in score units per second "
+                        "(nats/s for the MI planners); travel times from the rig's geometry and axis speeds "
+                        "(a rig file's [motion] table; 0 = off)")
 
 
 def global_options(parser: argparse.ArgumentParser, suppress: bool) -> None:

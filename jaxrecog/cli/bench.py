@@ -6,7 +6,7 @@ import json
 from pathlib import Path
 
 from ..hardware.problems import problem_message
-from ..progress import bar
+from .._progress import bar
 from ._bench_runner import find_scripts, headline, run_all
 from ._common import CLIError, print_table
 from ._options import positive

@@ -7,11 +7,12 @@ from pathlib import Path
 from typing import Any
 
 from .. import experiments as ex  # as a module: tests stub its prepare / run_case / run_dataset
-from ..config import ConfigFileError, read_toml
+from .._config import ConfigFileError, read_toml
+from ..driver import trial_mesh
 from ..planners import DEFAULT_MIN_PER_STRATUM
-from ..progress import enabled as progress_bars
+from .._progress import enabled as progress_bars
 from ._common import UsageError
-from ._options import PLANNERS, positive
+from ._options import PLANNERS, choice_options, positive
 from ._reports import QUICK, make_settings, trace_plot, write_report
 
 NAME = "experiment"
@@ -53,6 +54,10 @@ def add_arguments(p) -> None:
                    "(minutes, not hours)")
     p.add_argument("--trace", action="store_true", help="also run one traced trial and plot its belief "
                    "(thesis cases)")
+    p.add_argument("--devices", type=positive, metavar="N",
+                   help="shard each lockstep batch over N devices (GPUs; the batch is rounded up to a multiple "
+                        "of N; the results are the same as on one device; default 1)")
+    choice_options(p, unset=True)
 
 
 def load_settings_flat(path: str) -> dict[str, Any]:
@@ -119,7 +124,8 @@ def run(args) -> int:
     out = Path(args.out)
     over = {"trials_per_object": args.trials, "samples": args.samples,
             "min_per_stratum": args.min_per_stratum, "batch": args.batch, "seed": args.seed,
-            "stride": args.stride}
+            "stride": args.stride, "devices": args.devices, "exclude_visited_positions": args.exclude_visited,
+            "motion_cost": args.motion_cost}
     values.update({k: v for k, v in over.items() if v is not None})
     if args.quick:
         for k, v in QUICK.items():
@@ -128,6 +134,12 @@ def run(args) -> int:
     if args.workdir:
         values["workdir"] = args.workdir
     settings = make_settings(values, args.case or "experiment")
+    if dataset and settings.motion_cost > 0:
+        raise UsageError("--motion-cost needs the rig's geometry (travel times); a replayed database has none")
+    try:
+        trial_mesh(settings.devices)  # too many devices: one clear line before anything renders or trains
+    except ValueError as e:
+        raise UsageError(f"--devices {settings.devices}: {e}") from None
     t0 = time.perf_counter()
     if dataset:
         report = ex.run_dataset(folder, model, settings, planners=planners, progress=progress_bars())

@@ -12,11 +12,12 @@ from ..driver import StepRecord, TrialSpec, run_trials
 from ..experiments import CAPTURE_NOISE, occluder_factory  # the thesis-case boards (first views occluded)
 from ..hardware import Capture, DatasetRig, Noise, rig_from_config
 from ..modelfile import load_model
+from ..motion import MotionCost, rig_travel_times
 from ..planners import make_planner
 from ..recognizer import Recognizer
 from ._common import CLIError, UsageError, fmt_cfg, key, model_positions, print_table, synthetic_rig
 from ._images import usable
-from ._options import (PLANNERS, config_tuple, nonneg, planner_size_options, positive, probability,
+from ._options import (PLANNERS, choice_options, config_tuple, nonneg, planner_size_options, positive, probability,
                        skip_invalid_option, table_options)
 
 NAME = "recognize"
@@ -44,6 +45,7 @@ def add_arguments(p) -> None:
     p.add_argument("--noise", type=float, default=CAPTURE_NOISE[1], help="synthetic rig: per-pixel noise (gray levels)")
     p.add_argument("--plot", metavar="PNG", help="also plot the belief over objects per step")
     p.add_argument("--seed", type=int, default=0, help="PRNG seed (start, planner, rig noise)")
+    choice_options(p)
     table_options(p)
 
 
@@ -112,13 +114,13 @@ def _trial(args, model, rig, rec, state, k_run):
         probs.append(np.asarray(dec.trace.object_probs, dtype=float))
         rows.append((r.step + 1, fmt_cfg(r.config), int(dec.object), int(dec.pose), f"{float(dec.probability):.3f}",
                      " ".join(f"{100 * x:.0f}%" for x in r.capture.occluded) or "-",
-                     "stop" if bool(dec.stop) else fmt_cfg(np.asarray(dec.next_config))))
+                     "stop" if bool(dec.stop) else fmt_cfg(tuple(int(v) for v in np.asarray(dec.next_config)))))
         last[:] = [dec]
 
     spec = TrialSpec(0, args.object, args.pose, start, occl)
-    run_trials(rec, _CheckedRig(rig, model.image_shape, args.skip_invalid), [spec], key=k_run, batch=1,
-               seed=args.seed, trace=True, on_step=row)
-    return probs, rows, last[0]
+    (res,) = run_trials(rec, _CheckedRig(rig, model.image_shape, args.skip_invalid), [spec], key=k_run, batch=1,
+                        seed=args.seed, trace=True, on_step=row)
+    return probs, rows, last[0], res
 
 
 def run(args) -> int:
@@ -140,9 +142,14 @@ def run(args) -> int:
                            "was rendered with)")
         planner = make_planner(args.planner, model, key=k_plan, samples=args.samples,
                                min_per_stratum=args.min_per_stratum)
-        rec = Recognizer(model, planner, p_threshold=args.threshold, max_steps=args.max_steps)
+        travel = rig_travel_times(rig)
+        if travel is None and args.motion_cost > 0:
+            raise UsageError(f"--motion-cost needs the rig's geometry (travel times); --rig {args.rig} has none")
+        motion = None if travel is None else MotionCost(travel, args.motion_cost)
+        rec = Recognizer(model, planner, p_threshold=args.threshold, max_steps=args.max_steps,
+                         exclude_visited_positions=args.exclude_visited, motion=motion)
         state = rec.init(key=None if args.start is not None else k_init, config=args.start)
-        probs, rows, dec = _trial(args, model, rig, rec, state, k_run)
+        probs, rows, dec, res = _trial(args, model, rig, rec, state, k_run)
     finally:
         rig.close()
     print(f"object {args.object}, pose {args.pose} on rig {args.rig}; planner {args.planner}, "
@@ -151,6 +158,8 @@ def run(args) -> int:
     ok = int(dec.object) == args.object and int(dec.pose) == args.pose
     print(f"result: object {int(dec.object)}, pose {int(dec.pose)} with P = {float(dec.probability):.3f} after "
           f"{len(rows)} step(s) -- {'correct' if ok else 'WRONG'}")
+    if res.travel_s == res.travel_s:
+        print(f"travel: {res.travel_s:.2f} s of rig motion (motion cost {args.motion_cost:g} per s)")
     if args.plot:
         for p in plots.belief_lines(np.stack(probs), args.plot, true_object=args.object,
                                     title=f"Belief per step: object {args.object + 1} (index {args.object}), "

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from ..experiments import CAPTURE_NOISE
 from ..hardware import Noise, render_database
-from ..progress import bar
+from .._progress import bar
 from ._common import synthetic_rig
 from ._options import nonneg, table_options
 
