@@ -178,7 +178,7 @@ def _training_params(settings: Settings, kind: str) -> dict:
     return {"kind": kind, "K": settings.n_components, "samples_per_image": settings.samples_per_image, "seed": settings.seed}
 
 
-def _run_id(settings: Settings, model_path: Path) -> str:
+def _run_id(settings: Settings, model_path: Path | str) -> str:
     """A short digest of everything that changes a campaign's results besides
     the planner: the settings (but the work folder and batch size) and the
     model file's bytes.  Trial stores are named by it, so a resumed campaign

@@ -15,6 +15,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
+from .hardware.rig import config_from_index
 from .thesis import TABLE_7_8
 
 __all__ = [
@@ -101,7 +102,7 @@ def score_heatmap(
     finite = np.isfinite(grid)
     if chosen is None:
         flat = np.where(np.isfinite(scores), scores, -np.inf)
-        chosen = np.unravel_index(int(np.argmax(flat)), positions)
+        chosen = config_from_index(int(np.argmax(flat)), positions)
     chosen = tuple(int(c) for c in chosen) + (0,) * (2 - len(chosen))
     V1, V2 = grid.shape
     fig, ax = plt.subplots(figsize=(5.0, 8.0))

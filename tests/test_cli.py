@@ -14,6 +14,7 @@ import cv2
 import numpy as np
 import pytest
 from builders import write_synthetic_database
+from clirun import run_cli
 from PIL import Image
 
 from jaxrecog import cli
@@ -23,10 +24,21 @@ from jaxrecog.train import train_model
 ROOT = Path(__file__).resolve().parent.parent
 
 
-def run(*args, cwd=None, timeout=120):
-    env = dict(os.environ, JAX_PLATFORMS="cpu", COLUMNS="100")
-    return subprocess.run([sys.executable, "-m", "jaxrecog.cli", *map(str, args)], capture_output=True,
-                          text=True, timeout=timeout, cwd=cwd, env=env)
+run = run_cli  # jaxrecog ARGS in this process (tests/clirun.py)
+
+
+def test_the_installed_command_runs(tiny):
+    """The real entry point (``python -m jaxrecog.cli``) in a fresh process:
+    exit codes and the one error line, once, the way a shell sees them."""
+    env = dict(os.environ, JAX_PLATFORMS="cpu")
+    ok = subprocess.run([sys.executable, "-m", "jaxrecog.cli", "inspect", str(tiny["model"])],
+                        capture_output=True, text=True, timeout=120, env=env)
+    assert ok.returncode == 0, ok.stderr
+    assert ok.stdout.strip()
+    bad = subprocess.run([sys.executable, "-m", "jaxrecog.cli", "inspect", str(tiny["root"] / "nope.npz")],
+                         capture_output=True, text=True, timeout=120, env=env)
+    assert bad.returncode == 1
+    one_error_line(bad, "nope.npz")
 
 
 def png_size(path) -> tuple[int, int]:

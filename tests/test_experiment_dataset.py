@@ -7,13 +7,11 @@ from __future__ import annotations
 
 import glob
 import json
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 from builders import moving_database, write_synthetic_database
+from clirun import run_cli
 from PIL import Image
 from test_cli import one_error_line
 
@@ -23,10 +21,7 @@ from jaxrecog.modelfile import save_model
 from jaxrecog.train import train_model
 
 
-def run(*args, timeout=180):
-    env = dict(os.environ, JAX_PLATFORMS="cpu", COLUMNS="100")
-    return subprocess.run([sys.executable, "-m", "jaxrecog.cli", *map(str, args)], capture_output=True,
-                          text=True, timeout=timeout, env=env)
+run = run_cli  # jaxrecog ARGS in this process (tests/clirun.py)
 
 
 @pytest.fixture(scope="module")
@@ -129,7 +124,7 @@ def test_usage_errors_from_a_toml_file(tmp_path, capsys):
     assert "needs a 'case' key" in capsys.readouterr().err
 
 
-def test_missing_model_is_usage_error_in_a_subprocess(moving):
+def test_missing_model_is_usage_error(moving):
     p = run("experiment", "--rig", f"dataset:{moving['db']}")
     assert p.returncode == 2 and "needs --model" in p.stderr and "Traceback" not in p.stderr
 

@@ -241,22 +241,16 @@ def test_synthetic_rig_travel_times_are_the_tables_ones():
 
 @pytest.mark.slow
 def test_sweep_script_writes_json_and_plot(strided_workdir, tmp_path):
-    import os
-    import subprocess
-    import sys
-    from pathlib import Path
+    from clirun import run_script
 
-    root = Path(__file__).resolve().parent.parent
     work = strided_workdir(tmp_path / "work")
     out = tmp_path / "out"
-    p = subprocess.run([sys.executable, str(root / "scripts/motion_cost_sweep.py"), "--quick", "--stride", "8",
-                        "--trials", "1", "--lambdas", "0", "5", "--workdir", str(work), "--out", str(out)],
-                       capture_output=True, text=True, timeout=600, env=dict(os.environ, JAX_PLATFORMS="cpu"))
+    p = run_script("motion_cost_sweep", "--quick", "--stride", "8", "--trials", "1", "--lambdas", "0", "5",
+                   "--workdir", work, "--out", out)
     assert p.returncode == 0, p.stderr
     summary = json.loads((out / "motion_cost_sweep.json").read_text())
     assert [r["lambda"] for r in summary["rows"]] == [0.0, 5.0] and summary["positions"] == [4, 1]
     assert all(r["trials"] == 8 and r["travel_s"] >= 0 for r in summary["rows"])
     assert (out / "motion_cost_sweep.png").stat().st_size > 1000
-    bad = subprocess.run([sys.executable, str(root / "scripts/motion_cost_sweep.py"), "--lambdas", "-1",
-                          "--out", str(out)], capture_output=True, text=True, timeout=120)
+    bad = run_script("motion_cost_sweep", "--lambdas", "-1", "--out", out)
     assert bad.returncode == 2 and "motion cost" in bad.stderr

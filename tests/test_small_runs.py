@@ -8,18 +8,14 @@ rendered by the same ``prepare`` they call), so it is rendered once, not twice."
 from __future__ import annotations
 
 import json
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
+from clirun import run_cli, run_script
 from PIL import Image
 
 from jaxrecog.experiments import CaseReport, Settings, make_rig, results_dir, rig_table
 
-ROOT = Path(__file__).resolve().parent.parent
-ENV = dict(os.environ, JAX_PLATFORMS="cpu", COLUMNS="100")
 
 
 def png_size(path) -> tuple[int, int]:
@@ -56,9 +52,7 @@ def _assert_small_database(work: Path) -> None:
 def test_demo_on_a_strided_table(tmp_path, strided_workdir):
     out = tmp_path / "demo"
     strided_workdir(out / "work")
-    p = subprocess.run([sys.executable, "-m", "jaxrecog.cli", "--quiet", "demo", "--stride", "8", "--trials", "1",
-                        "--planners", "mi-class", "--out", str(out)],
-                       capture_output=True, text=True, timeout=300, env=ENV)
+    p = run_cli("--quiet", "demo", "--stride", "8", "--trials", "1", "--planners", "mi-class", "--out", out)
     assert p.returncode == 0, p.stderr
     text = p.stdout
     assert "positions (4, 1), 8 objects x 4 poses" in text
@@ -82,9 +76,7 @@ def test_demo_on_a_strided_table(tmp_path, strided_workdir):
 @pytest.mark.slow
 def test_reproduce_thesis_script_on_a_strided_table(tmp_path, strided_workdir):
     work = strided_workdir(tmp_path / "thesis")
-    p = subprocess.run([sys.executable, str(ROOT / "scripts/reproduce_thesis.py"), "--case", "i", "--trials", "1",
-                        "--stride", "8", "--workdir", str(work), "--quiet"],
-                       capture_output=True, text=True, timeout=300, env=ENV)
+    p = run_script("reproduce_thesis", "--case", "i", "--trials", "1", "--stride", "8", "--workdir", work, "--quiet")
     assert p.returncode == 0, p.stderr
     text = p.stdout
     assert "### Case (i)" in text and "Thesis" not in text
@@ -102,6 +94,5 @@ def test_reproduce_thesis_script_on_a_strided_table(tmp_path, strided_workdir):
     # case (i) needs the DB1 model only
     assert [x.name for x in work.glob("model-*.npz")] == ["model-db1-stride8-K20-S100-seed0.npz"]
     assert len(list((work / "trials").glob("case-i-*.jsonl"))) == 4
-    q = subprocess.run([sys.executable, str(ROOT / "scripts/reproduce_thesis.py"), "--case", "iv"],
-                       capture_output=True, text=True, timeout=60, env=ENV)
+    q = run_script("reproduce_thesis", "--case", "iv")
     assert q.returncode == 2 and "'iv'" in q.stderr and "Traceback" not in q.stderr

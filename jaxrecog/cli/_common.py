@@ -3,7 +3,7 @@ synthetic rig of the layout options, and the model report."""
 
 from __future__ import annotations
 
-from typing import Any, Sequence
+from typing import Any, Sequence, SupportsInt
 
 import jax.random as jr
 import numpy as np
@@ -32,7 +32,7 @@ def model_positions(model) -> tuple[int, ...]:
     return tuple(int(c.mu.shape[0]) for c in model.cameras)
 
 
-def fmt_cfg(cfg: Sequence[int]) -> str:
+def fmt_cfg(cfg: Sequence[SupportsInt]) -> str:  # ints or NumPy integers
     return ",".join(str(int(v)) for v in cfg)
 
 

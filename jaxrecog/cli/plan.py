@@ -6,6 +6,7 @@ import jax.random as jr
 import numpy as np
 
 from .. import plots
+from ..hardware.rig import config_from_index
 from ..modelfile import load_model
 from ..planners import make_planner
 from ..recognizer import Recognizer
@@ -38,7 +39,7 @@ def add_arguments(p) -> None:
 def _scores_report(scores, positions, top: int) -> tuple[int, list]:
     s = np.asarray(scores, dtype=float)
     order = np.argsort(np.where(np.isfinite(s), -s, np.inf), kind="stable")[:top]
-    rows = [(r + 1, fmt_cfg(np.unravel_index(a, positions)), int(a), f"{s[a]:.4g}") for r, a in enumerate(order)]
+    rows = [(r + 1, fmt_cfg(config_from_index(int(a), positions)), int(a), f"{s[a]:.4g}") for r, a in enumerate(order)]
     return int(order[0]), rows
 
 
@@ -74,7 +75,7 @@ def run(args) -> int:
         scores = np.asarray(planner.scores(state.prior, k_score))
         what = "uniform belief"
     best, rows = _scores_report(scores, positions, args.top)
-    cfg = np.unravel_index(best, positions)
+    cfg = config_from_index(int(best), positions)
     print(f"{args.planner} scores of {scores.size} configurations ({what}); best: ({fmt_cfg(cfg)}) "
           f"index {best}, score {scores[best]:.4g}")
     print_table(["rank", "config", "index", "score"], rows)
