@@ -5,28 +5,35 @@ fractions."""
 
 from __future__ import annotations
 
-import os
 import re
-import subprocess
-import sys
+import shutil
 from pathlib import Path
 
 import numpy as np
 import pytest
+from clirun import run_main
 
 ROOT = Path(__file__).resolve().parent.parent
 
 
 @pytest.fixture(scope="module")
-def docs_run(tmp_path_factory):
-    """docs/envs.md's first example, run in a fresh folder (it renders and
-    trains into out/envs-demo there)."""
+def docs_run(tmp_path_factory, strided_database):
+    """docs/envs.md's first example, run as printed in a fresh folder (it
+    trains into out/envs-demo there), in this process (``clirun.run_main``:
+    a fresh interpreter would compile every program again), starting from the
+    session's rendered strided database as the example's own ``prepare``
+    would render it."""
     text = (ROOT / "docs" / "envs.md").read_text()
     code = re.search(r"```python\n(.*?)```", text, re.S).group(1)
     assert len(code.strip().splitlines()) <= 25  # the ~20-line example
     cwd = tmp_path_factory.mktemp("envs-demo")
-    p = subprocess.run([sys.executable, "-c", code], cwd=cwd, capture_output=True, text=True, timeout=900,
-                       env=dict(os.environ, JAX_PLATFORMS="cpu"))
+    shutil.copytree(strided_database, cwd / "out" / "envs-demo" / strided_database.name)
+
+    def example(argv):
+        exec(compile(code, "docs/envs.md", "exec"), {"__name__": "__main__"})
+        return 0
+
+    p = run_main(example, [], cwd=cwd)
     assert p.returncode == 0, p.stderr
     return cwd, p.stdout
 
