@@ -35,7 +35,7 @@ import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import jax.random as jr  # noqa: E402
 import numpy as np  # noqa: E402
-from builders import render_view  # noqa: E402
+from builders import make_database  # noqa: E402
 
 from jaxrecog import ImageDatabase  # noqa: E402
 from jaxrecog.calibration import calibrate_model, features_from_database  # noqa: E402
@@ -56,28 +56,7 @@ VARIANTS = {
 def off_grid_database(positions=(4, 3), n_objects=4, n_poses=2, image_shape=(48, 64), n_test=3, n_calib=3,
                       offset=0.3, seed=0) -> ImageDatabase:
     """Clean train views on the grid; test / calib views between the positions (module docstring)."""
-    rng = np.random.default_rng(seed)
-    imgs, cam, pos, obj, pose, split = [], [], [], [], [], []
-    for i, n_pos in enumerate(positions):
-        for v in range(n_pos):
-            for m in range(n_objects):
-                for p in range(n_poses):
-                    kw = dict(n_poses=n_poses, n_positions=n_pos, image_shape=image_shape)
-                    views = [("train", render_view(i, v, m, p, **kw))]
-                    for s, n in (("test", n_test), ("calib", n_calib)):
-                        for _ in range(n):
-                            img = render_view(i, v + rng.uniform(-offset, offset), m, p, **kw).astype(np.float64)
-                            dy, dx = rng.integers(-2, 3, size=2)
-                            img = np.roll(img, (dy, dx), axis=(0, 1)) + rng.normal(0.0, 3.0, img.shape)
-                            views.append((s, np.clip(np.round(img), 0, 255).astype(np.uint8)))
-                    for s, im in views:
-                        imgs.append(im)
-                        cam.append(i)
-                        pos.append(v)
-                        obj.append(m)
-                        pose.append(p)
-                        split.append(s)
-    return ImageDatabase.from_arrays(np.stack(imgs), cam, pos, obj, pose, split)
+    return make_database(positions, n_objects, n_poses, image_shape, n_test, seed, n_calib=n_calib, view_offset=offset)
 
 
 def held_out_scores(model, db) -> dict:

@@ -66,7 +66,7 @@ def _expand(a, i, n):
     return a.reshape(shape)
 
 
-def grid_mixture(tabs, extra, feats=(), guard: bool = True):
+def grid_mixture(tabs, extra, feats=()):
     """log Z and posterior means over c' on the product grid (see module doc).
 
     Args:
@@ -76,14 +76,8 @@ def grid_mixture(tabs, extra, feats=(), guard: bool = True):
             ``[C, J, X_camera, C']``;
             returns the mean of f under the posterior w(c') = exp(...) / Z.
 
-        guard: with ``False`` no underflow fallback: a row whose shifted sum
-            underflows gets log Z = log(tiny) + shift (finite, not exact).  For a
-            caller that has shown its rows of non-zero weight cannot underflow
-            (the pairwise-distance MI); saves the test and the ``lax.cond``.
-
     Returns:
-        ``(logZ [C, J, X_0, ..., X_{n-1}], [mean [C, J, X_0, ...] per feat], n_underflow)``
-        (``n_underflow`` is 0 without the guard).
+        ``(logZ [C, J, X_0, ..., X_{n-1}], [mean [C, J, X_0, ...] per feat], n_underflow)``.
     """
     n = len(tabs)
     dtype = tabs[0].dtype
@@ -106,11 +100,6 @@ def grid_mixture(tabs, extra, feats=(), guard: bool = True):
 
     z = contract(es)
     mtot = sum(_expand(m, i, n) for i, m in enumerate(ms))
-    if not guard:
-        logz = jnp.log(jnp.maximum(z, float(finfo.tiny))) + mtot
-        means = [contract([e * f if k == cam else e for k, e in enumerate(es)]) / jnp.where(z > 0, z, 1.0)
-                 for cam, f in feats]
-        return logz, means, jnp.zeros((), jnp.int32)
     logz = jnp.log(z) + mtot
     means = []
     for cam, f in feats:
@@ -139,7 +128,7 @@ def grid_mixture(tabs, extra, feats=(), guard: bool = True):
     return logz, means, n_under
 
 
-def level_tables(lds, ld_max, ld_exp, log_pk, guard: bool = True):
+def level_tables(lds, ld_max, ld_exp, log_pk):
     """T_i = logsumexp_k' (LD_i + log P_i(k'|c')) per camera, ``[V_i, C, L_i, J, C]``,
     from per-camera ``lds`` ``[V_i, C, L_i, J, C, L_i]`` (any table of log
     component weights: sample log-densities for the Monte Carlo MI, minus
@@ -161,8 +150,7 @@ def level_tables(lds, ld_max, ld_exp, log_pk, guard: bool = True):
     ``lax.cond`` (nothing is paid for it when no sum underflows; under
     ``vmap`` both branches run).  Above ``tau`` the flushed terms (each below
     ``tiny``) change the sum by at most a relative ``eps``, so the two paths
-    agree to rounding.  ``guard=False`` (fast path only) is for a caller that
-    has shown the sums cannot underflow (the pairwise-distance MI).
+    agree to rounding.
     """
     def exact(_):
         return [lse(ld + lp[:, None, None, None], axis=-1) for ld, lp in zip(lds, log_pk)]
@@ -176,9 +164,16 @@ def level_tables(lds, ld_max, ld_exp, log_pk, guard: bool = True):
         s = jnp.einsum("vCKclj,vCK->vcljC", ex, weights(lp))
         under = under | jnp.any(~(s >= tau))
         fast.append(jnp.log(s) + mx)
-    if not guard:
-        return fast
     return jax.lax.cond(under, exact, lambda _: fast, None)
+
+
+def check_options(kernel: str, target: str, levels: str) -> None:
+    """The ``target`` / ``levels`` arguments both MI kernels take, checked
+    with one message form (``kernel`` names the caller)."""
+    if target not in ("state", "class"):
+        raise ValueError(f"{kernel}: target must be 'state' or 'class', got {target!r}")
+    if levels not in ("belief", "uniform"):
+        raise ValueError(f"{kernel}: levels must be 'belief' or 'uniform', got {levels!r}")
 
 
 def own_class(t):
@@ -187,7 +182,7 @@ def own_class(t):
     return jnp.transpose(jnp.diagonal(t, axis1=1, axis2=4), (0, 3, 1, 2))
 
 
-def mixture_information(ts, selfs, log_pc, log_pk, weight_floor: float | None = None, guard: bool = True):
+def mixture_information(ts, selfs, log_pc, log_pk):
     """Per-replicate information ``[J, A]`` on the (v_0, v_1, ...) grid, the part
     the Monte Carlo MI and the pairwise-distance MI share:
 
@@ -200,11 +195,9 @@ def mixture_information(ts, selfs, log_pc, log_pk, weight_floor: float | None = 
         selfs: per camera ``[V_i, C, L_i, J]`` tables S_i of the conditional
             term, or ``None`` for 0 (the pairwise state target).
         log_pc: ``[C]`` log P(c) (already floored, :func:`floor_log_probs`).
-        log_pk: per camera ``[V_i, C, L_i]`` log P_i(k|c) per position.
-        weight_floor: if given, each factor P(c), P_i(k_i|c) of a stratum's
-            weight below ``exp(weight_floor)`` is flushed to 0 (default: the
-            subnormal floor of :func:`weights`).
-        guard: the underflow fallback of :func:`grid_mixture`.
+        log_pk: per camera ``[V_i, C, L_i]`` log P_i(k|c) per position
+            (factors below the smallest normal float are flushed to 0,
+            :func:`weights`).
 
     Returns:
         ``[J, A]``, A = prod_i V_i row-major; the mean over J is the estimate.
@@ -216,12 +209,9 @@ def mixture_information(ts, selfs, log_pc, log_pk, weight_floor: float | None = 
     # E_s log sum_c' ...: mixture over c' on the (v_0, v_1, ...) grid.
     grid_tabs = [to_grid(t) for t in ts]  # [C, J, X_i, C']
     extra = jnp.broadcast_to(log_pc[None, None, :], (n_c, j, n_c))
-    logp, _, _ = grid_mixture(grid_tabs, extra, guard=guard)  # [C, J, X_0, ..., X_{n-1}]
-    if weight_floor is None:
-        pc = weights(log_pc, n + 1)
-        pk = [weights(lp, n + 1) for lp in log_pk]  # [V_i, C, L_i]
-    else:
-        pc, *pk = (jnp.where(lp < weight_floor, 0.0, jnp.exp(jnp.maximum(lp, weight_floor))) for lp in [log_pc, *log_pk])
+    logp, _, _ = grid_mixture(grid_tabs, extra)  # [C, J, X_0, ..., X_{n-1}]
+    pc = weights(log_pc, n + 1)
+    pk = [weights(lp, n + 1) for lp in log_pk]  # [V_i, C, L_i]
     letters = _GRID_LETTERS[:n]
     caps = letters.upper()
     shaped = logp.reshape((n_c, j) + sum(((v, t.shape[2]) for v, t in zip(positions, ts)), ()))
@@ -236,7 +226,7 @@ def mixture_information(ts, selfs, log_pc, log_pk, weight_floor: float | None = 
     return (e_self - e_logp).reshape(j, -1)
 
 
-__all__ = ["floor_log_probs", "grid_mixture", "level_tables", "lse", "mixture_information", "own_class", "weights"]
+__all__ = ["check_options", "floor_log_probs", "grid_mixture", "level_tables", "lse", "mixture_information", "own_class", "weights"]
 
 
 def check_belief(tables, belief) -> None:

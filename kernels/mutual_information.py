@@ -59,7 +59,7 @@ import jax.numpy as jnp
 import jax.random as jr
 from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray
 
-from ._grid import check_belief, floor_log_probs, level_tables, lse, mixture_information, own_class
+from ._grid import check_belief, check_options, floor_log_probs, level_tables, lse, mixture_information, own_class
 from .belief import Belief
 from .likelihood import Likelihood, as_likelihoods
 
@@ -234,10 +234,7 @@ def mutual_information(
         (a = 7 v_0 + v_1 on the thesis grid); with ``with_stderr`` a pair
         ``(mi [A], stderr [A])``.  Estimates are not clipped at 0.
     """
-    if target not in ("state", "class"):
-        raise ValueError(f"mutual_information: target must be 'state' or 'class', got {target!r}")
-    if levels not in ("belief", "uniform"):
-        raise ValueError(f"mutual_information: levels must be 'belief' or 'uniform', got {levels!r}")
+    check_options("mutual_information", target, levels)
     check_belief(tables, belief)
     positions = tuple(t.shape[0] for t in tables.ld_self)
     n_c, j = tables.ld_self[0].shape[1], tables.ld_self[0].shape[3]

@@ -85,7 +85,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
-from ._grid import check_belief_sizes, floor_log_probs, lse
+from ._grid import check_belief_sizes, check_options, floor_log_probs, lse
 from .belief import Belief
 from .likelihood import as_likelihoods
 from .mutual_information import per_position_levels
@@ -305,10 +305,7 @@ def pairwise_mutual_information(
         ``jit`` (values unknown) a NaN estimate is returned as ``-inf`` (a failed
         estimate, ranked last by the recognizer).
     """
-    if target not in ("state", "class"):
-        raise ValueError(f"pairwise_mutual_information: target must be 'state' or 'class', got {target!r}")
-    if levels not in ("belief", "uniform"):
-        raise ValueError(f"pairwise_mutual_information: levels must be 'belief' or 'uniform', got {levels!r}")
+    check_options("pairwise_mutual_information", target, levels)
     check_belief_sizes(len(tables.log_w), tables.log_w[0].shape[1], belief)
     positions = tuple(w.shape[0] for w in tables.log_w)
     n_levels = tuple(w.shape[2] for w in tables.log_w)

@@ -81,24 +81,33 @@ def make_database(
     image_shape: tuple[int, int] = (48, 64),
     n_test: int = 0,
     seed: int = 0,
+    *,
+    n_calib: int = 0,
+    view_offset: float = 0.0,
 ) -> ImageDatabase:
     """An in-memory synthetic database: one ``train`` image per
-    (camera, position, object, pose), plus ``n_test`` noisy, slightly shifted
-    ``test`` images of each."""
+    (camera, position, object, pose), plus ``n_test`` ``test`` and ``n_calib``
+    ``calib`` images of each: shifted by up to 2 pixels, gray noise sd 3 and,
+    with ``view_offset`` > 0, taken *between* the positions (at
+    ``v + U(-view_offset, view_offset)``, labelled with the nearest ``v``:
+    views the augmentation does not model)."""
     rng = np.random.default_rng(seed)
     imgs, cam, pos, obj, pose, split = [], [], [], [], [], []
     for i, n_pos in enumerate(positions):
         for v in range(n_pos):
             for m in range(n_objects):
                 for p in range(n_poses):
-                    clean = render_view(i, v, m, p, n_poses=n_poses, n_positions=n_pos,
-                                        image_shape=image_shape)
+                    kw = dict(n_poses=n_poses, n_positions=n_pos, image_shape=image_shape)
+                    clean = render_view(i, v, m, p, **kw)
                     variants = [("train", clean)]
-                    for _ in range(n_test):
-                        dy, dx = rng.integers(-2, 3, size=2)
-                        shifted = np.roll(clean, (dy, dx), axis=(0, 1)).astype(np.float64)
-                        noisy = shifted + rng.normal(0.0, 3.0, size=clean.shape)
-                        variants.append(("test", np.clip(np.round(noisy), 0, 255).astype(np.uint8)))
+                    for s, count in (("test", n_test), ("calib", n_calib)):
+                        for _ in range(count):
+                            near = render_view(i, v + rng.uniform(-view_offset, view_offset), m, p, **kw) \
+                                if view_offset else clean
+                            dy, dx = rng.integers(-2, 3, size=2)
+                            shifted = np.roll(near, (dy, dx), axis=(0, 1)).astype(np.float64)
+                            noisy = shifted + rng.normal(0.0, 3.0, size=clean.shape)
+                            variants.append((s, np.clip(np.round(noisy), 0, 255).astype(np.uint8)))
                     for s, im in variants:
                         imgs.append(im)
                         cam.append(i)

@@ -56,6 +56,27 @@ def _share_compilations() -> None:
 
 _share_compilations()
 
+#: XLA flags of the test run: the CPU backend's LLVM optimisations off.  The
+#: suite's time is compile time (tests/conftest.py::_share_compilations), and
+#: for the larger programs (a recognizer step with the CRLB planner on three
+#: cameras) these flags halve it (19 s -> 9 s of CPU for that test) while the
+#: programs compute the same values: they change how the generated code is
+#: optimised, not what it computes (the numerics tests compare against the
+#: NumPy oracles at unchanged tolerances).  Benchmarks and the product do not
+#: use them.  ``JAXRECOG_TEST_XLA_OPT=1`` keeps the optimisations.
+FAST_COMPILE_FLAGS = ("--xla_backend_optimization_level=0", "--xla_llvm_disable_expensive_passes=true")
+
+
+def _fast_compiles() -> None:
+    if os.environ.get("JAXRECOG_TEST_XLA_OPT") == "1":
+        return
+    flags = os.environ.get("XLA_FLAGS", "").split()
+    add = [f for f in FAST_COMPILE_FLAGS if f.split("=")[0] not in {g.split("=")[0] for g in flags}]
+    os.environ["XLA_FLAGS"] = " ".join(flags + add)  # read when the backend starts; subprocesses inherit it
+
+
+_fast_compiles()
+
 
 @pytest.fixture
 def strict_dtype_promotion():
@@ -124,6 +145,16 @@ def moving_model():
 
     db = moving_database()
     return db, train_model(db, kind="DB1", n_components=2, samples_per_image=10)
+
+
+@pytest.fixture(scope="session")
+def small_db():
+    """A tiny in-memory database (``builders.make_database``: (2, 2) positions,
+    2 objects x 2 poses, 16 x 20 images, 2 test images per view) for the
+    training and likelihood tests (only read)."""
+    from builders import make_database
+
+    return make_database(positions=(2, 2), n_objects=2, n_poses=2, image_shape=(16, 20), n_test=2)
 
 
 @pytest.fixture(scope="session")

@@ -320,13 +320,6 @@ def test_third_family_model_file_round_trip_and_validation(tmp_path):
         assert "\n" not in str(e.value)
 
 
-@pytest.fixture(scope="module")
-def small_db():
-    from builders import make_database
-
-    return make_database(positions=(2, 2), n_objects=2, n_poses=2, image_shape=(16, 20))
-
-
 @pytest.mark.parametrize("covariance", ["diag", "full"])
 def test_model_files_without_likelihoods_entry_load_as_they_are(tmp_path, small_db, covariance):
     """Files written before the seam (format 2, kind only in ``covariance``)."""

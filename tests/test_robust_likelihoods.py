@@ -14,7 +14,6 @@ import jax.numpy as jnp
 import jax.random as jr
 import numpy as np
 import pytest
-from builders import make_database
 from scipy.stats import multivariate_t
 
 from jaxrecog import cli
@@ -28,11 +27,6 @@ from jaxrecog.recognizer import Recognizer
 from jaxrecog.train import train_model
 
 _NEW = {"student-t": {}, "gaussian-lowrank": {"rank": 2}}
-
-
-@pytest.fixture(scope="module")
-def small_db():
-    return make_database(positions=(2, 2), n_objects=2, n_poses=2, image_shape=(16, 20), n_test=2)
 
 
 @pytest.fixture(scope="module")

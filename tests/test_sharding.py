@@ -70,7 +70,8 @@ SCRIPT = textwrap.dedent("""
 
 @pytest.mark.slow
 def test_two_devices_give_the_same_trials_as_one(tmp_path):
-    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2", JAX_PLATFORMS="cpu")
+    env = dict(os.environ, JAX_PLATFORMS="cpu",
+               XLA_FLAGS=" ".join([os.environ.get("XLA_FLAGS", ""), "--xla_force_host_platform_device_count=2"]).strip())
     script = tmp_path / "sharded.py"
     script.write_text(SCRIPT.format(tests=str(TESTS)))
     p = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=600, env=env)
