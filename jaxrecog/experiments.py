@@ -52,7 +52,7 @@ import jax.random as jr
 
 from .campaign import TrialSpec, plan_trials, run_campaign
 from .hardware.problems import problem_message
-from .planners import DEFAULT_MIN_PER_STRATUM, make_planner, planner_spec
+from .planners import DEFAULT_MIN_PER_STRATUM, DEFAULT_PLANNER, make_planner, planner_spec
 from .results import ObjectRow, TrialResult, TrialStore, summarize, table_json, table_markdown
 from .thesis import ThesisTable, published
 
@@ -472,8 +472,9 @@ def run_case(
                      lambda planner: f"case-{name}-{planner}-{run_id}", progress=progress, on_result=on_result)
 
 
-#: Planners of :func:`run_dataset` when none are given: MI against the random baseline.
-DATASET_PLANNERS = ("mi", "random")
+#: Planners of :func:`run_dataset` when none are given: the default planner
+#: (:data:`~jaxrecog.planners.DEFAULT_PLANNER`) against the random baseline.
+DATASET_PLANNERS = (DEFAULT_PLANNER, "random")
 
 
 def _check_database_fits(db, model, folder, model_path) -> None:

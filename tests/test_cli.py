@@ -644,3 +644,15 @@ def test_recognize_view_choice_flags(tiny, capsys):
     # a replayed database has no geometry: no travel times to weigh
     assert cli.main(["recognize", str(tiny["model"]), "--rig", rig, "--samples", "64", "--motion-cost", "1"]) == 2
     assert "geometry" in capsys.readouterr().err
+
+
+def test_default_planner_is_one_registered_name_everywhere():
+    """`recognize`, `plan` and a dataset campaign share one default planner
+    (planners.DEFAULT_PLANNER), a registry entry."""
+    from jaxrecog.experiments import DATASET_PLANNERS
+    from jaxrecog.planners import DEFAULT_PLANNER, PLANNERS
+
+    assert DEFAULT_PLANNER in PLANNERS and DATASET_PLANNERS[0] == DEFAULT_PLANNER
+    subs = cli.subparsers(cli.build_parser())
+    for name in ("recognize", "plan"):
+        assert subs[name].get_default("planner") == DEFAULT_PLANNER

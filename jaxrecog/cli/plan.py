@@ -8,7 +8,7 @@ import numpy as np
 from .. import plots
 from ..hardware.rig import config_from_index
 from ..modelfile import load_model
-from ..planners import make_planner
+from ..planners import DEFAULT_PLANNER, make_planner
 from ..recognizer import Recognizer
 from ._common import UsageError, fmt_cfg, key, model_positions, print_table
 from ._images import read_gray, usable
@@ -23,7 +23,7 @@ DESCRIPTION = ("Score every configuration with a planner, for the uniform belief
 
 def add_arguments(p) -> None:
     p.add_argument("model", metavar="MODEL.NPZ", help="model file")
-    p.add_argument("--planner", choices=PLANNERS, default="mi", help="scoring rule")
+    p.add_argument("--planner", choices=PLANNERS, default=DEFAULT_PLANNER, help="scoring rule")
     p.add_argument("--images", nargs="+", metavar="PNG",
                    help="one gray image per camera (8-bit, or float such as a 32-bit TIFF), taken at --at "
                         "(default: score the uniform belief)")

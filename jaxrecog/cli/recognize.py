@@ -13,7 +13,7 @@ from ..experiments import CAPTURE_NOISE, occluder_factory  # the thesis-case boa
 from ..hardware import Capture, DatasetRig, Noise, rig_from_config
 from ..modelfile import load_model
 from ..motion import MotionCost, rig_travel_times
-from ..planners import make_planner
+from ..planners import DEFAULT_PLANNER, make_planner
 from ..recognizer import Recognizer
 from ._common import CLIError, UsageError, fmt_cfg, key, model_positions, print_table, synthetic_rig
 from ._images import usable
@@ -36,7 +36,7 @@ def add_arguments(p) -> None:
     p.add_argument("--pose", type=nonneg, default=0, help="its pose (0-based)")
     p.add_argument("--start", type=config_tuple, metavar="V1,V2",
                    help="initial configuration (default: random from --seed)")
-    p.add_argument("--planner", choices=PLANNERS, default="mi", help="view planner")
+    p.add_argument("--planner", choices=PLANNERS, default=DEFAULT_PLANNER, help="view planner")
     p.add_argument("--threshold", type=probability, default=0.95, help="stop probability P_th")
     p.add_argument("--max-steps", type=positive, default=7, help="largest number of image sets")
     planner_size_options(p)
