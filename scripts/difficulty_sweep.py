@@ -168,6 +168,17 @@ def sweep(settings: ex.Settings, *, angles=ANGLES, planners=PLANNERS, databases=
     }
 
 
+def _strict(x):
+    """NaN (an empty bin) -> None, so the JSON is strict."""
+    if isinstance(x, float) and x != x:
+        return None
+    if isinstance(x, dict):
+        return {k: _strict(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_strict(v) for v in x]
+    return x
+
+
 def _num(x, fmt):
     return "—" if x != x else format(x, fmt)
 
@@ -263,7 +274,7 @@ def main(argv=None) -> int:
         return 2
     args.out.mkdir(parents=True, exist_ok=True)
     js = args.out / "difficulty_sweep.json"
-    js.write_text(json.dumps(summary, indent=1))
+    js.write_text(json.dumps(_strict(summary), indent=1, allow_nan=False))
     md = args.out / "difficulty_sweep.md"
     md.write_text(markdown(summary))
     written = [js, md]
