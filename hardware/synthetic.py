@@ -83,7 +83,7 @@ def _check_amounts(obj, names, what: str) -> None:
            if isinstance(getattr(obj, n), bool) or not isinstance(getattr(obj, n), (int, float))
            or not (0 <= getattr(obj, n) < float("inf"))]
     if bad:
-        raise ValueError(f"{what} must be finite numbers >= 0, got {', '.join(bad)}")
+        raise ValueError(f"{what} must be >= 0 and finite, got {', '.join(bad)}")
 
 
 @dataclasses.dataclass(frozen=True)
