@@ -28,7 +28,7 @@ from .positions import CameraTable, default_table
 from .rig import Capture, RigError, SeededCaptures
 from .scene import Intrinsics, Lighting, ObjectSpec, Scene
 
-__all__ = ["Noise", "Perturb", "SyntheticRig"]
+__all__ = ["Noise", "OffGrid", "Perturb", "SyntheticRig"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -74,8 +74,69 @@ class Perturb:
     noise: Noise = Noise(brightness=0.05, pixel=2.0, max_shift=2)
 
     def __post_init__(self):
-        if self.yaw_deg < 0 or self.eye_offset < 0 or self.light < 0:
-            raise ValueError(f"perturbations must be >= 0, got {self}")
+        _check_amounts(self, ("yaw_deg", "eye_offset", "light"), "perturbations")
+
+
+def _check_amounts(obj, names, what: str) -> None:
+    """Every named field finite and >= 0 (NaN fails too), else one ValueError."""
+    bad = [f"{n}={getattr(obj, n)!r}" for n in names
+           if isinstance(getattr(obj, n), bool) or not isinstance(getattr(obj, n), (int, float))
+           or not (0 <= getattr(obj, n) < float("inf"))]
+    if bad:
+        raise ValueError(f"{what} must be >= 0 and finite, got {', '.join(bad)}")
+
+
+@dataclasses.dataclass(frozen=True)
+class OffGrid:
+    """Campaign captures off the training grid (issue 18, item 4): the
+    :class:`Perturb` departures, but drawn per *trial* (the yaw) and per
+    *capture* (camera eye and light) instead of per held-out image.
+
+    Attributes:
+        yaw_deg: bound of the trial's object yaw offset, drawn uniformly in
+            ``[-yaw_deg, yaw_deg]`` by :func:`jaxrecog.campaign.plan_trials`
+            from the trial's generator (the object sits there for the whole
+            trial, every planner sees it) and given to
+            :meth:`SyntheticRig.reset`.
+        eye_offset: per capture and camera, the eye moves by an isotropic
+            Gaussian with sd ``eye_offset / sqrt(3)`` times the eye-object
+            distance per axis, still looking at the object centre
+            (:class:`Perturb`'s ``eye_offset``).
+        light: per capture, relative jitter of the light direction and of the
+            ambient / diffuse gains (:class:`Perturb`'s ``light``).
+
+    The eye and light draws come from the rig's capture generator, which the
+    campaigns reseed per (seed, trial, step), so they do not depend on the
+    rig pool; all zero (the default) draws nothing, so the captures are
+    exactly the on-grid ones.
+    """
+
+    yaw_deg: float = 0.0
+    eye_offset: float = 0.0
+    light: float = 0.0
+
+    def __post_init__(self):
+        _check_amounts(self, ("yaw_deg", "eye_offset", "light"), "off-grid amounts")
+
+    @property
+    def off(self) -> bool:
+        return self.yaw_deg == 0 and self.eye_offset == 0 and self.light == 0
+
+
+def _jitter_eye(eye: np.ndarray, centre: np.ndarray, scale: float, rng: np.random.Generator) -> np.ndarray:
+    """``eye`` displaced by N(0, (scale · |eye - centre| / sqrt 3)^2) per axis
+    (always draws 3 normals, so a zero scale keeps the stream aligned)."""
+    dist = float(np.linalg.norm(eye - centre))
+    return eye + rng.standard_normal(3) * scale * dist / np.sqrt(3.0)
+
+
+def _jitter_light(light: Lighting, j: float, rng: np.random.Generator) -> Lighting:
+    """``light`` with its direction scaled by ``1 + j N(0, 1)`` per axis and its
+    ambient / diffuse coefficients by gains ``1 + j N(0, 1)`` clipped to [0.5, 1.5]."""
+    direction = np.asarray(light.direction) * (1.0 + j * rng.standard_normal(3))
+    gain = np.clip(1.0 + j * rng.standard_normal(2), 0.5, 1.5)
+    return dataclasses.replace(light, direction=tuple(float(x) for x in direction),
+                               ambient=float(light.ambient * gain[0]), diffuse=float(light.diffuse * gain[1]))
 
 
 class SyntheticRig(SeededCaptures):
@@ -90,6 +151,9 @@ class SyntheticRig(SeededCaptures):
         lighting: the fixed light.
         noise: per-capture perturbations (default none).
         seed: seeds the generator of the perturbations.
+        off_grid: per-capture eye and light jitter (:class:`OffGrid`; the
+            rig does not use its ``yaw_deg``: a trial's yaw offset comes
+            through :meth:`reset`); ``None`` = on the training grid.
 
     Attributes:
         fov: ``fov[i][v]``, vertical field of view (degrees) of camera ``i`` at position ``v``.
@@ -106,12 +170,16 @@ class SyntheticRig(SeededCaptures):
         lighting: Lighting = Lighting(),
         noise: Noise = Noise(),
         seed: int = 0,
+        off_grid: OffGrid | None = None,
     ):
         self.table = default_table() if table is None else table
         if self.table.n_cameras < 1 or min(self.table.positions) < 1:
             raise ValueError(f"the camera table needs >= 1 camera with >= 1 position, got {self.table.positions}")
         self.intrinsics = intrinsics
         self.noise = noise
+        if off_grid is not None and not isinstance(off_grid, OffGrid):
+            raise TypeError(f"off_grid must be an OffGrid or None, got {type(off_grid).__name__}")
+        self.off_grid = off_grid if off_grid is not None and not off_grid.off else None
         self.scene = Scene(objects, self.table.workspace.object_xyz, n_poses, lighting)
         self.radius = self.scene.radius
         self._centre = np.asarray(self.scene.centre)
@@ -139,13 +207,19 @@ class SyntheticRig(SeededCaptures):
     def n_poses(self) -> int:
         return self.scene.n_poses
 
-    def reset(self, object: int, pose: int, occluders: OccluderLayout | None = None) -> None:
-        """Put ``object`` in ``pose`` on the turn-table; ``occluders`` is an
+    def reset(self, object: int, pose: int, occluders: OccluderLayout | None = None, *,
+              yaw_offset_deg: float = 0.0) -> None:
+        """Put ``object`` in ``pose`` on the turn-table, turned a further
+        ``yaw_offset_deg`` degrees off the training grid (a trial's
+        :attr:`~jaxrecog.driver.TrialSpec.yaw_offset`); ``occluders`` is an
         :class:`~.occluders.OccluderLayout` or ``None`` (clean scene)."""
         if occluders is not None and not isinstance(occluders, OccluderLayout):
             raise TypeError(f"occluders must be an OccluderLayout or None, got {type(occluders).__name__}")
+        yaw = yaw_offset_deg
+        if isinstance(yaw, bool) or not isinstance(yaw, (int, float, np.floating, np.integer)) or not np.isfinite(yaw):
+            raise ValueError(f"yaw_offset_deg must be a finite number of degrees, got {yaw!r}")
         try:
-            self.scene.set_object(object, pose)
+            self.scene.set_object(object, pose, float(yaw))
         except ValueError as err:
             raise RigError(str(err)) from err
         self._state = (int(object), int(pose))
@@ -168,10 +242,22 @@ class SyntheticRig(SeededCaptures):
         if self._config is None:
             raise RigError("capture() before move(): the cameras have no position yet")
         images, fractions = [], []
-        for i, v in enumerate(self._config):
-            img, frac = self._render(i, self.table.views[i][v].eye, self.noise)
-            images.append(img)
-            fractions.append(frac)
+        jit = self.off_grid
+        light = self.scene.lighting
+        if jit is not None and jit.light:
+            self.scene.lighting = _jitter_light(light, jit.light, self._rng)  # one light per capture
+        try:
+            for i, v in enumerate(self._config):
+                eye = self.table.views[i][v].eye
+                moved = jit is not None and jit.eye_offset > 0
+                if moved:
+                    eye = tuple(float(c) for c in _jitter_eye(np.asarray(eye, dtype=float), self._centre,
+                                                              jit.eye_offset, self._rng))
+                img, frac = self._render(i, eye, self.noise, cache=not moved)
+                images.append(img)
+                fractions.append(frac)
+        finally:
+            self.scene.lighting = light
         return Capture.of(images, fractions)
 
     # -- extras
@@ -210,24 +296,19 @@ class SyntheticRig(SeededCaptures):
         is restored afterwards.  Returns (image, true occluded fraction)."""
         self._need_state()
         obj, pose = self._state
+        base_yaw = self.scene._current[2] if self.scene._current is not None else 0.0
         eye = np.asarray(self.table.views[camera][position].eye, dtype=float)
-        dist = float(np.linalg.norm(eye - self._centre))
         yaw = float(rng.uniform(-perturb.yaw_deg, perturb.yaw_deg)) if perturb.yaw_deg else 0.0
-        eye = eye + rng.standard_normal(3) * perturb.eye_offset * dist / np.sqrt(3.0)
+        eye = _jitter_eye(eye, self._centre, perturb.eye_offset, rng)
         light = self.scene.lighting
         if perturb.light:
-            j = perturb.light
-            direction = np.asarray(light.direction) * (1.0 + j * rng.standard_normal(3))
-            gain = np.clip(1.0 + j * rng.standard_normal(2), 0.5, 1.5)
-            self.scene.lighting = dataclasses.replace(
-                light, direction=tuple(float(x) for x in direction),
-                ambient=float(light.ambient * gain[0]), diffuse=float(light.diffuse * gain[1]))
+            self.scene.lighting = _jitter_light(light, perturb.light, rng)
         try:
-            self.scene.set_object(obj, pose, yaw)
+            self.scene.set_object(obj, pose, base_yaw + yaw)
             return self._render(camera, tuple(eye), perturb.noise)
         finally:
             self.scene.lighting = light
-            self.scene.set_object(obj, pose)
+            self.scene.set_object(obj, pose, base_yaw)
 
     def close(self) -> None:
         self.scene.close()
@@ -250,7 +331,7 @@ class SyntheticRig(SeededCaptures):
         except ValueError as err:
             raise RigError(f"eye {tuple(eye)}: {err}") from err
 
-    def _render(self, camera: int, eye: Sequence[float], noise: Noise) -> tuple[np.ndarray, float]:
+    def _render(self, camera: int, eye: Sequence[float], noise: Noise, cache: bool = True) -> tuple[np.ndarray, float]:
         self._need_state()
         fov = self._fov(eye)
         shift = (0, 0)
@@ -264,7 +345,7 @@ class SyntheticRig(SeededCaptures):
             self.scene.show_occluders(True)
             img, seg = self.scene.render(eye, fov, self.intrinsics, shift)
             seen = int(np.isin(seg, self.scene.object_ids).sum())
-            clean = self._clean_count(eye, fov)
+            clean = self._clean_count(eye, fov, cache)
             frac = min(max(1.0 - seen / clean, 0.0), 1.0)
         if noise.brightness or noise.pixel:
             y = img.astype(np.float32)
@@ -275,14 +356,16 @@ class SyntheticRig(SeededCaptures):
             img = np.clip(np.rint(y), 0, 255).astype(np.uint8)
         return img, frac
 
-    def _clean_count(self, eye: Sequence[float], fov: float) -> int:
+    def _clean_count(self, eye: Sequence[float], fov: float, cache: bool = True) -> int:
+        # a jittered eye is never seen twice: count it without filling the cache
         key = (self.scene._current, tuple(round(float(c), 9) for c in eye))
-        count = self._clean_pixels.get(key)
+        count = self._clean_pixels.get(key) if cache else None
         if count is None:
             self.scene.show_occluders(False)
             _, seg = self.scene.render(eye, fov, self.intrinsics)
             count = int(np.isin(seg, self.scene.object_ids).sum())
             if count == 0:
                 raise RigError(f"the object is not in view from eye {tuple(eye)}")
-            self._clean_pixels[key] = count
+            if cache:
+                self._clean_pixels[key] = count
         return count

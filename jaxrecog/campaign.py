@@ -35,10 +35,20 @@ def plan_trials(
     objects: Iterable[int] | None = None,
     occluders: OccluderFactory | None = None,
     initial: Sequence[int] | None = None,
+    yaw_deg: float = 0.0,
 ) -> list[TrialSpec]:
     """The trial list: trial ``t`` of object ``m`` uses ``default_rng([seed, m, t])``
     for its pose, initial configuration and occluder layout, so campaigns with
-    different planners see the same scenes."""
+    different planners see the same scenes.
+
+    ``yaw_deg > 0`` (off-grid captures, :class:`~jaxrecog.hardware.synthetic.OffGrid`):
+    each trial's object also gets a yaw offset ``U(-yaw_deg, yaw_deg)``
+    degrees (``TrialSpec.yaw_offset``), drawn last from the same generator,
+    so pose, start and occluders are those of the on-grid trial and the
+    offsets of two bounds are proportional (``-a + 2 a u``, the same ``u``).
+    ``yaw_deg = 0`` draws nothing (``yaw_offset`` None)."""
+    if isinstance(yaw_deg, bool) or not isinstance(yaw_deg, (int, float)) or not 0 <= yaw_deg < float("inf"):
+        raise ValueError(f"yaw_deg must be a finite number of degrees >= 0, got {yaw_deg!r}")
     specs = []
     objs = list(range(n_objects)) if objects is None else list(objects)
     for m in objs:
@@ -47,7 +57,8 @@ def plan_trials(
             pose = int(rng.integers(n_poses))
             init = tuple(int(v) for v in initial) if initial is not None else tuple(int(rng.integers(v)) for v in positions)
             occ = occluders(rng, init) if occluders is not None else None
-            specs.append(TrialSpec(m * trials_per_object + t, m, pose, init, occ))
+            yaw = float(rng.uniform(-yaw_deg, yaw_deg)) if yaw_deg > 0 else None
+            specs.append(TrialSpec(m * trials_per_object + t, m, pose, init, occ, yaw))
     return specs
 
 
@@ -93,7 +104,7 @@ def run_campaign(
     for t, r in list(done.items()):
         s = by_id.get(t)
         # a stored trial is reused only if it is the same scene and start
-        if s is not None and (r.object, r.pose, r.configurations[:1]) != (s.object, s.pose, (s.initial,)):
+        if s is not None and (r.object, r.pose, r.configurations[:1], r.yaw_offset) != (s.object, s.pose, (s.initial,), s.yaw_offset):
             del done[t]
     todo = [s for s in specs if s.trial not in done]
 

@@ -77,6 +77,10 @@ class TrialSpec:
     pose: int
     initial: tuple[int, ...]
     occluders: Any = None  # rig-specific layout, None = clean scene
+    #: degrees the object is turned off its training pose for the whole trial
+    #: (:class:`~jaxrecog.hardware.synthetic.OffGrid`); None = on the grid
+    #: (the rig's ``reset`` is then called without it, as every rig allows)
+    yaw_offset: float | None = None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -307,7 +311,10 @@ def run_trials(
             r = b % len(rigs)
             rig = rigs[r]
             if showing[r] != sl.spec.trial:
-                rig.reset(sl.spec.object, sl.spec.pose, sl.spec.occluders)
+                if sl.spec.yaw_offset is None:
+                    rig.reset(sl.spec.object, sl.spec.pose, sl.spec.occluders)
+                else:
+                    rig.reset(sl.spec.object, sl.spec.pose, sl.spec.occluders, yaw_offset_deg=sl.spec.yaw_offset)
                 showing[r] = sl.spec.trial
             rig.reseed((seed, sl.spec.trial, sl.step))
             rig.move(sl.config)
@@ -346,6 +353,7 @@ def run_trials(
                     configurations=tuple(sl.configs),
                     object_probs=tuple(sl.probs),
                     travel_s=math.nan if times is None else path_travel_s(times, sl.configs),
+                    yaw_offset=sl.spec.yaw_offset,
                 )
                 results.append(res)
                 if on_result is not None:

@@ -26,7 +26,19 @@ ii             DB1      occluders   both    mi, mi-class, crlb
 iii            DB2      occluders   both    mi, mi-class, crlb
 single-clean   DB1      clean       cam 1   mi, mi-class
 single-occluded DB2     occluders   cam 1   mi, mi-class
+jitter         DB1      clean,      both    mi-class, mi-class-pairwise, random
+                        off-grid
+jitter-occluded DB2     occluders,  both    mi-class, mi-class-pairwise, random
+                        off-grid
 ============== ======== =========== ======= ======================
+
+Off-grid cases (issue 18, item 4; not in the thesis): every trial's object
+sits turned ``U(-20°, 20°)`` off its training pose (drawn per trial, the same
+for every planner), and every capture moves each camera's eye and jitters the
+light (:class:`~jaxrecog.hardware.synthetic.OffGrid`, :data:`JITTER`), so no
+test image is a training view.  ``Settings.off_grid_deg`` /
+``off_grid_eye`` / ``off_grid_light`` override a case's amounts (``None``:
+the case's; 0 for the thesis cases).
 
 ``mi`` is the thesis's target I(s; g) over the full state (object, pose and
 both occlusion levels); ``mi-class`` is I(c; g) with the levels marginalised
@@ -57,7 +69,7 @@ from .results import ObjectRow, TrialResult, TrialStore, summarize, table_json, 
 from .thesis import ThesisTable, published
 
 __all__ = [
-    "CAPTURE_NOISE", "Case", "CASES", "DATASET_PLANNERS", "Settings", "Prepared", "CaseReport", "prepare", "make_rig",
+    "CAPTURE_NOISE", "Case", "CASES", "JITTER", "case_settings", "off_grid", "DATASET_PLANNERS", "Settings", "Prepared", "CaseReport", "prepare", "make_rig",
     "rig_pool", "rig_table",
     "results_dir", "run_case", "run_dataset", "run_trace",
 ]
@@ -71,7 +83,19 @@ class Case:
     occluded: bool
     cameras: tuple[int, ...] | None  # None = all cameras
     planners: tuple[str, ...]
+    #: (yaw bound in degrees, eye offset, light jitter) of the captures
+    #: (:class:`~jaxrecog.hardware.synthetic.OffGrid`); zeros = on the grid
+    off_grid: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
+
+#: The off-grid amounts of the ``jitter`` cases: object yaw within ±20° of the
+#: training pose (per trial; the table's poses are 90° apart and camera 1's
+#: positions ~11° apart in azimuth), eye offset 0.04 (rms 4 % of the eye-object
+#: distance, ~2.3° of viewing direction) and light jitter 0.2 per capture: twice
+#: :class:`~jaxrecog.hardware.synthetic.Perturb`'s defaults (0.02, 0.1) for eye
+#: and light, as the yaw is ~7x its 3°.  ``scripts/difficulty_sweep.py`` scales
+#: all three with the angle A: (A, 0.002 A, 0.01 A).
+JITTER: tuple[float, float, float] = (20.0, 0.04, 0.2)
 
 CASES: dict[str, Case] = {
     c.name: c
@@ -81,6 +105,10 @@ CASES: dict[str, Case] = {
         Case("iii", "Case (iii): occluded objects, occlusion model (DB2)", "DB2", True, None, ("mi", "mi-class", "crlb")),
         Case("single-clean", "Single camera (camera 1), non-occluded, DB1", "DB1", False, (0,), ("mi", "mi-class")),
         Case("single-occluded", "Single camera (camera 1), occluded, DB2", "DB2", True, (0,), ("mi", "mi-class")),
+        Case("jitter", "Off-grid captures (yaw ±20°, eye and light jitter), non-occluded objects, DB1", "DB1", False,
+             None, ("mi-class", "mi-class-pairwise", "random"), JITTER),
+        Case("jitter-occluded", "Off-grid captures (yaw ±20°, eye and light jitter), occluded objects, DB2", "DB2",
+             True, None, ("mi-class", "mi-class-pairwise", "random"), JITTER),
     )
 }
 
@@ -128,6 +156,11 @@ class Settings:
         devices: shard each lockstep batch over this many devices
             (:func:`jaxrecog.driver.trial_mesh`; the batch is rounded up to a
             multiple); the results are the same as on one device.
+        off_grid_deg, off_grid_eye, off_grid_light: off-grid captures
+            (:class:`~jaxrecog.hardware.synthetic.OffGrid`): the bound of each
+            trial's object yaw offset (degrees), the per-capture eye offset and
+            light jitter; ``None`` = the case's (``Case.off_grid``: 0 for the
+            thesis cases, :data:`JITTER` for ``jitter``); each finite, >= 0.
     """
 
     workdir: Path | str = Path("out/experiments")  # a str becomes a Path (__post_init__)
@@ -146,6 +179,9 @@ class Settings:
     exclude_visited_positions: bool = False
     motion_cost: float = 0.0
     devices: int = 1
+    off_grid_deg: float | None = None
+    off_grid_eye: float | None = None
+    off_grid_light: float | None = None
 
     def __post_init__(self):
         object.__setattr__(self, "workdir", Path(self.workdir))
@@ -158,6 +194,33 @@ class Settings:
             raise ValueError("trials_per_object must be >= 1")
         if isinstance(self.stride, bool) or not isinstance(self.stride, int) or self.stride < 1:
             raise ValueError(f"stride must be an integer >= 1, got {self.stride!r}")
+        for k in ("off_grid_deg", "off_grid_eye", "off_grid_light"):
+            v = getattr(self, k)
+            if v is None:
+                continue
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 <= v < math.inf:
+                raise ValueError(f"{k} must be a finite number >= 0 (or None: the case's), got {v!r}")
+            object.__setattr__(self, k, float(v))
+
+
+_OFF_GRID_FIELDS = ("off_grid_deg", "off_grid_eye", "off_grid_light")
+
+
+def case_settings(case: "Case", settings: Settings) -> Settings:
+    """``settings`` with the off-grid amounts it leaves at ``None`` taken from
+    the case (``Case.off_grid``), so the run id and the reports name the
+    amounts the campaign ran with."""
+    fill = {k: float(v) for k, v in zip(_OFF_GRID_FIELDS, case.off_grid) if getattr(settings, k) is None}
+    return dataclasses.replace(settings, **fill) if fill else settings
+
+
+def off_grid(settings: Settings):
+    """The :class:`~jaxrecog.hardware.synthetic.OffGrid` of ``settings``
+    (``None`` amounts count as 0), or ``None`` when all are 0 (on the grid)."""
+    from .hardware.synthetic import OffGrid
+
+    og = OffGrid(*(getattr(settings, k) or 0.0 for k in _OFF_GRID_FIELDS))
+    return None if og.off else og
 
 
 @dataclasses.dataclass(frozen=True)
@@ -187,7 +250,7 @@ def _run_id(settings: Settings, model_path: Path | str) -> str:
 
     fields = {k: v for k, v in dataclasses.asdict(settings).items() if k not in ("workdir", "batch", "devices")}
     # added later: off keeps the digests of earlier runs
-    for k in ("exclude_visited_positions", "motion_cost"):
+    for k in ("exclude_visited_positions", "motion_cost", *_OFF_GRID_FIELDS):
         if not fields[k]:
             del fields[k]
     h = hashlib.sha256(json.dumps(fields, sort_keys=True, default=str).encode())
@@ -276,7 +339,8 @@ def make_rig(settings: Settings, cameras: tuple[int, ...] | None = None, *, seed
     if cameras is not None:
         table = CameraTable(table.workspace, tuple(table.views[i] for i in cameras))
     b, p, s = settings.capture_noise
-    return SyntheticRig(table, noise=Noise(brightness=b, pixel=p, max_shift=int(s)), seed=seed)
+    return SyntheticRig(table, noise=Noise(brightness=b, pixel=p, max_shift=int(s)), seed=seed,
+                        off_grid=off_grid(settings))
 
 
 def rig_pool(settings: Settings, cameras: tuple[int, ...] | None = None, *, seed: int = 0) -> list:
@@ -297,18 +361,19 @@ OCCLUDER_SIZE = (0.18, 0.38)
 OCCLUDER_OFFSET = (0.2, 0.8)
 
 
-def occluder_factory(rig):
+def occluder_factory(rig, size: tuple[float, float] = OCCLUDER_SIZE, offset: tuple[float, float] = OCCLUDER_OFFSET):
     """Cardboard for one trial (thesis §7.2): a board in front of each camera's
     *initial* view, so both first images are occluded, plus one board per
     camera facing a random other position, so moving is not a guaranteed
-    escape."""
+    escape.  ``size`` / ``offset``: the boards' half-size and offset ranges
+    (:func:`~jaxrecog.hardware.random_occluders`; default the campaign's)."""
     from .hardware import OccluderLayout, random_occluders
     from .hardware.positions import CameraTable
 
     def factory(rng, initial):
         first = CameraTable(rig.table.workspace, tuple((views[v],) for views, v in zip(rig.table.views, initial)))
-        a = random_occluders(rng, first, radius=rig.radius, size=OCCLUDER_SIZE, offset=OCCLUDER_OFFSET)
-        b = random_occluders(rng, rig.table, radius=rig.radius, size=OCCLUDER_SIZE, offset=OCCLUDER_OFFSET)
+        a = random_occluders(rng, first, radius=rig.radius, size=size, offset=offset)
+        b = random_occluders(rng, rig.table, radius=rig.radius, size=size, offset=offset)
         return OccluderLayout(a.boards + b.boards)
 
     return factory
@@ -323,6 +388,7 @@ def case_trials(case: Case, settings: Settings, rig, n_objects: int, n_poses: in
         seed=settings.seed,
         objects=objects,
         occluders=occluder_factory(rig) if case.occluded else None,
+        yaw_deg=case_settings(case, settings).off_grid_deg or 0.0,
     )
 
 
@@ -463,6 +529,7 @@ def run_case(
     if name not in CASES:
         raise ValueError(f"unknown case {name!r}; choose one of {', '.join(CASES)}")
     case = CASES[name]
+    settings = case_settings(case, settings)
     prepared = prepared or prepare(settings, progress=progress, databases=(case.database,))
     model = case_model(prepared, case)
     rigs = rig_pool(settings, case.cameras, seed=settings.seed)
@@ -550,6 +617,7 @@ def run_trace(settings: Settings, *, object: int = 5, planner: str = "mi", case:
     first trial, occluded, case iii).  Same scene, start, noise and keys as in
     :func:`run_case` with the same settings."""
     c = CASES[case]
+    settings = case_settings(c, settings)
     prepared = prepared or prepare(settings, databases=(c.database,))
     model = case_model(prepared, c)
     rig = make_rig(settings, c.cameras, seed=settings.seed)

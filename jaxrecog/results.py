@@ -34,6 +34,10 @@ class TrialResult:
     #: (:mod:`jaxrecog.hardware.motion`; the initial configuration is free);
     #: NaN where unknown (no travel-time tables, or a store written before)
     travel_s: float = math.nan
+    #: the trial's object yaw offset off the training pose, degrees
+    #: (:class:`~jaxrecog.driver.TrialSpec`); None = on the grid (left out of
+    #: the JSON record, so on-grid stores are as before)
+    yaw_offset: float | None = None
 
     @property
     def correct(self) -> bool:
@@ -44,6 +48,8 @@ class TrialResult:
         d["correct"] = self.correct
         if d["travel_s"] != d["travel_s"]:
             d["travel_s"] = None  # unknown: null, strict JSON
+        if d["yaw_offset"] is None:
+            del d["yaw_offset"]
         return json.dumps(d, separators=(",", ":"))
 
     @classmethod
