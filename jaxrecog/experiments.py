@@ -159,10 +159,11 @@ class Settings:
     motion_cost: float = 0.0
     devices: int = 1
     likelihood: str = "gaussian-diag"
-    likelihood_options: tuple[tuple[str, object], ...] = ()
+    # a dict or pairs (an experiment file's table) become sorted pairs (__post_init__)
+    likelihood_options: tuple[tuple[str, object], ...] | dict[str, object] = ()
     max_rotation: float = 0.0
     max_scale: float = 0.0
-    blur_sigma: tuple[float, float] = (0.0, 0.0)
+    blur_sigma: tuple[float, float] | list[float] | float = (0.0, 0.0)  # one number: (0, sigma)
     gain_amplitude: float = 0.0
     gain_cells: int = 3
 

@@ -177,9 +177,9 @@ def nu_value(text: str) -> str | float:
     return v
 
 
-def likelihood_options(p: argparse.ArgumentParser) -> None:
+def likelihood_options(p: argparse._ActionsContainer) -> None:
     """``--likelihood``, ``--rank``, ``--nu`` (``train``, ``experiment``,
-    ``scripts/reproduce_thesis.py``): all default to ``None`` = not given
+    ``scripts/reproduce_thesis.py``; on a parser or an argument group): all default to ``None`` = not given
     (the thesis's diagonal Gaussian; the family's own option defaults)."""
     from ..kernels import likelihood_names
 
