@@ -70,6 +70,7 @@ from .thesis import ThesisTable, published
 
 __all__ = [
     "CAPTURE_NOISE", "Case", "CASES", "JITTER", "case_settings", "off_grid", "DATASET_PLANNERS", "Settings", "Prepared", "CaseReport", "prepare", "make_rig",
+    "model_path",
     "rig_pool", "rig_table",
     "results_dir", "run_case", "run_dataset", "run_trace",
 ]
@@ -161,6 +162,17 @@ class Settings:
             trial's object yaw offset (degrees), the per-capture eye offset and
             light jitter; ``None`` = the case's (``Case.off_grid``: 0 for the
             thesis cases, :data:`JITTER` for ``jitter``); each finite, >= 0.
+        likelihood: the sensor-model family ``prepare`` trains (a name of
+            :data:`jaxrecog.kernels.LIKELIHOODS`; default ``gaussian-diag``,
+            the thesis's and ``train_model``'s default).
+        likelihood_options: the family's fit options (e.g. ``(("nu", "auto"),)``,
+            ``(("rank", 4),)``): a dict or pairs, kept as sorted pairs so the
+            settings stay hashable.
+        max_rotation, max_scale, blur_sigma, gain_amplitude, gain_cells: the
+            capture augmentation of training
+            (:class:`~jaxrecog.augment.AugmentParams`; off by default).
+            Anything but the defaults of these six fields gives the models
+            their own file names and cache keys (:func:`prepare`).
     """
 
     workdir: Path | str = Path("out/experiments")  # a str becomes a Path (__post_init__)
@@ -182,9 +194,18 @@ class Settings:
     off_grid_deg: float | None = None
     off_grid_eye: float | None = None
     off_grid_light: float | None = None
+    likelihood: str = "gaussian-diag"
+    # a dict or pairs (an experiment file's table) become sorted pairs (__post_init__)
+    likelihood_options: tuple[tuple[str, object], ...] | dict[str, object] = ()
+    max_rotation: float = 0.0
+    max_scale: float = 0.0
+    blur_sigma: tuple[float, float] | list[float] | float = (0.0, 0.0)  # one number: (0, sigma)
+    gain_amplitude: float = 0.0
+    gain_cells: int = 3
 
     def __post_init__(self):
         object.__setattr__(self, "workdir", Path(self.workdir))
+        self._check_training()
         from .motion import check_weight
 
         object.__setattr__(self, "motion_cost", check_weight(self.motion_cost))
@@ -201,6 +222,41 @@ class Settings:
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 <= v < math.inf:
                 raise ValueError(f"{k} must be a finite number >= 0 (or None: the case's), got {v!r}")
             object.__setattr__(self, k, float(v))
+
+    def _check_training(self) -> None:
+        """Normalise and check the likelihood and augmentation fields: the
+        registry name of the family, its options as sorted pairs (every name
+        one the family's ``fit`` takes), the blur range as a float pair, and
+        the augmentation accepted by :class:`~jaxrecog.augment.AugmentParams`."""
+        from .kernels import likelihood_class, likelihood_names
+
+        try:
+            family = likelihood_class(self.likelihood)
+        except ValueError as e:
+            raise ValueError(f"likelihood: {e}") from None
+        name = next(n for n in likelihood_names() if likelihood_class(n) is family)
+        object.__setattr__(self, "likelihood", name)
+        opts = self.likelihood_options
+        opts = dict(opts.items() if hasattr(opts, "items") else opts)
+        bad = sorted(set(opts) - set(family.fit_options))
+        if bad:
+            raise ValueError(f"likelihood_options: {name!r} has no option {', '.join(map(repr, bad))} "
+                             f"(it takes: {', '.join(family.fit_options) or 'none'})")
+        object.__setattr__(self, "likelihood_options", tuple(sorted(opts.items())))
+        blur = self.blur_sigma
+        blur = (0.0, float(blur)) if isinstance(blur, (int, float)) else tuple(float(x) for x in blur)
+        object.__setattr__(self, "blur_sigma", blur)
+        self.augment_params()  # raises on a bad augmentation
+
+    def augment_params(self):
+        """The :class:`~jaxrecog.augment.AugmentParams` of training (its
+        defaults but the capture fields; ``samples_per_image`` is
+        ``train_model``'s)."""
+        from .augment import AugmentParams
+
+        return AugmentParams(samples_per_image=self.samples_per_image, max_rotation=float(self.max_rotation),
+                             max_scale=float(self.max_scale), blur_sigma=self.blur_sigma,
+                             gain_amplitude=float(self.gain_amplitude), gain_cells=int(self.gain_cells))
 
 
 _OFF_GRID_FIELDS = ("off_grid_deg", "off_grid_eye", "off_grid_light")
@@ -236,9 +292,70 @@ def _progress_bar(total: int, desc: str, enabled: bool):
     return tqdm(total=total, desc=desc, unit=unit, disable=not enabled, dynamic_ncols=True)
 
 
+#: Settings fields of the likelihood and the capture augmentation, and their
+#: defaults: models trained with these keep the file names and cache keys
+#: they had before the fields existed.
+_TRAINING_FIELDS = ("likelihood", "likelihood_options", "max_rotation", "max_scale", "blur_sigma",
+                    "gain_amplitude", "gain_cells")
+_AUGMENT_FIELDS = _TRAINING_FIELDS[2:]
+
+
+def _training_defaults() -> dict:
+    return {f.name: f.default for f in dataclasses.fields(Settings) if f.name in _TRAINING_FIELDS}
+
+
+def _training_extra(settings: Settings) -> dict:
+    """The likelihood / augmentation fields of ``settings`` that differ from
+    the defaults (``{}`` for the thesis's training)."""
+    defaults = _training_defaults()
+    return {k: getattr(settings, k) for k in _TRAINING_FIELDS if getattr(settings, k) != defaults[k]}
+
+
 def _training_params(settings: Settings, kind: str) -> dict:
-    """The training parameters a cached model file must match to be reused."""
-    return {"kind": kind, "K": settings.n_components, "samples_per_image": settings.samples_per_image, "seed": settings.seed}
+    """The training parameters a cached model file must match to be reused
+    (compared with the file's ``training.params``; a dict value is compared
+    key by key, lists for tuples).  The default likelihood and augmentation
+    add nothing, so the key of a default model is what it always was."""
+    params = {"kind": kind, "K": settings.n_components, "samples_per_image": settings.samples_per_image,
+              "seed": settings.seed}
+    extra = _training_extra(settings)
+    if extra:
+        from .kernels import likelihood_class
+
+        params["likelihood"] = likelihood_class(settings.likelihood).kind
+        params["likelihood_options"] = {k: v for k, v in settings.likelihood_options}
+        aug = dataclasses.asdict(settings.augment_params())
+        params["augment"] = {k: (list(aug[k]) if isinstance(aug[k], tuple) else aug[k]) for k in _AUGMENT_FIELDS}
+    return params
+
+
+def _params_match(have, want) -> bool:
+    """``have`` (a model file's training params) agrees with ``want``: dicts
+    key by key (keys of ``want`` only), tuples as lists."""
+    if isinstance(want, dict):
+        return isinstance(have, dict) and all(_params_match(have.get(k), v) for k, v in want.items())
+    if isinstance(want, tuple):
+        want = list(want)
+    return have == want
+
+
+def _model_tag(settings: Settings) -> str:
+    """File-name suffix of a model trained with a non-default likelihood or
+    augmentation: ``-<likelihood>-<digest of the fields>`` ("" for the
+    defaults, so existing model files stay valid)."""
+    import hashlib
+
+    extra = _training_extra(settings)
+    if not extra:
+        return ""
+    digest = hashlib.sha256(json.dumps(extra, sort_keys=True, default=str).encode()).hexdigest()[:8]
+    return f"-{settings.likelihood}-{digest}"
+
+
+def model_path(settings: Settings, kind: str) -> Path:
+    """The cached model file of ``kind`` ("DB1" / "DB2") under ``settings``."""
+    return settings.workdir / (f"model-{kind.lower()}{_stride_tag(settings)}-K{settings.n_components}"
+                               f"-S{settings.samples_per_image}-seed{settings.seed}{_model_tag(settings)}.npz")
 
 
 def _run_id(settings: Settings, model_path: Path | str) -> str:
@@ -252,6 +369,10 @@ def _run_id(settings: Settings, model_path: Path | str) -> str:
     # added later: off keeps the digests of earlier runs
     for k in ("exclude_visited_positions", "motion_cost", *_OFF_GRID_FIELDS):
         if not fields[k]:
+            del fields[k]
+    defaults = _training_defaults()
+    for k in _TRAINING_FIELDS:
+        if getattr(settings, k) == defaults[k]:
             del fields[k]
     h = hashlib.sha256(json.dumps(fields, sort_keys=True, default=str).encode())
     h.update(hashlib.sha256(Path(model_path).read_bytes()).digest())
@@ -297,7 +418,7 @@ def prepare(settings: Settings, *, progress: bool = False, databases: Sequence[s
     db = None
     models = {}
     for kind in databases:
-        path = work / f"model-{kind.lower()}{tag}-K{settings.n_components}-S{settings.samples_per_image}-seed{settings.seed}.npz"
+        path = model_path(settings, kind)
         fresh = False
         if path.exists():
             try:
@@ -306,9 +427,8 @@ def prepare(settings: Settings, *, progress: bool = False, databases: Sequence[s
                 if db is None:
                     db = load_database(db_dir)
                 params = (meta.get("training") or {}).get("params") or {}
-                fresh = meta.get("manifest_sha256") == db.manifest_sha256 and all(
-                    params.get(k) == v for k, v in _training_params(settings, kind).items()
-                )
+                fresh = meta.get("manifest_sha256") == db.manifest_sha256 and _params_match(
+                    params, _training_params(settings, kind))
             except ModelFileError:
                 fresh = False
         if not fresh:
@@ -321,6 +441,9 @@ def prepare(settings: Settings, *, progress: bool = False, databases: Sequence[s
                     n_components=settings.n_components,
                     samples_per_image=settings.samples_per_image,
                     seed=settings.seed,
+                    likelihood=settings.likelihood,
+                    likelihood_options=dict(settings.likelihood_options),
+                    augment=settings.augment_params(),
                     progress=lambda done, total: bar.update(done - bar.n),
                     return_info=True,
                 )

@@ -78,6 +78,7 @@ def train_model(
     augment: AugmentParams | None = None,
     var_floor: float = 1e-6,
     batch_size: int = 256,
+    view_jitter: bool = False,
     return_info: bool = False,
 ) -> SensorModel | tuple[SensorModel, TrainingInfo]:
     """Train the sensor model of a database (thesis ch. 4, §7.1).
@@ -110,6 +111,21 @@ def train_model(
         var_floor: variance floor relative to the mean training-image variance
             per component, ``floor_v = var_floor * sum(λ_v) / (K * C)``.
         batch_size: samples projected per matmul.
+        view_jitter: also use the database's ``jitter`` rows: images taken
+            near a training view (off the training grid), each labelled with
+            the (camera, position, object, pose) of that view.  Each is an
+            extra *base image* of its view's class: it gets its own
+            ``samples_per_image`` augmented samples per level, drawn exactly
+            as the training image's (same augmentation, and with
+            ``shared_draws`` the same draws ``j``), which are *added* to the
+            training image's: a view with ``J`` jitter images contributes
+            ``(1 + J) * samples_per_image`` samples per level to its
+            class's moments, and the training image's own samples are those
+            of a run without jitter.  The eigenspace stays that of the
+            training images.  The info records ``params["view_jitter"]``
+            (mode ``"added"``, the jitter images used and the views that
+            have any).  A database without ``jitter`` rows is a
+            ``ValueError``.
         return_info: also return a :class:`TrainingInfo`.
 
     Returns:
@@ -134,6 +150,7 @@ def train_model(
     db = database if isinstance(database, ImageDatabase) else load_database(database)
     H, W = db.image_shape
     C = db.n_classes
+    jitter = _jitter_images(db) if view_jitter else None
 
     # eigenspaces of every position (clean images), then one K for all
     train = [db.train_images(i) for i in range(db.n_cameras)]        # [V, C, H, W] each
@@ -148,8 +165,13 @@ def train_model(
         eigen, liks = [], []
         for v, space in enumerate(cam_spaces):
             mean, basis, lam = space.truncate(K)
+            images, labels = train[i][v], None
+            if jitter is not None and (i, v) in jitter:
+                extra, extra_cls = jitter[i, v]
+                images = np.concatenate([images, extra])
+                labels = np.concatenate([np.arange(C), extra_cls])
             liks.append(_fit_position(
-                train[i][v], mean, basis, lam, levels, params, bank, seed, i, v,
+                images, mean, basis, lam, levels, params, bank, seed, i, v, labels=labels, n_classes=C,
                 family=family, var_floor=var_floor, batch_size=batch_size, options=options, holdout=holdout,
             ))
             eigen.append((mean, basis, lam))
@@ -183,11 +205,33 @@ def train_model(
             "n_objects": db.n_objects,
             "n_poses": db.n_poses,
             "image_shape": [H, W],
+            **({} if jitter is None else {"view_jitter": {
+                "mode": "added",
+                "images": int(sum(len(x[1]) for x in jitter.values())),
+                "views": int(sum(len(np.unique(x[1])) for x in jitter.values())),
+                "positions": len(jitter),
+            }}),
         },
         manifest_sha256=db.manifest_sha256,
         seconds=time.perf_counter() - t0,
     )
     return model, info
+
+
+def _jitter_images(db: ImageDatabase) -> dict[tuple[int, int], tuple[np.ndarray, np.ndarray]]:
+    """The ``jitter`` rows of ``db`` by (camera, position): their images
+    ``uint8 [J, H, W]`` and the class of the training view each is labelled
+    with ``int [J]``, in manifest order."""
+    rows = np.flatnonzero(np.asarray(db.split) == "jitter")
+    if rows.size == 0:
+        raise ValueError("view_jitter: the database has no 'jitter' rows (images near a training view, "
+                         "labelled with that view's camera, position, object and pose)")
+    cls = db.class_index
+    out: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
+    for i, v in sorted(set(zip(db.camera[rows].tolist(), db.position[rows].tolist()))):
+        sel = rows[(db.camera[rows] == i) & (db.position[rows] == v)]
+        out[i, v] = (db.images[sel], cls[sel].astype(np.int64))
+    return out
 
 
 def _stack(*per_position):
@@ -196,18 +240,23 @@ def _stack(*per_position):
 
 
 def _fit_position(images, mean, basis, lam, levels, params, bank, seed, camera, position, *,
-                  family, var_floor, batch_size, options=None, holdout=0.0):
+                  family, var_floor, batch_size, options=None, holdout=0.0, labels=None, n_classes=None):
     """The ``family`` likelihood (``[C, L]`` components) of one camera position
     from streamed samples (``holdout > 0``: every ``round(1 / holdout)``-th
-    sample of each (class, level) goes to ``fit``'s ``holdout`` instead)."""
-    C, H, W = images.shape
+    sample of each (class, level) goes to ``fit``'s ``holdout`` instead).
+    ``images`` ``[N, H, W]`` are the base images, of classes ``labels``
+    (``None``: image ``c`` is class ``c``; view jitter appends more)."""
+    N, H, W = images.shape
+    C = N if n_classes is None else n_classes
+    labels = np.arange(N) if labels is None else np.asarray(labels, np.int64)
+    train_flat = images[:C]
     D, K = basis.shape
     s = params.max_shift
     sigma = float(params.noise_sigma)
     vaug = np.concatenate([basis, np.ones((D, 1))], axis=1).astype(np.float32)   # [D, K+1]
     vt1 = basis.sum(axis=0)                                                        # Vᵀ1 [K]
     vt_mean = mean @ basis                                                         # Vᵀx̄ [K]
-    flat = images.reshape(C, D).astype(np.float64)
+    flat = train_flat.reshape(C, D).astype(np.float64)
     g_clean = (flat / np.linalg.norm(flat, axis=1, keepdims=True) - mean) @ basis  # [C, K]
     acc = GaussianAccumulator(C, len(levels), K, full=family.second_moments == "full",
                               ref=np.broadcast_to(g_clean[:, None, :], (C, len(levels), K)))
@@ -216,9 +265,9 @@ def _fit_position(images, mean, basis, lam, levels, params, bank, seed, camera, 
     # level 0: a table of Vᵀz, Σz, ||z||² over every shift of every image
     side = 2 * s + 1
     dy, dx = np.meshgrid(np.arange(-s, s + 1), np.arange(-s, s + 1), indexing="ij")
-    table_p = np.empty((C, side * side, K + 1), np.float64)
-    table_q = np.empty((C, side * side), np.float64)
-    for c in range(C):
+    table_p = np.empty((N, side * side, K + 1), np.float64)
+    table_q = np.empty((N, side * side), np.float64)
+    for c in range(N):
         z = side * side
         plan = SamplePlan(np.full(z, c), dy.ravel(), dx.ravel(), np.full(z, -1),
                           np.zeros(z, np.int64), np.zeros(z, np.int64), np.zeros(z))
@@ -232,14 +281,14 @@ def _fit_position(images, mean, basis, lam, levels, params, bank, seed, camera, 
     for k in range(len(levels)):
         seen = np.zeros(C, np.int64)  # samples of each class so far at this level
         rng = plan_rng(seed, camera, position, k)
-        plan = draw_plan(rng, C, params, bank, k, (H, W), capture_rng(seed, camera, position, k))
+        plan = draw_plan(rng, N, params, bank, k, (H, W), capture_rng(seed, camera, position, k))
         B = len(plan)
         m = params.samples_per_image if params.shared_draws else B
         alpha = rng.standard_normal((m, K)) * sigma
         beta = rng.standard_normal(m) * sigma
         gamma = rng.chisquare(D - K - 1, size=m) * sigma**2 if sigma > 0 else np.zeros(m)
         if params.shared_draws:  # same noise draw j for every class (AugmentParams.shared_draws)
-            alpha, beta, gamma = np.tile(alpha, (C, 1)), np.tile(beta, C), np.tile(gamma, C)
+            alpha, beta, gamma = np.tile(alpha, (N, 1)), np.tile(beta, N), np.tile(gamma, N)
         for start in range(0, B, batch_size):
             sl = slice(start, min(start + batch_size, B))
             p = plan.take(sl)
@@ -255,15 +304,14 @@ def _fit_position(images, mean, basis, lam, levels, params, bank, seed, camera, 
                 qz = table_q[p.image, idx]
             g = _noisy_features(pz, qz, p.brightness, alpha[sl], beta[sl], gamma[sl],
                                 vt1, vt_mean, D)
+            cls_ = labels[p.image]
             if period:
-                first = np.eye(C, dtype=np.int64)[p.image]      # [b, C] one-hot
-                rank = seen[p.image] + np.cumsum(first, axis=0)[np.arange(len(p)), p.image] - 1
+                first = np.eye(C, dtype=np.int64)[cls_]      # [b, C] one-hot
+                rank = seen[cls_] + np.cumsum(first, axis=0)[np.arange(len(p)), cls_] - 1
                 seen += first.sum(axis=0)
                 out = rank % period == period - 1
-                held.append((g[out], p.image[out], np.full(int(out.sum()), k)))
-                g, cls_ = g[~out], p.image[~out]
-            else:
-                cls_ = p.image
+                held.append((g[out], cls_[out], np.full(int(out.sum()), k)))
+                g, cls_ = g[~out], cls_[~out]
             acc.add(g, cls_, k)
     floor = var_floor * lam.sum() / (K * C)
     if period:

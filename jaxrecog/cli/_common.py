@@ -108,4 +108,8 @@ def model_report(path, model=None) -> str:
         aug = train.get("augment")
         if isinstance(aug, dict):
             lines.append("  augmentation: " + _augment_line(aug))
+        vj = train.get("view_jitter")
+        if isinstance(vj, dict):
+            lines.append(f"  view jitter: {vj.get('images')} jitter image(s) of {vj.get('views')} view(s), "
+                         f"{vj.get('mode')} to the training images' samples")
     return "\n".join(lines + _calibration_lines(model))

@@ -9,7 +9,8 @@ from ..planners import DEFAULT_MIN_PER_STRATUM, planner_names
 __all__ = [
     "PLANNERS", "Formatter", "config_tuple", "int_at_least", "positive", "nonneg", "probability",
     "global_options", "table_options", "planner_size_options", "skip_invalid_option",
-    "motion_weight", "choice_options",
+    "motion_weight", "choice_options", "likelihood_options", "capture_options", "view_jitter_option",
+    "likelihood_choice", "capture_params", "nu_value", "sigma_range", "bounded",
 ]
 
 #: The choices of ``--planner`` / ``--planners``: the planner registry's names
@@ -132,3 +133,120 @@ def skip_invalid_option(p: argparse.ArgumentParser) -> None:
     p.add_argument("--skip-invalid", action="store_true",
                    help="an image the belief cannot use (wrong size, NaN, all black, constant) is a warning, "
                         "and the belief goes on without it, instead of an error (exit 1)")
+
+
+def bounded(high: float, what: str, inclusive: bool = False):
+    """An argparse type: a number in ``[0, high)`` (``[0, high]`` if ``inclusive``)."""
+
+    def parse(text: str) -> float:
+        try:
+            v = float(text)
+        except ValueError:
+            v = float("nan")
+        if not (0.0 <= v <= high if inclusive else 0.0 <= v < high):
+            raise argparse.ArgumentTypeError(
+                f"expected {what} in [0, {high:g}{']' if inclusive else ')'}, got {text!r}")
+        return v
+
+    return parse
+
+
+def sigma_range(text: str) -> tuple[float, float]:
+    """An argparse type: ``SIGMA`` (= ``0,SIGMA``) or ``LO,HI`` with ``0 <= LO <= HI``."""
+    try:
+        vals = [float(x) for x in str(text).replace(" ", "").split(",")]
+    except ValueError:
+        vals = []
+    if len(vals) == 1:
+        vals = [0.0, vals[0]]
+    if len(vals) != 2 or not all(0.0 <= v < float("inf") for v in vals) or vals[0] > vals[1]:
+        raise argparse.ArgumentTypeError(f"expected SIGMA or LO,HI with 0 <= LO <= HI (pixels), got {text!r}")
+    return vals[0], vals[1]
+
+
+def nu_value(text: str) -> str | float:
+    """An argparse type: ``auto`` or a number > 2."""
+    if str(text).strip().lower() == "auto":
+        return "auto"
+    try:
+        v = float(text)
+    except ValueError:
+        v = float("nan")
+    if not v > 2.0 or v == float("inf"):
+        raise argparse.ArgumentTypeError(f"expected 'auto' or a number > 2, got {text!r}")
+    return v
+
+
+def likelihood_options(p: argparse._ActionsContainer) -> None:
+    """``--likelihood``, ``--rank``, ``--nu`` (``train``, ``experiment``,
+    ``scripts/reproduce_thesis.py``; on a parser or an argument group): all default to ``None`` = not given
+    (the thesis's diagonal Gaussian; the family's own option defaults)."""
+    from ..kernels import likelihood_names
+
+    p.add_argument("--likelihood", choices=likelihood_names(), default=None,
+                   help="sensor-model family (default: gaussian-diag, the thesis's)")
+    p.add_argument("--rank", type=positive, default=None,
+                   help="gaussian-lowrank: factors R, 1 <= R < K (default: min(4, K - 1))")
+    p.add_argument("--nu", type=nu_value, default=None,
+                   help="student-t: degrees of freedom, a number > 2, or 'auto' (chosen per level on held-out "
+                        "training samples; the default)")
+
+
+def likelihood_choice(name: str | None, rank=None, nu=None) -> tuple[str, dict]:
+    """The likelihood name (default ``gaussian-diag``) and its fit options from
+    ``--likelihood`` / ``--rank`` / ``--nu``; an option of another family is a
+    ``ValueError``."""
+    from ..kernels import likelihood_class
+
+    name = name or "gaussian-diag"
+    family = likelihood_class(name)
+    options = {k: v for k, v in (("rank", rank), ("nu", nu)) if v is not None}
+    for k in options:
+        if k not in family.fit_options:
+            raise ValueError(f"--{k} applies to {'gaussian-lowrank' if k == 'rank' else 'student-t'}, "
+                             f"not to --likelihood {name}")
+    return name, options
+
+
+def capture_options(p: argparse.ArgumentParser, *, unset: bool = False) -> None:
+    """The capture augmentation of training (:class:`jaxrecog.augment.AugmentParams`:
+    rotation, scale, blur, local gain; off by default).  ``unset``: defaults
+    ``None`` = not given (``experiment``, where a TOML file may set them)."""
+    g = p.add_argument_group("capture augmentation (what a real capture does off the training grid; off by default)")
+    g.add_argument("--rotation", type=bounded(180.0, "degrees", inclusive=True), default=None if unset else 0.0,
+                   metavar="DEG", help="in-plane rotation by a uniform angle in +-DEG degrees about the image centre")
+    g.add_argument("--scale", type=bounded(1.0, "a fraction"), default=None if unset else 0.0, metavar="FRAC",
+                   help="scaling by 1 + a, a uniform in +-FRAC, about the image centre")
+    g.add_argument("--blur", type=sigma_range, default=None if unset else "0", metavar="SIGMA|LO,HI",
+                   help="Gaussian blur, sigma uniform in [LO, HI] pixels (one number: [0, SIGMA])")
+    g.add_argument("--gain", type=bounded(1.0, "a fraction"), default=None if unset else 0.0, metavar="FRAC",
+                   help="local gain: a smooth multiplicative field 1 + c, |c| <= FRAC, bilinearly upsampled "
+                        "from a CELLS x CELLS grid of uniform values")
+    g.add_argument("--gain-cells", type=int_at_least(2, "an integer >= 2"), default=None if unset else 3,
+                   metavar="CELLS", help="control grid of the --gain field")
+
+
+def capture_params(args) -> dict:
+    """The given capture options of :func:`capture_options` as
+    :class:`~jaxrecog.augment.AugmentParams` fields (those left ``None`` out;
+    ``--blur`` from a TOML file may be a number or ``[LO, HI]``)."""
+    out = {}
+    for opt, field in (("rotation", "max_rotation"), ("scale", "max_scale"), ("gain", "gain_amplitude")):
+        if getattr(args, opt, None) is not None:
+            out[field] = float(getattr(args, opt))
+    if getattr(args, "gain_cells", None) is not None:
+        out["gain_cells"] = int(args.gain_cells)
+    blur = getattr(args, "blur", None)
+    if blur is not None:
+        if not isinstance(blur, tuple):
+            blur = sigma_range(",".join(map(str, blur)) if isinstance(blur, list) else str(blur))
+        out["blur_sigma"] = blur
+    return out
+
+
+def view_jitter_option(p: argparse.ArgumentParser) -> None:
+    """``--view-jitter`` (``train``): the database's ``jitter`` rows as extra base images."""
+    p.add_argument("--view-jitter", action="store_true",
+                   help="use the database's 'jitter' rows (images near a training view, each labelled with that "
+                        "view) as extra base images of their view: each gets --samples augmented samples like "
+                        "the training image (jaxrecog.train.train_model)")

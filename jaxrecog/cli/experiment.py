@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import time
 from pathlib import Path
 from typing import Any
@@ -12,7 +13,7 @@ from ..driver import trial_mesh
 from ..planners import DEFAULT_MIN_PER_STRATUM
 from .._progress import enabled as progress_bars
 from ._common import UsageError
-from ._options import PLANNERS, choice_options, positive
+from ._options import PLANNERS, capture_options, capture_params, choice_options, likelihood_options, positive
 from ._reports import QUICK, make_settings, trace_plot, write_report
 
 NAME = "experiment"
@@ -60,6 +61,27 @@ def add_arguments(p) -> None:
                    help="shard each lockstep batch over N devices (GPUs; the batch is rounded up to a multiple "
                         "of N; the results are the same as on one device; default 1)")
     choice_options(p, unset=True)
+    g = p.add_argument_group("training of the case's models (thesis cases; each choice has its own cached models)")
+    likelihood_options(g)
+    capture_options(p, unset=True)
+
+
+def _training_values(args, values: dict[str, Any]) -> dict[str, Any]:
+    """The Settings fields of ``--likelihood`` / ``--rank`` / ``--nu`` and the
+    capture augmentation flags, over those of an experiment file (``values``):
+    ``--rank`` / ``--nu`` update the file's ``likelihood_options``."""
+    out: dict[str, Any] = {}
+    if args.likelihood is not None:
+        out["likelihood"] = args.likelihood
+    opts = {k: v for k, v in (("rank", args.rank), ("nu", args.nu)) if v is not None}
+    if opts:
+        base = values.get("likelihood_options") or {}
+        out["likelihood_options"] = {**dict(base.items() if hasattr(base, "items") else base), **opts}
+    try:
+        out.update(capture_params(args))
+    except (ValueError, argparse.ArgumentTypeError) as e:
+        raise UsageError(f"--blur: {e}") from None
+    return out
 
 
 def load_settings_flat(path: str) -> dict[str, Any]:
@@ -115,6 +137,9 @@ def run(args) -> int:
             raise UsageError("--trace works with the thesis cases (synthetic rig) only")
         if (args.stride or values.get("stride", 1)) != 1:
             raise UsageError("--stride selects positions of the synthetic rig; a database has its own positions")
+        if _training_values(args, {}):
+            raise UsageError("--likelihood, --rank, --nu and the capture augmentation train a thesis case's models; "
+                             "a database campaign uses the given --model")
     else:
         if model:
             raise UsageError("--model is used with --rig dataset:FOLDER only (a thesis case trains its own models)")
@@ -129,13 +154,17 @@ def run(args) -> int:
             "stride": args.stride, "devices": args.devices, "exclude_visited_positions": args.exclude_visited,
             "motion_cost": args.motion_cost}
     values.update({k: v for k, v in over.items() if v is not None})
+    values.update(_training_values(args, values))
     if args.quick:
         for k, v in QUICK.items():
             values.setdefault(k, v)
     values.setdefault("workdir", args.workdir or str(out / "work"))
     if args.workdir:
         values["workdir"] = args.workdir
-    settings = make_settings(values, args.case or "experiment")
+    try:
+        settings = make_settings(values, args.case or "experiment")
+    except ValueError as e:
+        raise UsageError(str(e)) from None
     if dataset and settings.motion_cost > 0:
         raise UsageError("--motion-cost needs the rig's geometry (travel times); a replayed database has none")
     try:
