@@ -1,0 +1,35 @@
+"""benchmarks/bench_training.py on a tiny database: one row per likelihood,
+each trained in its own child process, with the ratio against the diagonal
+Gaussian of the same run; an unknown family is a usage error."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+TINY = ["--positions", "2,1", "--objects", "2", "--poses", "2", "--height", "12", "--width", "16",
+        "--samples", "4", "--components", "2", "--kind", "DB1"]
+
+
+def _bench():
+    spec = importlib.util.spec_from_file_location("bench_training", ROOT / "benchmarks" / "bench_training.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_one_row_per_likelihood_with_ratios(tmp_path, capsys):
+    out = tmp_path / "t.json"
+    assert _bench().main([*TINY, "--likelihoods", "gaussian-diag", "student-t", "--out", str(out)]) == 0
+    rows = json.loads(out.read_text())["rows"]
+    assert [r["likelihood"] for r in rows] == ["gaussian-diag", "student-t"]
+    assert rows[0]["ratio_vs_diag"] == 1.0 and rows[1]["ratio_vs_diag"] > 0
+    assert all(r["wall_s"] > 0 and r["peak_rss_mb"] > 0 and r["sizes"]["positions"] == [2, 1] for r in rows)
+    assert "student-t" in capsys.readouterr().out
+
+
+def test_unknown_likelihood_is_an_error(tmp_path, capsys):
+    assert _bench().main([*TINY, "--likelihoods", "nope", "--out", str(tmp_path / "t.json")]) == 2
+    assert "unknown likelihood" in capsys.readouterr().err
