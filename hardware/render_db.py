@@ -13,6 +13,7 @@ sensor model's confidence (:mod:`jaxrecog.calibration`).
 
 from __future__ import annotations
 
+import math
 import os
 from pathlib import Path
 from typing import Callable, Sequence
@@ -25,7 +26,7 @@ from .positions import CameraTable
 from .scene import ObjectSpec
 from .synthetic import Noise, Perturb, SyntheticRig
 
-__all__ = ["MANIFEST_COLUMNS", "render_database", "contact_sheet", "lookalike_distances"]
+__all__ = ["MANIFEST_COLUMNS", "render_database", "contact_sheet", "jitter_offsets", "lookalike_distances"]
 
 MANIFEST_COLUMNS = COLUMNS  # the format lives in .dbformat
 
@@ -46,6 +47,8 @@ def render_database(
     calib_perturb: Perturb = Perturb(),
     calib_occluders: bool | Callable[[np.random.Generator, int, int], object] = False,
     train: bool = True,
+    jitter_per_view: int = 0,
+    jitter_yaw_deg: float = 10.0,
 ) -> Path:
     """Render every (camera, position, object, pose) and write the database.
 
@@ -65,6 +68,13 @@ def render_database(
             random layout; a callable ``(rng, camera, position) -> layout | None``:
             a layout per calib image (e.g. a board in front of that view).
         train: write the ``train`` split (``False``: e.g. a calib-only folder).
+        jitter_per_view: clean renders *near* each training view, written as
+            the ``jitter`` split and labelled with that view (for
+            ``train_model(view_jitter=True)``): the object turned
+            ``±jitter_yaw_deg * k / ceil(N / 2)`` degrees, k = 1 .. ceil(N / 2),
+            alternating signs (N = 4, 10°: +5, -5, +10, -10).  These are the
+            neighbouring views of a turn-table the training grid leaves out.
+        jitter_yaw_deg: the largest of those turns (> 0).
 
     Returns:
         The path of ``manifest.csv``.  Train images: ``n_objects * poses`` per
@@ -74,6 +84,7 @@ def render_database(
         raise ValueError(f"test_per_view must be >= 0, got {test_per_view}")
     if calib_per_view < 0:
         raise ValueError(f"calib_per_view must be >= 0, got {calib_per_view}")
+    offsets = jitter_offsets(jitter_per_view, jitter_yaw_deg)
     own = rig is None
     if own:
         rig = SyntheticRig(table, objects=objects, n_poses=poses, seed=seed)
@@ -82,7 +93,8 @@ def render_database(
     try:
         rng = np.random.default_rng(seed)
         calib_rng = np.random.default_rng([seed, 0xCA1])
-        splits = [s for s, n in (("train", train), ("test", test_per_view), ("calib", calib_per_view)) if n]
+        splits = [s for s, n in (("train", train), ("test", test_per_view), ("calib", calib_per_view),
+                                 ("jitter", jitter_per_view)) if n]
         for i, n_pos in enumerate(rig.positions):
             for v in range(n_pos):
                 for s in splits:
@@ -128,14 +140,38 @@ def render_database(
                         if progress is not None:
                             progress(n_pos * calib_per_view)
                     rig.reset(m, p)
+                for j, yaw in enumerate(offsets):
+                    rig.reset(m, p, yaw_offset_deg=yaw)
+                    for i, n_pos in enumerate(rig.positions):
+                        for v in range(n_pos):
+                            img, _ = rig.render_clean(i, v)
+                            rel = f"jitter/c{i}/v{v:02d}/m{m}_p{p}_{j}.png"
+                            write_image(out / rel, img)
+                            rows.append((rel, i, v, m, p, "jitter"))
+                        if progress is not None:
+                            progress(n_pos)
+                if offsets:
+                    rig.reset(m, p)
     finally:
         if own:
             rig.close()
-    order = {"train": 0, "test": 1, "calib": 2}
+    order = {"train": 0, "test": 1, "calib": 2, "jitter": 3}
     rows.sort(key=lambda r: (order[r[5]], r[1], r[2], r[3], r[4], r[0]))
     manifest = out / "manifest.csv"
     manifest.write_text(manifest_text(rows))
     return manifest
+
+
+def jitter_offsets(n: int, max_deg: float) -> tuple[float, ...]:
+    """The object turns (degrees) of the ``n`` jitter renders of a view:
+    ``±max_deg * k / ceil(n / 2)``, k = 1 .. ceil(n / 2), alternating signs,
+    the first ``n`` of them (:func:`render_database`)."""
+    if isinstance(n, bool) or not isinstance(n, int) or n < 0:
+        raise ValueError(f"jitter_per_view must be an integer >= 0, got {n!r}")
+    if n and not (0 < max_deg < 180):
+        raise ValueError(f"jitter_yaw_deg must be in (0, 180) degrees, got {max_deg!r}")
+    half = max(1, math.ceil(n / 2))
+    return tuple((1 if j % 2 == 0 else -1) * max_deg * (j // 2 + 1) / half for j in range(n))
 
 
 def contact_sheet(rig: SyntheticRig, views: Sequence[tuple[int, int]], gap: int = 2) -> np.ndarray:

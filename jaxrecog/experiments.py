@@ -173,6 +173,14 @@ class Settings:
             (:class:`~jaxrecog.augment.AugmentParams`; off by default).
             Anything but the defaults of these six fields gives the models
             their own file names and cache keys (:func:`prepare`).
+        view_jitter, view_jitter_deg: render this many views *near* each
+            training view (the object turned up to ±``view_jitter_deg``
+            degrees, :func:`~jaxrecog.hardware.render_db.jitter_offsets`) into
+            the database's ``jitter`` split and train on them as extra base
+            images of their view (``train_model(view_jitter=True)``): the
+            neighbouring views of the turn-table between the training poses.
+            0 = off (the thesis).  Not in the thesis; its own database folder
+            (``database...-vjNxD``) and model files.
     """
 
     workdir: Path | str = Path("out/experiments")  # a str becomes a Path (__post_init__)
@@ -202,10 +210,13 @@ class Settings:
     blur_sigma: tuple[float, float] | list[float] | float = (0.0, 0.0)  # one number: (0, sigma)
     gain_amplitude: float = 0.0
     gain_cells: int = 3
+    view_jitter: int = 0
+    view_jitter_deg: float = 10.0
 
     def __post_init__(self):
         object.__setattr__(self, "workdir", Path(self.workdir))
         self._check_training()
+        self._check_view_jitter()
         from .motion import check_weight
 
         object.__setattr__(self, "motion_cost", check_weight(self.motion_cost))
@@ -222,6 +233,16 @@ class Settings:
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 <= v < math.inf:
                 raise ValueError(f"{k} must be a finite number >= 0 (or None: the case's), got {v!r}")
             object.__setattr__(self, k, float(v))
+
+    def _check_view_jitter(self) -> None:
+        from .hardware.render_db import jitter_offsets
+
+        try:
+            jitter_offsets(self.view_jitter, self.view_jitter_deg)
+        except ValueError as e:
+            msg = str(e).replace("jitter_per_view", "view_jitter").replace("jitter_yaw_deg", "view_jitter_deg")
+            raise ValueError(msg) from None
+        object.__setattr__(self, "view_jitter_deg", float(self.view_jitter_deg))
 
     def _check_training(self) -> None:
         """Normalise and check the likelihood and augmentation fields: the
@@ -295,9 +316,8 @@ def _progress_bar(total: int, desc: str, enabled: bool):
 #: Settings fields of the likelihood and the capture augmentation, and their
 #: defaults: models trained with these keep the file names and cache keys
 #: they had before the fields existed.
-_TRAINING_FIELDS = ("likelihood", "likelihood_options", "max_rotation", "max_scale", "blur_sigma",
-                    "gain_amplitude", "gain_cells")
-_AUGMENT_FIELDS = _TRAINING_FIELDS[2:]
+_AUGMENT_FIELDS = ("max_rotation", "max_scale", "blur_sigma", "gain_amplitude", "gain_cells")
+_TRAINING_FIELDS = ("likelihood", "likelihood_options", *_AUGMENT_FIELDS, "view_jitter", "view_jitter_deg")
 
 
 def _training_defaults() -> dict:
@@ -408,13 +428,15 @@ def prepare(settings: Settings, *, progress: bool = False, databases: Sequence[s
 
     work = settings.workdir
     tag = _stride_tag(settings)
-    db_dir = work / f"database{tag}"
+    jitter = settings.view_jitter
+    db_dir = work / (f"database{tag}" + (f"-vj{jitter}x{settings.view_jitter_deg:g}" if jitter else ""))
     manifest = db_dir / "manifest.csv"
     if not manifest.exists():
         table = rig_table(settings)
-        n_images = sum(table.positions) * 8 * 4
+        n_images = sum(table.positions) * 8 * 4 * (1 + jitter)
         with _progress_bar(n_images, "render database", progress) as bar:
-            render_database(db_dir, table, progress=bar.update)
+            render_database(db_dir, table, progress=bar.update, jitter_per_view=jitter,
+                            jitter_yaw_deg=settings.view_jitter_deg)
     db = None
     models = {}
     for kind in databases:
@@ -444,6 +466,7 @@ def prepare(settings: Settings, *, progress: bool = False, databases: Sequence[s
                     likelihood=settings.likelihood,
                     likelihood_options=dict(settings.likelihood_options),
                     augment=settings.augment_params(),
+                    view_jitter=bool(jitter),
                     progress=lambda done, total: bar.update(done - bar.n),
                     return_info=True,
                 )

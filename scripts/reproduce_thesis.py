@@ -30,7 +30,8 @@ import json
 import sys
 import time
 
-from jaxrecog.cli._options import capture_options, capture_params, likelihood_choice, likelihood_options
+from jaxrecog.cli._options import (capture_options, capture_params, likelihood_choice, likelihood_options,
+                                   render_jitter_options, render_jitter_values)
 from jaxrecog.metrics import campaign_metrics
 from jaxrecog.experiments import CASES, Settings, prepare, results_dir, run_case, run_trace
 from jaxrecog.thesis import TABLE_7_8
@@ -67,6 +68,7 @@ def main(argv=None) -> int:
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     g = p.add_argument_group("training (each choice has its own cached models; default: the thesis's)")
     likelihood_options(g)
+    render_jitter_options(g)
     capture_options(p)
     args = p.parse_args(argv)
     if args.stride < 1:
@@ -75,7 +77,7 @@ def main(argv=None) -> int:
         likelihood, options = likelihood_choice(args.likelihood, args.rank, args.nu)
         settings = Settings(workdir=args.workdir, trials_per_object=args.trials, seed=args.seed, samples=args.samples,
                             batch=args.batch, stride=args.stride, likelihood=likelihood, likelihood_options=options,
-                            **capture_params(args))
+                            **capture_params(args), **render_jitter_values(args))
     except (ValueError, argparse.ArgumentTypeError) as e:
         p.error(str(e))
     show = not args.quiet and sys.stderr.isatty()

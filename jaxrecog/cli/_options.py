@@ -10,6 +10,7 @@ __all__ = [
     "PLANNERS", "Formatter", "config_tuple", "int_at_least", "positive", "nonneg", "probability",
     "global_options", "table_options", "planner_size_options", "skip_invalid_option",
     "motion_weight", "choice_options", "likelihood_options", "capture_options", "view_jitter_option",
+    "render_jitter_options", "render_jitter_values",
     "likelihood_choice", "capture_params", "nu_value", "sigma_range", "bounded",
 ]
 
@@ -242,6 +243,23 @@ def capture_params(args) -> dict:
             blur = sigma_range(",".join(map(str, blur)) if isinstance(blur, list) else str(blur))
         out["blur_sigma"] = blur
     return out
+
+
+def render_jitter_options(p: argparse._ActionsContainer) -> None:
+    """``--view-jitter N`` / ``--view-jitter-deg D`` of the synthetic cases
+    (``experiment``, ``scripts/reproduce_thesis.py``): ``Settings.view_jitter``
+    / ``view_jitter_deg``; default ``None`` = not given (off)."""
+    p.add_argument("--view-jitter", type=int_at_least(0, "an integer >= 0"), default=None, metavar="N",
+                   help="render N views near each training view (the object turned up to +-D degrees) and train "
+                        "on them as extra samples of that view (not in the thesis; default 0 = off)")
+    p.add_argument("--view-jitter-deg", type=bounded(180.0, "degrees"), default=None, metavar="D",
+                   help="largest turn of the --view-jitter views (default 10)")
+
+
+def render_jitter_values(args) -> dict:
+    """The given ``--view-jitter`` / ``--view-jitter-deg`` as Settings fields."""
+    return {f: getattr(args, a) for a, f in (("view_jitter", "view_jitter"), ("view_jitter_deg", "view_jitter_deg"))
+            if getattr(args, a, None) is not None}
 
 
 def view_jitter_option(p: argparse.ArgumentParser) -> None:

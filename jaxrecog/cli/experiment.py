@@ -13,7 +13,8 @@ from ..driver import trial_mesh
 from ..planners import DEFAULT_MIN_PER_STRATUM
 from .._progress import enabled as progress_bars
 from ._common import UsageError
-from ._options import PLANNERS, capture_options, capture_params, choice_options, likelihood_options, positive
+from ._options import (PLANNERS, capture_options, capture_params, choice_options, likelihood_options, positive,
+                       render_jitter_options, render_jitter_values)
 from ._reports import QUICK, make_settings, trace_plot, write_report
 
 NAME = "experiment"
@@ -63,6 +64,7 @@ def add_arguments(p) -> None:
     choice_options(p, unset=True)
     g = p.add_argument_group("training of the case's models (thesis cases; each choice has its own cached models)")
     likelihood_options(g)
+    render_jitter_options(g)
     capture_options(p, unset=True)
 
 
@@ -77,6 +79,7 @@ def _training_values(args, values: dict[str, Any]) -> dict[str, Any]:
     if opts:
         base = values.get("likelihood_options") or {}
         out["likelihood_options"] = {**dict(base.items() if hasattr(base, "items") else base), **opts}
+    out.update(render_jitter_values(args))
     try:
         out.update(capture_params(args))
     except (ValueError, argparse.ArgumentTypeError) as e:
