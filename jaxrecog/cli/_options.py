@@ -59,7 +59,7 @@ positive = int_at_least(1, "a positive integer")
 nonneg = int_at_least(0, "an integer >= 0")
 
 
-def object_choice(text: str) -> int | str:
+def object_choice(text: str | int) -> int | str:
     """An argparse type: ``N`` (the first N thesis objects, an int) or
     ``random:N`` (N random_urdfs meshes, kept as the string ``"random:N"``)."""
     from ..hardware.random_objects import parse_objects
