@@ -125,7 +125,7 @@ def test_a_long_problem_list_shows_the_count_ten_lines_and_the_file_with_all(tmp
         load_database(tmp_path)
     lines = str(e.value).splitlines()
     assert lines[0] == f"invalid image database {tmp_path}: {n} problems"
-    assert [l.strip() for l in lines[1:11]] == [f"row {r}: split 'validate' is not one of train, test, calib"
+    assert [l.strip() for l in lines[1:11]] == [f"row {r}: split 'validate' is not one of train, test, calib, jitter"
                                                 for r in range(1, 11)]
     errors = tmp_path / "manifest-errors.txt"
     assert lines[11].strip() == f"... {n - 10} more (full list in {errors})" and len(lines) == 12
@@ -162,12 +162,12 @@ def test_the_cli_prints_ten_problems_one_per_line_and_debug_prints_all(tmp_path,
     assert cli.main(["inspect", str(tmp_path)]) == 1
     err = capsys.readouterr().err.splitlines()
     assert err[0] == f"jaxrecog: error: invalid image database {tmp_path}: {n} problems"
-    assert len(err) == 12 and err[1] == "  row 1: split 'validate' is not one of train, test, calib"
+    assert len(err) == 12 and err[1] == "  row 1: split 'validate' is not one of train, test, calib, jitter"
     assert "manifest-errors.txt" in err[-1]
     with pytest.raises(DatabaseError):
         cli.main(["inspect", str(tmp_path), "--debug"])
     err = capsys.readouterr().err.splitlines()
-    assert err == [f"row {r}: split 'validate' is not one of train, test, calib" for r in range(1, n + 1)]
+    assert err == [f"row {r}: split 'validate' is not one of train, test, calib, jitter" for r in range(1, n + 1)]
 
 
 # ---- turntable data (issue 16 item 4) ---------------------------------------------------
