@@ -100,9 +100,10 @@ def turntable_angles(n_positions: int, step_deg: float, *, test_per_view: int = 
     t_off = step / 2 if test_offset is None else float(test_offset)
     c_off = step / 4 if calib_offset is None else float(calib_offset)
     j_off = step / 4 if jitter_offset is None else float(jitter_offset)
-    for name, off in (("test", t_off), ("calib", c_off), ("jitter", j_off)):
-        if math.isclose(math.remainder(off, step), 0.0, abs_tol=1e-9):
-            raise ValueError(f"{name} offset {off:g}° lies on the {step:g}° grid; it must be off the grid")
+    # test / calib offsets of 0 are allowed: on-grid held-out views, the thesis
+    # protocol's control; jitter on the grid would repeat the training views.
+    if math.isclose(math.remainder(j_off, step), 0.0, abs_tol=1e-9):
+        raise ValueError(f"jitter offset {j_off:g}° lies on the {step:g}° grid; it must be off the grid")
     half = max(1, math.ceil(jitter_per_view / 2))
     out: dict[str, Callable[[int, int], float]] = {"train": lambda v, j: step * v}
     if test_per_view:

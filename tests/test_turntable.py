@@ -107,7 +107,9 @@ def test_off_grid_views_are_labelled_with_the_nearest_training_view():
         assert offs == pytest.approx([-5.0, -2.5, 2.5, 5.0])
     assert {f["calib"](v, 0) - grid[v] for v in range(n)} == {5.0, -5.0}
     with pytest.raises(ValueError, match="off the grid"):
-        turntable_angles(n, step, test_per_view=1, test_offset=20.0)
+        turntable_angles(n, step, jitter_per_view=1, jitter_offset=20.0)
+    on_grid = turntable_angles(n, step, test_per_view=1, test_offset=0.0)  # the control: test on the grid
+    assert on_grid["test"](3, 0) == on_grid["train"](3, 0)
 
 
 def test_render_turntable_writes_every_split(tmp_path, three):
