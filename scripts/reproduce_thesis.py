@@ -82,7 +82,8 @@ def main(argv=None) -> int:
     cases = list(CASES) + ["trace"] if args.case == "all" else [args.case]
     unknown = [c for c in cases if c != "trace" and c not in CASES]
     if unknown:
-        p.error(f"--case {unknown[0]!r}: choose one of {', '.join(CASES)}, 'trace' or 'all'")
+        p.error(f"--case {unknown[0]!r}: choose one of {', '.join(CASES)}, 'trace' or 'all' "
+                f"(or {', '.join(TURNTABLE_CASES)})")
     # train only the models the chosen cases use (the trace is a case-iii trial: DB2)
     databases = sorted({CASES[c].database if c != "trace" else CASES["iii"].database for c in cases})
     prepared = prepare(settings, progress=show, databases=databases)
