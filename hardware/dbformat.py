@@ -58,7 +58,7 @@ __all__ = [
 ]
 
 COLUMNS = ("path", "camera", "position", "object", "pose", "split")
-SPLITS = ("train", "test", "calib", "jitter")
+SPLITS = ("train", "test", "calib", "jitter")  # jitter: extra views near a training view (train --view-jitter)
 INT_COLUMNS = ("camera", "position", "object", "pose")
 MAX_INDEX = 2**20  # indices must be below this (a typo like 1e9 is not a position)
 ERRORS_FILE = "manifest-errors.txt"

@@ -776,3 +776,91 @@ def run_trace(settings: Settings, *, object: int = 5, planner: str = "mi", case:
     rec = make_recognizer(model, planner, settings, rig_travel_times(rig))
     (res,) = run_campaign(rec, rig, [spec], key=jr.PRNGKey(settings.seed + 1), batch=1, seed=settings.seed, trace=True)
     return res
+
+
+# ---------------------------------------------------------------- turntable set (issue 18, item 4)
+
+#: Planners of :func:`run_turntable` when none are given.
+TURNTABLE_PLANNERS = ("mi-class-pairwise", "random")
+
+
+def _turntable_name(n_objects: int, cameras: int, occluded: bool, poses: int, step_deg: int, object_seed: int) -> str:
+    return (f"turntable-n{n_objects}-c{cameras}-p{poses}-s{step_deg}{'-occ' if occluded else ''}"
+            f"{f'-o{object_seed}' if object_seed else ''}")
+
+
+def prepare_turntable(settings: Settings, n_objects: int = 50, cameras: int = 1, occluded: bool = False, *,
+                      poses: int = 4, step_deg: int = 20, test_per_view: int = 2, calib_per_view: int = 1,
+                      object_seed: int = 0, kind: str | None = None, progress: bool = False) -> Prepared:
+    """Render a turntable set (:func:`jaxrecog.hardware.turntable.render_turntable`:
+    ``n_objects`` random_urdfs meshes, ``360 / step_deg`` positions per camera,
+    test views halfway between training views, with a board in front of every
+    test view when ``occluded``) into ``workdir/turntable-...`` and train its
+    model (``kind``: DB1 for a clean set, DB2 for an occluded one; K, samples
+    and seed from ``settings``), calibrated on the set's ``calib`` split, as
+    ``jaxrecog train --calibrate`` does.  Both are cached (the model by its
+    training parameters and the manifest's hash).  ``Prepared.models`` has
+    one entry, ``"turntable"``."""
+    from .calibration import calibrate_model
+    from .database import load_database
+    from .hardware.random_objects import random_objects
+    from .hardware.turntable import render_turntable
+    from .modelfile import ModelFileError, load_model_meta, save_model
+    from .train import train_model
+
+    kind = kind or ("DB2" if occluded else "DB1")
+    name = _turntable_name(n_objects, cameras, occluded, poses, step_deg, object_seed)
+    db_dir = settings.workdir / name
+    manifest = db_dir / "manifest.csv"
+    if not manifest.exists():
+        objects = random_objects(n_objects, seed=object_seed)
+        total = cameras * (360 // step_deg) * n_objects * poses * (1 + test_per_view + calib_per_view)
+        t0 = time.perf_counter()
+        with _progress_bar(total, f"render {name}", progress) as bar:
+            render_turntable(db_dir, objects, cameras=cameras, step_deg=step_deg, poses=poses,
+                             test_per_view=test_per_view, calib_per_view=calib_per_view, occluders=occluded,
+                             seed=settings.seed, progress=bar.update)
+        (db_dir / "rig.json").write_text(json.dumps(
+            {"turntable": True, "objects": f"random:{n_objects}", "object_seed": object_seed, "cameras": cameras,
+             "poses": poses, "step_deg": step_deg, "positions": [360 // step_deg] * cameras,
+             "per_view": {"test": test_per_view, "calib": calib_per_view}, "test_occluders": occluded,
+             "names": [o.name for o in objects], "seed": settings.seed,
+             "seconds": round(time.perf_counter() - t0, 1), "images": total}, indent=2) + "\n")
+    db = load_database(db_dir)
+    path = db_dir / f"model-{kind.lower()}-K{settings.n_components}-S{settings.samples_per_image}-seed{settings.seed}-cal.npz"
+    want = dict(_training_params(settings, kind), calibrated=True)
+    fresh = False
+    if path.exists():
+        try:
+            meta = load_model_meta(path)
+            params = (meta.get("training") or {}).get("params") or {}
+            fresh = meta.get("manifest_sha256") == db.manifest_sha256 and all(params.get(k) == v for k, v in want.items())
+        except ModelFileError:
+            fresh = False
+    if not fresh:
+        with _progress_bar(int(sum(db.positions)), f"train {kind}", progress) as bar:
+            model, info = train_model(db, kind=kind, n_components=settings.n_components,
+                                      samples_per_image=settings.samples_per_image, seed=settings.seed,
+                                      progress=lambda done, total: bar.update(done - bar.n), return_info=True)
+        t0 = time.perf_counter()
+        model, cal = calibrate_model(model, db)
+        training = info.to_dict()
+        training["params"] = dict(training["params"], calibrated=True)
+        training["calibration_seconds"] = time.perf_counter() - t0
+        save_model(path, model, training=training, manifest_sha256=db.manifest_sha256, calibration=cal.to_dict())
+    return Prepared(db_dir, {"turntable": path})
+
+
+def run_turntable(settings: Settings, n_objects: int = 50, cameras: int = 1, occluded: bool = False,
+                  planners: Sequence[str] | None = None, *, progress: bool = False,
+                  prepared: Prepared | None = None, **turntable) -> CaseReport:
+    """The turntable campaign: :func:`prepare_turntable` (cached), then
+    :func:`run_dataset` on its test split with the calibrated model (each
+    planner on the same trials; resumable).  ``turntable``: more
+    :func:`prepare_turntable` options (poses, step_deg, ...)."""
+    prepared = prepared or prepare_turntable(settings, n_objects, cameras, occluded, progress=progress, **turntable)
+    return run_dataset(prepared.database, prepared.models["turntable"], settings,
+                       planners=tuple(planners or TURNTABLE_PLANNERS), progress=progress)
+
+
+__all__ += ["TURNTABLE_PLANNERS", "prepare_turntable", "run_turntable"]

@@ -17,6 +17,14 @@ own file names; the tables then go to the same WORKDIR/results (pass
 another --workdir to keep them apart).  Finished
 trials are kept in WORKDIR/trials, so an interrupted run resumes.
 
+--case turntable (or turntable-occluded) runs the turntable set of issue 18
+item 4 instead: --objects N random_urdfs meshes (default 50), one camera
+(--cameras 2 for two), 18 turntable positions, test views 10 degrees off the
+training grid (with a board in front of each for turntable-occluded), a
+calibrated DB1 (DB2) model, planners mi-class-pairwise and random by default:
+
+    python scripts/reproduce_thesis.py --case turntable --objects 50 --trials 10
+
 --stride N keeps every N-th position of each camera (8: a 4 x 1 table of
 160 images): a quick check of the whole pipeline, not the thesis's rig, so
 its tables carry no thesis numbers and go to WORKDIR/results-strideN (its
@@ -34,6 +42,9 @@ from jaxrecog.cli._options import (capture_options, capture_params, likelihood_c
                                    render_jitter_options, render_jitter_values)
 from jaxrecog.metrics import campaign_metrics
 from jaxrecog.experiments import CASES, Settings, prepare, results_dir, run_case, run_trace
+
+#: The turntable cases (issue 18 item 4), run apart from CASES: name -> occluded test views.
+TURNTABLE_CASES = {"turntable": False, "turntable-occluded": True}
 from jaxrecog.thesis import TABLE_7_8
 
 
@@ -56,7 +67,8 @@ def trace_markdown(res, thesis: bool = True) -> str:
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--case", default="all", help=f"one of {', '.join(CASES)}, 'trace' or 'all' (default: all)")
+    p.add_argument("--case", default="all", help=f"one of {', '.join(CASES)}, 'trace', 'all' (default: all), "
+                        "or turntable / turntable-occluded (issue 18 item 4; not in 'all')")
     p.add_argument("--planners", default=None, help="comma-separated planners (default: the case's own)")
     p.add_argument("--trials", type=int, default=100, help="trials per object (default: 100, as the thesis)")
     p.add_argument("--workdir", default="out/thesis", help="database, models, trials and tables (default: out/thesis)")
@@ -70,7 +82,11 @@ def main(argv=None) -> int:
     likelihood_options(g)
     render_jitter_options(g)
     capture_options(p)
+    p.add_argument("--objects", type=int, default=50, help="turntable cases: random objects (default: 50)")
+    p.add_argument("--cameras", type=int, choices=(1, 2), default=1, help="turntable cases: cameras (default: 1)")
     args = p.parse_args(argv)
+    if args.case in TURNTABLE_CASES:
+        return turntable_case(args)
     if args.stride < 1:
         p.error(f"--stride must be >= 1, got {args.stride}")
     try:
@@ -84,7 +100,8 @@ def main(argv=None) -> int:
     cases = list(CASES) + ["trace"] if args.case == "all" else [args.case]
     unknown = [c for c in cases if c != "trace" and c not in CASES]
     if unknown:
-        p.error(f"--case {unknown[0]!r}: choose one of {', '.join(CASES)}, 'trace' or 'all'")
+        p.error(f"--case {unknown[0]!r}: choose one of {', '.join(CASES)}, 'trace' or 'all' "
+                f"(or {', '.join(TURNTABLE_CASES)})")
     # train only the models the chosen cases use (the trace is a case-iii trial: DB2)
     databases = sorted({CASES[c].database if c != "trace" else CASES["iii"].database for c in cases})
     prepared = prepare(settings, progress=show, databases=databases)
@@ -114,6 +131,35 @@ def main(argv=None) -> int:
                   f"confident errors {m['confident_errors']} ({m['confident_error_pct_of_trials']:.1f} % of trials), "
                   f"ECE {m['ece']:.3f}, {report.seconds[planner]:.0f} s")
         print(f"wrote {md_path}")
+    return 0
+
+
+def turntable_case(args) -> int:
+    """``--case turntable`` / ``turntable-occluded``: render, train + calibrate
+    (cached in WORKDIR), run the campaign, print and write its tables and metrics."""
+    from jaxrecog.experiments import run_turntable
+    from jaxrecog.metrics import campaign_metrics
+
+    settings = Settings(workdir=args.workdir, trials_per_object=args.trials, seed=args.seed, samples=args.samples,
+                        batch=args.batch)
+    show = not args.quiet and sys.stderr.isatty()
+    planners = args.planners.split(",") if args.planners else None
+    report = run_turntable(settings, args.objects, args.cameras, TURNTABLE_CASES[args.case], planners, progress=show)
+    lines = [report.markdown(), "", "| Planner | Trials | Rate (%) | Mean views | Confident errors (% of trials) | ECE | Seconds |",
+             "|---|---:|---:|---:|---:|---:|---:|"]
+    metrics = {}
+    for planner, res in report.results.items():
+        m = campaign_metrics(res, settings.p_threshold)
+        metrics[planner] = m
+        lines.append(f"| {planner} | {m['trials']} | {m['recognition_rate']:.1f} | {m['mean_views']:.2f} | "
+                     f"{m['confident_error_pct_of_trials']:.1f} | {m['ece']:.3f} | {report.seconds[planner]:.0f} |")
+    md = "\n".join(lines) + "\n"
+    out = results_dir(settings) / f"{args.case}-n{args.objects}-c{args.cameras}.md"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(md)
+    out.with_suffix(".json").write_text(json.dumps({"report": report.to_json(), "metrics": metrics}, indent=1))
+    print(md)
+    print(f"wrote {out}")
     return 0
 
 

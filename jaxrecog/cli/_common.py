@@ -54,11 +54,17 @@ def _table(cameras: int, stride: int) -> CameraTable:
 
 def synthetic_rig(args, **kw) -> SyntheticRig:
     """The synthetic rig of the layout options (``--cameras/--stride/--objects/--poses``)."""
-    objs = default_objects()
-    if args.objects > len(objs):
-        raise UsageError(f"--objects {args.objects}: the synthetic scene has {len(objs)} objects")
-    return SyntheticRig(_table(args.cameras, args.stride), objects=objs[: args.objects],
-                        n_poses=args.poses, **kw)
+    if isinstance(args.objects, str):  # "random:N" (_options.object_choice)
+        from ..hardware.random_objects import parse_objects, random_objects
+
+        _, n = parse_objects(args.objects)
+        objs = random_objects(n, seed=getattr(args, "object_seed", 0))
+    else:
+        objs = default_objects()
+        if args.objects > len(objs):
+            raise UsageError(f"--objects {args.objects}: the synthetic scene has {len(objs)} objects")
+        objs = objs[: args.objects]
+    return SyntheticRig(_table(args.cameras, args.stride), objects=objs, n_poses=args.poses, **kw)
 
 
 def _calibration_lines(model) -> list[str]:

@@ -7,7 +7,7 @@ import argparse
 from ..planners import DEFAULT_MIN_PER_STRATUM, planner_names
 
 __all__ = [
-    "PLANNERS", "Formatter", "config_tuple", "int_at_least", "positive", "nonneg", "probability",
+    "PLANNERS", "Formatter", "config_tuple", "int_at_least", "positive", "nonneg", "object_choice", "probability",
     "global_options", "table_options", "planner_size_options", "skip_invalid_option",
     "motion_weight", "choice_options", "likelihood_options", "capture_options", "view_jitter_option",
     "render_jitter_options", "render_jitter_values",
@@ -59,6 +59,20 @@ def int_at_least(low: int, what: str):
 
 positive = int_at_least(1, "a positive integer")
 nonneg = int_at_least(0, "an integer >= 0")
+
+
+def object_choice(text: str | int) -> int | str:
+    """An argparse type: ``N`` (the first N thesis objects, an int) or
+    ``random:N`` (N random_urdfs meshes, kept as the string ``"random:N"``)."""
+    from ..hardware.random_objects import parse_objects
+
+    if isinstance(text, int) and not isinstance(text, bool):
+        text = str(text)
+    try:
+        kind, n = parse_objects(text)
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
+    return n if kind == "thesis" else f"random:{n}"
 
 
 def probability(text: str) -> float:
@@ -117,7 +131,9 @@ def table_options(p: argparse.ArgumentParser) -> None:
                    help="cameras of the thesis rig to use (1 = camera 1 only)")
     g.add_argument("--stride", type=positive, default=1,
                    help="keep every STRIDE-th position of each camera (1 = the full 32 x 7 table)")
-    g.add_argument("--objects", type=positive, default=8, help="number of objects (the first N of the 8)")
+    g.add_argument("--objects", type=object_choice, default=8,
+                   help="number of objects (the first N of the 8), or random:N: N of pybullet_data's 1000 "
+                        "random_urdfs meshes, gray, fitted to the thesis objects' bounding radius")
     g.add_argument("--poses", type=positive, default=4, help="poses per object (pose p at 360*p/POSES degrees)")
 
 

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import plots
-from ..database import load_database, notes
+from ..database import SPLITS, load_database, notes
 from ..modelfile import load_model
 from ._common import CLIError, UsageError, model_positions, model_report
 from ._options import nonneg
@@ -29,7 +29,7 @@ def add_arguments(p) -> None:
 
 
 def _database_summary(db) -> str:
-    splits = {s: int((np.asarray(db.split) == s).sum()) for s in ("train", "test", "calib")}
+    splits = {s: int((np.asarray(db.split) == s).sum()) for s in SPLITS if s != "jitter" or (np.asarray(db.split) == s).any()}
     H, W = db.image_shape
     return "\n".join([
         f"ImageDatabase {db.root}: {db.n_rows} images {H}x{W}",

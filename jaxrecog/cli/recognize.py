@@ -54,7 +54,10 @@ def _make_rig(args, model):
     spec = args.rig
     if spec == "synthetic":
         if args.objects != model.n_objects or args.poses != model.n_poses:
-            args.objects, args.poses = model.n_objects, model.n_poses
+            # the model's counts; random:N objects stay random (N from the model)
+            random = isinstance(args.objects, str)
+            args.objects = f"random:{model.n_objects}" if random else model.n_objects
+            args.poses = model.n_poses
         brightness, _, max_shift = CAPTURE_NOISE  # a campaign's captures, with --noise per pixel
         return synthetic_rig(args, noise=Noise(brightness=brightness, pixel=args.noise, max_shift=max_shift),
                              seed=args.seed)
