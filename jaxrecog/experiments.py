@@ -809,7 +809,12 @@ def prepare_turntable(settings: Settings, n_objects: int = 50, cameras: int = 1,
     from .train import train_model
 
     kind = kind or ("DB2" if occluded else "DB1")
-    name = _turntable_name(n_objects, cameras, occluded, poses, step_deg, object_seed)
+    jitter = settings.view_jitter
+    if jitter and not settings.view_jitter_deg < step_deg / 2:
+        raise ValueError(f"view_jitter_deg = {settings.view_jitter_deg:g}: the turntable's jitter views must lie "
+                         f"closer to their training view than the test views ({step_deg / 2:g} degrees off)")
+    name = _turntable_name(n_objects, cameras, occluded, poses, step_deg, object_seed) + (
+        f"-vj{jitter}x{settings.view_jitter_deg:g}" if jitter else "")
     db_dir = settings.workdir / name
     manifest = db_dir / "manifest.csv"
     if not manifest.exists():
@@ -819,6 +824,7 @@ def prepare_turntable(settings: Settings, n_objects: int = 50, cameras: int = 1,
         with _progress_bar(total, f"render {name}", progress) as bar:
             render_turntable(db_dir, objects, cameras=cameras, step_deg=step_deg, poses=poses,
                              test_per_view=test_per_view, calib_per_view=calib_per_view, occluders=occluded,
+                             jitter_per_view=jitter, jitter_offset=settings.view_jitter_deg if jitter else None,
                              seed=settings.seed, progress=bar.update)
         (db_dir / "rig.json").write_text(json.dumps(
             {"turntable": True, "objects": f"random:{n_objects}", "object_seed": object_seed, "cameras": cameras,
@@ -827,20 +833,24 @@ def prepare_turntable(settings: Settings, n_objects: int = 50, cameras: int = 1,
              "names": [o.name for o in objects], "seed": settings.seed,
              "seconds": round(time.perf_counter() - t0, 1), "images": total}, indent=2) + "\n")
     db = load_database(db_dir)
-    path = db_dir / f"model-{kind.lower()}-K{settings.n_components}-S{settings.samples_per_image}-seed{settings.seed}-cal.npz"
+    path = db_dir / (f"model-{kind.lower()}-K{settings.n_components}-S{settings.samples_per_image}-seed{settings.seed}"
+                     f"{_model_tag(settings)}-cal.npz")
     want = dict(_training_params(settings, kind), calibrated=True)
     fresh = False
     if path.exists():
         try:
             meta = load_model_meta(path)
             params = (meta.get("training") or {}).get("params") or {}
-            fresh = meta.get("manifest_sha256") == db.manifest_sha256 and all(params.get(k) == v for k, v in want.items())
+            fresh = meta.get("manifest_sha256") == db.manifest_sha256 and _params_match(params, want)
         except ModelFileError:
             fresh = False
     if not fresh:
         with _progress_bar(int(sum(db.positions)), f"train {kind}", progress) as bar:
             model, info = train_model(db, kind=kind, n_components=settings.n_components,
                                       samples_per_image=settings.samples_per_image, seed=settings.seed,
+                                      likelihood=settings.likelihood,
+                                      likelihood_options=dict(settings.likelihood_options),
+                                      augment=settings.augment_params(), view_jitter=bool(jitter),
                                       progress=lambda done, total: bar.update(done - bar.n), return_info=True)
         t0 = time.perf_counter()
         model, cal = calibrate_model(model, db)

@@ -140,8 +140,14 @@ def turntable_case(args) -> int:
     from jaxrecog.experiments import run_turntable
     from jaxrecog.metrics import campaign_metrics
 
-    settings = Settings(workdir=args.workdir, trials_per_object=args.trials, seed=args.seed, samples=args.samples,
-                        batch=args.batch)
+    try:
+        likelihood, options = likelihood_choice(args.likelihood, args.rank, args.nu)
+        settings = Settings(workdir=args.workdir, trials_per_object=args.trials, seed=args.seed, samples=args.samples,
+                            batch=args.batch, likelihood=likelihood, likelihood_options=options,
+                            **capture_params(args), **render_jitter_values(args))
+    except (ValueError, argparse.ArgumentTypeError) as e:
+        print(f"reproduce_thesis: error: {e}", file=sys.stderr)
+        return 2
     show = not args.quiet and sys.stderr.isatty()
     planners = args.planners.split(",") if args.planners else None
     report = run_turntable(settings, args.objects, args.cameras, TURNTABLE_CASES[args.case], planners, progress=show)
@@ -154,7 +160,9 @@ def turntable_case(args) -> int:
         lines.append(f"| {planner} | {m['trials']} | {m['recognition_rate']:.1f} | {m['mean_views']:.2f} | "
                      f"{m['confident_error_pct_of_trials']:.1f} | {m['ece']:.3f} | {report.seconds[planner]:.0f} |")
     md = "\n".join(lines) + "\n"
-    out = results_dir(settings) / f"{args.case}-n{args.objects}-c{args.cameras}.md"
+    tag = "" if settings.likelihood == "gaussian-diag" else f"-{settings.likelihood}"
+    tag += f"-vj{settings.view_jitter}x{settings.view_jitter_deg:g}" if settings.view_jitter else ""
+    out = results_dir(settings) / f"{args.case}-n{args.objects}-c{args.cameras}{tag}.md"
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(md)
     out.with_suffix(".json").write_text(json.dumps({"report": report.to_json(), "metrics": metrics}, indent=1))

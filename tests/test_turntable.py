@@ -187,3 +187,22 @@ def test_turntable_campaign_end_to_end(tmp_path):
     assert prep.models["turntable"].stat().st_mtime_ns == mtime  # cached
     assert len(report.results["random"]) == 6
     assert math.isfinite(report.rows["random"][-1].rate)
+
+
+def test_turntable_takes_the_settings_likelihood_and_view_jitter(tmp_path):
+    """Settings.likelihood and Settings.view_jitter reach the turntable's
+    training: the jitter split is rendered into its own folder and used, the
+    family is the one asked for; jitter as far off as the test views is refused."""
+    from jaxrecog import kernels as K
+    from jaxrecog.experiments import Settings, prepare_turntable
+    from jaxrecog.modelfile import load_model, load_model_meta
+
+    s = Settings(workdir=tmp_path, n_components=2, samples_per_image=6, likelihood="student-t",
+                 likelihood_options={"nu": 5.0}, view_jitter=2, view_jitter_deg=20.0)
+    prep = prepare_turntable(s, 3, 1, False, poses=1, step_deg=120)
+    assert prep.database.name.endswith("-vj2x20")
+    assert isinstance(load_model(prep.models["turntable"]).cameras[0].likelihood, K.StudentT)
+    assert load_model_meta(prep.models["turntable"])["training"]["params"]["view_jitter"]["images"] == 2 * 3 * 3
+    with pytest.raises(ValueError, match="view_jitter_deg"):
+        prepare_turntable(Settings(workdir=tmp_path, view_jitter=2, view_jitter_deg=60.0), 3, 1, False, poses=1,
+                          step_deg=120)
