@@ -99,6 +99,19 @@ def render_database(
             for v in range(n_pos):
                 for s in splits:
                     (out / s / f"c{i}" / f"v{v:02d}").mkdir(parents=True, exist_ok=True)
+        def views(split, m, p, per_view, render, index=None):
+            """Write ``per_view`` images ``render(camera, position, j)`` of
+            every view of object ``m`` in pose ``p`` as ``split`` (file
+            ``m{m}_p{p}_{j}.png``; ``index`` fixes j for one image per view)."""
+            for i, n_pos in enumerate(rig.positions):
+                for v in range(n_pos):
+                    for j in range(per_view):
+                        rel = f"{split}/c{i}/v{v:02d}/m{m}_p{p}_{j if index is None else index}.png"
+                        write_image(out / rel, render(i, v, j))
+                        rows.append((rel, i, v, m, p, split))
+                if progress is not None:
+                    progress(n_pos * per_view)
+
         for m in range(rig.n_objects):
             for p in range(rig.n_poses):
                 rig.reset(m, p)
@@ -113,43 +126,24 @@ def render_database(
                 if test_per_view:
                     layout = random_occluders(rng, rig.table, radius=rig.radius) if test_occluders else None
                     rig.reset(m, p, layout)
-                    for i, n_pos in enumerate(rig.positions):
-                        for v in range(n_pos):
-                            for j in range(test_per_view):
-                                img, _ = rig.render_noisy(i, v, test_noise)
-                                rel = f"test/c{i}/v{v:02d}/m{m}_p{p}_{j}.png"
-                                write_image(out / rel, img)
-                                rows.append((rel, i, v, m, p, "test"))
-                        if progress is not None:
-                            progress(n_pos * test_per_view)
+                    views("test", m, p, test_per_view, lambda i, v, j: rig.render_noisy(i, v, test_noise)[0])
                     rig.reset(m, p)
                 if calib_per_view:
                     per_view = callable(calib_occluders)
                     layout = random_occluders(calib_rng, rig.table, radius=rig.radius) \
                         if calib_occluders is True else None
                     rig.reset(m, p, layout)
-                    for i, n_pos in enumerate(rig.positions):
-                        for v in range(n_pos):
-                            for j in range(calib_per_view):
-                                if per_view:
-                                    rig.reset(m, p, calib_occluders(calib_rng, i, v))
-                                img, _ = rig.render_perturbed(i, v, calib_perturb, calib_rng)
-                                rel = f"calib/c{i}/v{v:02d}/m{m}_p{p}_{j}.png"
-                                write_image(out / rel, img)
-                                rows.append((rel, i, v, m, p, "calib"))
-                        if progress is not None:
-                            progress(n_pos * calib_per_view)
+
+                    def calib(i, v, j):
+                        if per_view:
+                            rig.reset(m, p, calib_occluders(calib_rng, i, v))
+                        return rig.render_perturbed(i, v, calib_perturb, calib_rng)[0]
+
+                    views("calib", m, p, calib_per_view, calib)
                     rig.reset(m, p)
                 for j, yaw in enumerate(offsets):
                     rig.reset(m, p, yaw_offset_deg=yaw)
-                    for i, n_pos in enumerate(rig.positions):
-                        for v in range(n_pos):
-                            img, _ = rig.render_clean(i, v)
-                            rel = f"jitter/c{i}/v{v:02d}/m{m}_p{p}_{j}.png"
-                            write_image(out / rel, img)
-                            rows.append((rel, i, v, m, p, "jitter"))
-                        if progress is not None:
-                            progress(n_pos)
+                    views("jitter", m, p, 1, lambda i, v, _: rig.render_clean(i, v)[0], index=j)
                 if offsets:
                     rig.reset(m, p)
     finally:

@@ -74,6 +74,17 @@ def save(fig, path: str | os.PathLike) -> tuple[Path, Path]:
     return png, svg
 
 
+def save_png(fig, path: str | os.PathLike, dpi: int = DPI) -> Path:
+    """Lay out ``fig``, write it as one PNG at ``path`` and close it (the
+    sweep scripts' single figures; :func:`save` writes PNG + SVG)."""
+    plt = _plt()
+    fig.tight_layout()
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=dpi)
+    plt.close(fig)
+    return Path(path)
+
+
 def score_heatmap(
     scores: np.ndarray,
     positions: Sequence[int],

@@ -46,6 +46,7 @@ import jax.random as jr
 from jaxrecog import experiments as ex
 from jaxrecog.campaign import plan_trials, run_campaign
 from jaxrecog.metrics import expected_calibration_error
+from jaxrecog.plots import save_png
 from jaxrecog.results import summarize
 
 PLANNERS = ("mi-class-pairwise", "random")
@@ -230,10 +231,7 @@ def plot(summary: dict, axis: str, path: Path) -> Path:
     fig.suptitle(f"{'Occlusion' if axis == 'occlusion' else 'Off-grid'} sweep, positions {summary['positions']}, "
                  f"{summary['settings']['trials_per_object']} trials/object per point "
                  f"(MI = mi-class-pairwise)", fontsize=9)
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return path
+    return save_png(fig, path, dpi=90)
 
 
 def main(argv=None) -> int:

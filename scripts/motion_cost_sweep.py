@@ -33,6 +33,7 @@ import jax.random as jr
 from jaxrecog import experiments as ex
 from jaxrecog.campaign import run_campaign
 from jaxrecog.motion import check_weight, rig_travel_times, with_motion_cost
+from jaxrecog.plots import save_png
 from jaxrecog.results import summarize
 
 DEFAULT_LAMBDAS = (0.0, 0.01, 0.03, 0.1, 0.3, 1.0, 10.0)
@@ -106,10 +107,7 @@ def plot(summary: dict, path: Path) -> Path:
     b.set_xlabel("mean travel per trial (s)")
     b.set_ylabel("mean views per trial")
     b.set_title("views vs travel (labels: λ, recognition rate)")
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return save_png(fig, path, dpi=120)
 
 
 def main(argv=None) -> int:

@@ -73,17 +73,19 @@ def run_cli(*args, cwd=None) -> Ran:
 _SCRIPTS: dict[str, object] = {}
 
 
-def script(name: str):
-    """The module of ``scripts/<name>.py``, loaded once per session (its
-    ``main(argv)`` is what ``python scripts/<name>.py`` runs)."""
-    if name not in _SCRIPTS:
-        path = ROOT / "scripts" / f"{name}.py"
-        spec = importlib.util.spec_from_file_location(f"_script_{name}", path)
+def script(name: str, folder: str = "scripts"):
+    """The module of ``<folder>/<name>.py`` (the repo's ``scripts/`` or
+    ``benchmarks/``), loaded once per session (its ``main(argv)`` is what
+    ``python scripts/<name>.py`` runs)."""
+    key = f"{folder}/{name}"
+    if key not in _SCRIPTS:
+        path = ROOT / folder / f"{name}.py"
+        spec = importlib.util.spec_from_file_location(f"_{folder}_{name}", path)
         mod = importlib.util.module_from_spec(spec)
         sys.modules[spec.name] = mod
         spec.loader.exec_module(mod)
-        _SCRIPTS[name] = mod
-    return _SCRIPTS[name]
+        _SCRIPTS[key] = mod
+    return _SCRIPTS[key]
 
 
 def run_script(name: str, *args, cwd=None) -> Ran:

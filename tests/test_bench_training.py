@@ -4,20 +4,16 @@ Gaussian of the same run; an unknown family is a usage error."""
 
 from __future__ import annotations
 
-import importlib.util
 import json
-from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
+from clirun import script
+
 TINY = ["--positions", "2,1", "--objects", "2", "--poses", "2", "--height", "12", "--width", "16",
         "--samples", "4", "--components", "2", "--kind", "DB1"]
 
 
 def _bench():
-    spec = importlib.util.spec_from_file_location("bench_training", ROOT / "benchmarks" / "bench_training.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return script("bench_training", "benchmarks")
 
 
 def test_one_row_per_likelihood_with_ratios(tmp_path, capsys):

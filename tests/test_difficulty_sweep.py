@@ -3,18 +3,13 @@ stride-8 database (the small models are trained in the test's work folder)."""
 
 from __future__ import annotations
 
-import importlib.util
 import json
-from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+from clirun import script
 
 
 def _script():
-    spec = importlib.util.spec_from_file_location("difficulty_sweep", ROOT / "scripts" / "difficulty_sweep.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return script("difficulty_sweep")
 
 
 def test_quick_sweep_writes_tables_and_figures(tmp_path, strided_workdir):
