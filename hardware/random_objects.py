@@ -23,7 +23,7 @@ from typing import Sequence
 
 import numpy as np
 
-from .scene import CENTRE_HEIGHT, ObjectSpec, Part, _mesh_bounds, default_objects, object_radius, require_pybullet
+from .scene import CENTRE_HEIGHT, ObjectSpec, Part, mesh_bounds, default_objects, object_radius, require_pybullet
 
 __all__ = ["N_RANDOM", "RESTING_ROTATIONS", "random_mesh", "random_objects", "rested", "parse_objects"]
 
@@ -99,7 +99,7 @@ def random_objects(n: int, seed: int = 0, *, radius: float | None = None,
         path = os.path.join(data_path, mesh)
         if not os.path.exists(path):
             raise FileNotFoundError(f"mesh {mesh!r} is not in pybullet_data ({data_path})")
-        lo, hi = _mesh_bounds(path)
+        lo, hi = mesh_bounds(path)
         s = _fit_scale(lo, hi, float(radius))
         out.append(ObjectSpec(f"random-{k:03d}", (Part("mesh", (s, s, s), (0.0, 0.0, 0.0), rgba=rgba, mesh=mesh),)))
     return tuple(out)

@@ -54,6 +54,7 @@ __all__ = [
     "default_objects",
     "object_radius",
     "require_pybullet",
+    "mesh_bounds",
 ]
 
 CENTRE_HEIGHT = 0.10
@@ -263,7 +264,7 @@ def default_objects() -> tuple[ObjectSpec, ...]:
 
 
 @functools.lru_cache(maxsize=None)
-def _mesh_bounds(path: str) -> tuple[np.ndarray, np.ndarray]:
+def mesh_bounds(path: str) -> tuple[np.ndarray, np.ndarray]:
     verts = []
     with open(path) as fh:
         for line in fh:
@@ -295,7 +296,7 @@ def _part_corners(part: Part, data_path: str) -> tuple[np.ndarray, np.ndarray]:
     re-centred on their bottom centre)."""
     R = _rotation(part.rotation)
     if part.shape == "mesh":
-        lo, hi = _mesh_bounds(os.path.join(data_path, part.mesh))
+        lo, hi = mesh_bounds(os.path.join(data_path, part.mesh))
         scale = np.asarray(part.size)
         local = _box_corners(lo * scale, hi * scale) @ R.T
         rlo, rhi = local.min(axis=0), local.max(axis=0)
