@@ -416,6 +416,38 @@ def _stride_tag(settings: Settings) -> str:
     return "" if settings.stride == 1 else f"-stride{settings.stride}"
 
 
+def _cached_model_is_fresh(path: Path, db, want: dict) -> bool:
+    """``path`` exists, reads, was trained on ``db`` (``load_db()`` or the
+    database itself; its manifest hash) and with the parameters ``want``
+    (:func:`_params_match`): the cache check of :func:`prepare` and
+    :func:`prepare_turntable`."""
+    from .modelfile import ModelFileError, load_model_meta
+
+    if not path.exists():
+        return False
+    try:
+        meta = load_model_meta(path)
+    except ModelFileError:
+        return False
+    db = db() if callable(db) else db
+    params = (meta.get("training") or {}).get("params") or {}
+    return meta.get("manifest_sha256") == db.manifest_sha256 and _params_match(params, want)
+
+
+def _train(settings: Settings, db, kind: str, progress: bool):
+    """``train_model`` of ``db`` with the training fields of ``settings`` (K,
+    samples, seed, likelihood and options, capture augmentation, view jitter),
+    with a progress bar; returns ``(model, info)``."""
+    from .train import train_model
+
+    with _progress_bar(int(sum(db.positions)), f"train {kind}", progress) as bar:
+        return train_model(db, kind=kind, n_components=settings.n_components,
+                           samples_per_image=settings.samples_per_image, seed=settings.seed,
+                           likelihood=settings.likelihood, likelihood_options=dict(settings.likelihood_options),
+                           augment=settings.augment_params(), view_jitter=bool(settings.view_jitter),
+                           progress=lambda done, total: bar.update(done - bar.n), return_info=True)
+
+
 def prepare(settings: Settings, *, progress: bool = False, databases: Sequence[str] = ("DB1", "DB2")) -> Prepared:
     """Render the training database (once) and train the requested models
     (cached by their training parameters and the manifest's hash).  Each
@@ -423,8 +455,7 @@ def prepare(settings: Settings, *, progress: bool = False, databases: Sequence[s
     small run never reuses a full-size cache or the other way round."""
     from .database import load_database
     from .hardware import render_database
-    from .modelfile import ModelFileError, load_model_meta, save_model
-    from .train import train_model
+    from .modelfile import save_model
 
     work = settings.workdir
     tag = _stride_tag(settings)
@@ -437,40 +468,19 @@ def prepare(settings: Settings, *, progress: bool = False, databases: Sequence[s
         with _progress_bar(n_images, "render database", progress) as bar:
             render_database(db_dir, table, progress=bar.update, jitter_per_view=jitter,
                             jitter_yaw_deg=settings.view_jitter_deg)
-    db = None
+    loaded = []  # the database, read once and only when needed
+
+    def db():
+        if not loaded:
+            loaded.append(load_database(db_dir))
+        return loaded[0]
+
     models = {}
     for kind in databases:
         path = model_path(settings, kind)
-        fresh = False
-        if path.exists():
-            try:
-                meta = load_model_meta(path)
-                fresh = True
-                if db is None:
-                    db = load_database(db_dir)
-                params = (meta.get("training") or {}).get("params") or {}
-                fresh = meta.get("manifest_sha256") == db.manifest_sha256 and _params_match(
-                    params, _training_params(settings, kind))
-            except ModelFileError:
-                fresh = False
-        if not fresh:
-            db = db or load_database(db_dir)
-            n_pos = int(sum(db.positions))
-            with _progress_bar(n_pos, f"train {kind}", progress) as bar:
-                model, info = train_model(
-                    db,
-                    kind=kind,
-                    n_components=settings.n_components,
-                    samples_per_image=settings.samples_per_image,
-                    seed=settings.seed,
-                    likelihood=settings.likelihood,
-                    likelihood_options=dict(settings.likelihood_options),
-                    augment=settings.augment_params(),
-                    view_jitter=bool(jitter),
-                    progress=lambda done, total: bar.update(done - bar.n),
-                    return_info=True,
-                )
-            save_model(path, model, training=info.to_dict(), manifest_sha256=db.manifest_sha256)
+        if not _cached_model_is_fresh(path, db, _training_params(settings, kind)):
+            model, info = _train(settings, db(), kind, progress)
+            save_model(path, model, training=info.to_dict(), manifest_sha256=db().manifest_sha256)
         models[kind] = path
     return Prepared(db_dir, models)
 
@@ -805,8 +815,7 @@ def prepare_turntable(settings: Settings, n_objects: int = 50, cameras: int = 1,
     from .database import load_database
     from .hardware.random_objects import random_objects
     from .hardware.turntable import render_turntable
-    from .modelfile import ModelFileError, load_model_meta, save_model
-    from .train import train_model
+    from .modelfile import save_model
 
     kind = kind or ("DB2" if occluded else "DB1")
     jitter = settings.view_jitter
@@ -835,23 +844,8 @@ def prepare_turntable(settings: Settings, n_objects: int = 50, cameras: int = 1,
     db = load_database(db_dir)
     path = db_dir / (f"model-{kind.lower()}-K{settings.n_components}-S{settings.samples_per_image}-seed{settings.seed}"
                      f"{_model_tag(settings)}-cal.npz")
-    want = dict(_training_params(settings, kind), calibrated=True)
-    fresh = False
-    if path.exists():
-        try:
-            meta = load_model_meta(path)
-            params = (meta.get("training") or {}).get("params") or {}
-            fresh = meta.get("manifest_sha256") == db.manifest_sha256 and _params_match(params, want)
-        except ModelFileError:
-            fresh = False
-    if not fresh:
-        with _progress_bar(int(sum(db.positions)), f"train {kind}", progress) as bar:
-            model, info = train_model(db, kind=kind, n_components=settings.n_components,
-                                      samples_per_image=settings.samples_per_image, seed=settings.seed,
-                                      likelihood=settings.likelihood,
-                                      likelihood_options=dict(settings.likelihood_options),
-                                      augment=settings.augment_params(), view_jitter=bool(jitter),
-                                      progress=lambda done, total: bar.update(done - bar.n), return_info=True)
+    if not _cached_model_is_fresh(path, db, dict(_training_params(settings, kind), calibrated=True)):
+        model, info = _train(settings, db, kind, progress)
         t0 = time.perf_counter()
         model, cal = calibrate_model(model, db)
         training = info.to_dict()
