@@ -29,7 +29,15 @@ import numpy as np
 
 from .positions import CameraTable
 
-__all__ = ["Board", "OccluderLayout", "random_occluders"]
+__all__ = ["Board", "OccluderLayout", "OCCLUDER_OFFSET", "OCCLUDER_SIZE", "random_occluders"]
+
+#: Board half-sizes and offsets (units of the object radius) of the campaigns'
+#: cardboard occluders (the thesis cases, the turntable's occluded test views):
+#: chosen so that the first view of each camera loses roughly 10-40 % of the
+#: object (measured from segmentation, see ``TrialResult.occluded_fraction``),
+#: "comparable to the levels of the second training set" (thesis §7.2).
+OCCLUDER_SIZE = (0.18, 0.38)
+OCCLUDER_OFFSET = (0.2, 0.8)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -20,13 +20,13 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from .dbformat import COLUMNS, manifest_text, write_image
+from .dbformat import COLUMNS, SPLITS, manifest_text, write_image
 from .occluders import random_occluders
 from .positions import CameraTable
 from .scene import ObjectSpec
 from .synthetic import Noise, Perturb, SyntheticRig
 
-__all__ = ["MANIFEST_COLUMNS", "render_database", "contact_sheet", "jitter_offsets", "lookalike_distances"]
+__all__ = ["MANIFEST_COLUMNS", "render_database", "alternating_offsets", "contact_sheet", "jitter_offsets", "lookalike_distances"]
 
 MANIFEST_COLUMNS = COLUMNS  # the format lives in .dbformat
 
@@ -149,8 +149,7 @@ def render_database(
     finally:
         if own:
             rig.close()
-    order = {"train": 0, "test": 1, "calib": 2, "jitter": 3}
-    rows.sort(key=lambda r: (order[r[5]], r[1], r[2], r[3], r[4], r[0]))
+    rows.sort(key=lambda r: (SPLITS.index(r[5]), r[1], r[2], r[3], r[4], r[0]))
     manifest = out / "manifest.csv"
     manifest.write_text(manifest_text(rows))
     return manifest
@@ -164,6 +163,13 @@ def jitter_offsets(n: int, max_deg: float) -> tuple[float, ...]:
         raise ValueError(f"jitter_per_view must be an integer >= 0, got {n!r}")
     if n and not (0 < max_deg < 180):
         raise ValueError(f"jitter_yaw_deg must be in (0, 180) degrees, got {max_deg!r}")
+    return alternating_offsets(n, max_deg)
+
+
+def alternating_offsets(n: int, max_deg: float) -> tuple[float, ...]:
+    """``±max_deg * k / ceil(n / 2)``, k = 1 .. ceil(n / 2), alternating signs,
+    the first ``n`` (no checks): the jitter views of the thesis rig
+    (:func:`jitter_offsets`) and of the turn-table."""
     half = max(1, math.ceil(n / 2))
     return tuple((1 if j % 2 == 0 else -1) * max_deg * (j // 2 + 1) / half for j in range(n))
 

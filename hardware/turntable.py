@@ -44,11 +44,12 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from .dbformat import manifest_text, write_image
+from .dbformat import SPLITS, manifest_text, write_image
 from .kinematics import Workspace
-from .occluders import random_occluders
+from .occluders import OCCLUDER_OFFSET, OCCLUDER_SIZE, random_occluders
 from .positions import CameraTable, View
 from .random_objects import RESTING_ROTATIONS, rested
+from .render_db import alternating_offsets
 from .scene import Intrinsics, ObjectSpec
 from .synthetic import Noise, Perturb, SyntheticRig
 
@@ -64,12 +65,6 @@ DISTANCE = 0.8
 #: capture (experiments.CAPTURE_NOISE); no random yaw (the azimuth offset is set).
 TURNTABLE_PERTURB = Perturb(yaw_deg=0.0, eye_offset=0.02, light=0.1, noise=Noise(brightness=0.05, pixel=2.0, max_shift=2))
 
-#: Board half sizes and offsets (units of the object radius) of the test
-#: occluders, as the thesis cases' (experiments.OCCLUDER_SIZE / OCCLUDER_OFFSET).
-OCCLUDER_SIZE = (0.18, 0.38)
-OCCLUDER_OFFSET = (0.2, 0.8)
-
-_ORDER = {"train": 0, "test": 1, "calib": 2, "jitter": 3}
 
 
 def _eye(centre: Sequence[float], azimuth_deg: float, elevation_deg: float, distance: float) -> tuple[float, float, float]:
@@ -104,14 +99,14 @@ def turntable_angles(n_positions: int, step_deg: float, *, test_per_view: int = 
     # protocol's control; jitter on the grid would repeat the training views.
     if math.isclose(math.remainder(j_off, step), 0.0, abs_tol=1e-9):
         raise ValueError(f"jitter offset {j_off:g}° lies on the {step:g}° grid; it must be off the grid")
-    half = max(1, math.ceil(jitter_per_view / 2))
+    jitter = alternating_offsets(jitter_per_view, j_off)
     out: dict[str, Callable[[int, int], float]] = {"train": lambda v, j: step * v}
     if test_per_view:
         out["test"] = lambda v, j: step * v + t_off
     if calib_per_view:
         out["calib"] = lambda v, j: step * v + (c_off if (v + j) % 2 == 0 else -c_off)
     if jitter_per_view:
-        out["jitter"] = lambda v, j: step * v + (1 if j % 2 == 0 else -1) * j_off * (j // 2 + 1) / half
+        out["jitter"] = lambda v, j: step * v + jitter[j]
     return out
 
 
@@ -221,7 +216,7 @@ def render_turntable(
                             progress(test_per_view + calib_per_view)
     finally:
         rig.close()
-    rows.sort(key=lambda r: (_ORDER[r[5]], r[1], r[2], r[3], r[4], r[0]))
+    rows.sort(key=lambda r: (SPLITS.index(r[5]), r[1], r[2], r[3], r[4], r[0]))
     manifest = out / "manifest.csv"
     manifest.write_text(manifest_text(rows))
     return manifest

@@ -63,6 +63,7 @@ from typing import Callable, Sequence
 import jax.random as jr
 
 from .campaign import TrialSpec, plan_trials, run_campaign
+from .hardware.occluders import OCCLUDER_OFFSET, OCCLUDER_SIZE
 from .hardware.problems import problem_message
 from .planners import DEFAULT_MIN_PER_STRATUM, DEFAULT_PLANNER, make_planner, planner_spec
 from .results import ObjectRow, TrialResult, TrialStore, summarize, table_json, table_markdown
@@ -508,13 +509,7 @@ def rig_pool(settings: Settings, cameras: tuple[int, ...] | None = None, *, seed
     return [make_rig(settings, cameras, seed=seed) for _ in range(max(1, settings.batch))]
 
 
-#: Board half-sizes and offsets (units of the object radius) of the scene's
-#: cardboard occluders: chosen so that the first view of each camera loses
-#: roughly 10-40 % of the object (measured from segmentation, see
-#: ``TrialResult.occluded_fraction``), "comparable to the levels of the second
-#: training set" (thesis §7.2).
-OCCLUDER_SIZE = (0.18, 0.38)
-OCCLUDER_OFFSET = (0.2, 0.8)
+# the campaigns' board ranges (OCCLUDER_SIZE / OCCLUDER_OFFSET) live with the boards
 
 
 def occluder_factory(rig, size: tuple[float, float] = OCCLUDER_SIZE, offset: tuple[float, float] = OCCLUDER_OFFSET):
