@@ -64,6 +64,7 @@ import jax.random as jr
 
 from .campaign import TrialSpec, plan_trials, run_campaign
 from .hardware.occluders import OCCLUDER_OFFSET, OCCLUDER_SIZE
+from .kernels import DEFAULT_LIKELIHOOD
 from .hardware.problems import problem_message
 from .planners import DEFAULT_MIN_PER_STRATUM, DEFAULT_PLANNER, make_planner, planner_spec
 from .results import ObjectRow, TrialResult, TrialStore, summarize, table_json, table_markdown
@@ -203,7 +204,7 @@ class Settings:
     off_grid_deg: float | None = None
     off_grid_eye: float | None = None
     off_grid_light: float | None = None
-    likelihood: str = "gaussian-diag"
+    likelihood: str = DEFAULT_LIKELIHOOD
     # a dict or pairs (an experiment file's table) become sorted pairs (__post_init__)
     likelihood_options: tuple[tuple[str, object], ...] | dict[str, object] = ()
     max_rotation: float = 0.0

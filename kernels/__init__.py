@@ -37,6 +37,7 @@ from .likelihood import (
     LIKELIHOODS,
     Likelihood,
     as_likelihoods,
+    DEFAULT_LIKELIHOOD,
     camera_log_likelihoods,
     gaussian,
     gaussian_likelihoods,
@@ -51,6 +52,7 @@ from .student_t import StudentT
 
 __all__ = [
     "Belief",
+    "DEFAULT_LIKELIHOOD",
     "DEFAULT_SIGMA_S",
     "DIVERGENCES",
     "DiagonalGaussian",

@@ -52,6 +52,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int
 
 __all__ = [
+    "DEFAULT_LIKELIHOOD",
     "LIKELIHOODS",
     "Likelihood",
     "as_likelihoods",
@@ -62,6 +63,12 @@ __all__ = [
     "likelihood_names",
     "register_likelihood",
 ]
+
+#: The sensor-model family trained when none is named (``jaxrecog train``,
+#: ``experiments.Settings``): the thesis's diagonal Gaussian (eq. 4.12).
+#: docs/results.md ("Training against confident errors") gives the measured
+#: reason it stays the default: no other family wins every case.
+DEFAULT_LIKELIHOOD = "gaussian-diag"
 
 LIKELIHOODS: dict[str, type["Likelihood"]] = {}
 """Kind name -> :class:`Likelihood` subclass (filled by :func:`register_likelihood`)."""

@@ -45,6 +45,7 @@ from jaxrecog.experiments import CASES, Settings, prepare, results_dir, run_case
 
 #: The turntable cases (issue 18 item 4), run apart from CASES: name -> occluded test views.
 TURNTABLE_CASES = {"turntable": False, "turntable-occluded": True}
+from jaxrecog.kernels import DEFAULT_LIKELIHOOD
 from jaxrecog.thesis import TABLE_7_8
 
 
@@ -160,7 +161,7 @@ def turntable_case(args) -> int:
         lines.append(f"| {planner} | {m['trials']} | {m['recognition_rate']:.1f} | {m['mean_views']:.2f} | "
                      f"{m['confident_error_pct_of_trials']:.1f} | {m['ece']:.3f} | {report.seconds[planner]:.0f} |")
     md = "\n".join(lines) + "\n"
-    tag = "" if settings.likelihood == "gaussian-diag" else f"-{settings.likelihood}"
+    tag = "" if settings.likelihood == DEFAULT_LIKELIHOOD else f"-{settings.likelihood}"
     tag += f"-vj{settings.view_jitter}x{settings.view_jitter_deg:g}" if settings.view_jitter else ""
     out = results_dir(settings) / f"{args.case}-n{args.objects}-c{args.cameras}{tag}.md"
     out.parent.mkdir(parents=True, exist_ok=True)
