@@ -150,7 +150,16 @@ def train_model(
     db = database if isinstance(database, ImageDatabase) else load_database(database)
     H, W = db.image_shape
     C = db.n_classes
+    if family.view_components and not view_jitter:
+        raise ValueError(f"likelihood {family.name or family.kind!r} takes one component per rendered view: "
+                         f"train with view jitter (view_jitter=True, `jaxrecog train --view-jitter`) on a "
+                         f"database with 'jitter' rows")
     jitter = _jitter_images(db) if view_jitter else None
+    if family.view_components:
+        missing = [(i, v) for i in range(db.n_cameras) for v in range(db.positions[i]) if (i, v) not in jitter]
+        if missing:
+            raise ValueError(f"likelihood {family.name or family.kind!r}: (camera, position) {missing[0]} and "
+                             f"{len(missing) - 1} more have no jitter images; every view needs them")
 
     # eigenspaces of every position (clean images), then one K for all
     train = [db.train_images(i) for i in range(db.n_cameras)]        # [V, C, H, W] each
@@ -258,8 +267,9 @@ def _fit_position(images, mean, basis, lam, levels, params, bank, seed, camera, 
     vt_mean = mean @ basis                                                         # Vᵀx̄ [K]
     flat = train_flat.reshape(C, D).astype(np.float64)
     g_clean = (flat / np.linalg.norm(flat, axis=1, keepdims=True) - mean) @ basis  # [C, K]
-    acc = GaussianAccumulator(C, len(levels), K, full=family.second_moments == "full",
-                              ref=np.broadcast_to(g_clean[:, None, :], (C, len(levels), K)))
+    comp, M = _view_components(labels, C, camera, position) if family.view_components else (np.zeros(N, np.int64), 1)
+    acc = GaussianAccumulator(C * M, len(levels), K, full=family.second_moments == "full",
+                              ref=np.broadcast_to(np.repeat(g_clean, M, axis=0)[:, None, :], (C * M, len(levels), K)))
 
     win = ShiftWindows(images, s)
     # level 0: a table of Vᵀz, Σz, ||z||² over every shift of every image
@@ -312,11 +322,32 @@ def _fit_position(images, mean, basis, lam, levels, params, bank, seed, camera, 
                 out = rank % period == period - 1
                 held.append((g[out], cls_[out], np.full(int(out.sum()), k)))
                 g, cls_ = g[~out], cls_[~out]
-            acc.add(g, cls_, k)
+            acc.add(g, cls_ * M + comp[p.image] if M > 1 else cls_, k)
     floor = var_floor * lam.sum() / (K * C)
     if period:
         options = {**(options or {}), "holdout": tuple(np.concatenate(x) for x in zip(*held))}
+    if family.view_components:  # moments per (class, component) -> [C, L, M, K]
+        mean, second = acc.moments()
+        per = lambda x: np.swapaxes(x.reshape((C, M) + x.shape[1:]), 1, 2)  # noqa: E731
+        return family.fit(per(mean), per(second), np.full((C, len(levels)), floor), **(options or {}))
     return acc.fit(family, floor, **(options or {}))
+
+
+def _view_components(labels, n_classes, camera, position):
+    """Component of each base image for a ``view_components`` family: 0 for the
+    training image of its class, then 1, 2, ... for that class's jitter images
+    in database order; and ``M``.  Every class of the view needs the same
+    number of jitter images (else a ``ValueError``)."""
+    labels = np.asarray(labels, np.int64)
+    comp = np.zeros(len(labels), np.int64)
+    counts = np.zeros(n_classes, np.int64)
+    for j in range(n_classes, len(labels)):
+        counts[labels[j]] += 1
+        comp[j] = counts[labels[j]]
+    if counts.min() != counts.max():
+        raise ValueError(f"view-mixture: camera {camera} position {position} has {counts.min()}..{counts.max()} "
+                         f"jitter images per class; every class of a view needs the same number")
+    return comp, int(counts[0]) + 1
 
 
 def _noisy_features(pz, qz, b, alpha, beta, gamma, vt1, vt_mean, D):

@@ -49,6 +49,7 @@ from .lookahead import LookaheadDraws, lookahead_draws, lookahead_information, o
 from .mutual_information import MITables, mi_tables, mutual_information, samples_per_configuration
 from .pairwise_mi import DIVERGENCES, PairwiseTables, pairwise_mutual_information, pairwise_tables
 from .student_t import StudentT
+from .view_mixture import LowRankViewMixture, ViewMixture
 
 __all__ = [
     "Belief",
@@ -62,9 +63,11 @@ __all__ = [
     "Likelihood",
     "LookaheadDraws",
     "LowRankGaussian",
+    "LowRankViewMixture",
     "MITables",
     "PairwiseTables",
     "UpdateInfo",
+    "ViewMixture",
     "as_likelihoods",
     "camera_log_likelihoods",
     "class_marginal",

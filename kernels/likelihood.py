@@ -93,6 +93,11 @@ class Likelihood(eqx.Module):
         calibration_shapes: names of the per-level shape parameters that
             calibration fits besides the variance factor (e.g. ``("nu",)``),
             through :meth:`calibrated_log_density` / :meth:`shape_shifted`.
+        view_components: ``True`` for a family with one component per
+            rendered view of a class (the training image, then each of the
+            database's ``jitter`` images of that view): training then passes
+            :meth:`fit` per-component moments ``[C, L, M, K]`` and needs view
+            jitter (``view_mixture.py``).
     """
 
     kind: ClassVar[str]
@@ -101,6 +106,7 @@ class Likelihood(eqx.Module):
     name: ClassVar[str | None] = None
     fit_options: ClassVar[tuple[str, ...]] = ()
     calibration_shapes: ClassVar[tuple[str, ...]] = ()
+    view_components: ClassVar[bool] = False
 
     def __check_init__(self):
         self.sizes()  # consistent axes across fields (raises otherwise)

@@ -203,7 +203,7 @@ def likelihood_options(p: argparse._ActionsContainer) -> None:
     p.add_argument("--likelihood", choices=likelihood_names(), default=None,
                    help=f"sensor-model family (default: {DEFAULT_LIKELIHOOD}, the thesis's)")
     p.add_argument("--rank", type=positive, default=None,
-                   help="gaussian-lowrank: factors R, 1 <= R < K (default: min(4, K - 1))")
+                   help="gaussian-lowrank, view-mixture-lowrank: factors R, 1 <= R < K (default: min(4, K - 1))")
     p.add_argument("--nu", type=nu_value, default=None,
                    help="student-t: degrees of freedom, a number > 2, or 'auto' (chosen per level on held-out "
                         "training samples; the default)")
@@ -220,7 +220,8 @@ def likelihood_choice(name: str | None, rank=None, nu=None) -> tuple[str, dict]:
     options = {k: v for k, v in (("rank", rank), ("nu", nu)) if v is not None}
     for k in options:
         if k not in family.fit_options:
-            raise ValueError(f"--{k} applies to {'gaussian-lowrank' if k == 'rank' else 'student-t'}, "
+            raise ValueError(f"--{k} applies to {'gaussian-lowrank' if k == 'rank' else 'student-t'}"
+                             f"{' and view-mixture-lowrank' if k == 'rank' else ''}, "
                              f"not to --likelihood {name}")
     return name, options
 

@@ -21,7 +21,9 @@ HELP = "train a sensor model (DB1/DB2) from an image database"
 DESCRIPTION = ("Train the eigenspace + likelihood sensor model of an image database and write the\n"
                "model file (.npz).  DB1 = noise and shifts; DB2 adds occluders of 5..25 %.\n"
                "Likelihoods: gaussian-diag (the thesis), gaussian-full, gaussian-lowrank (--rank),\n"
-               "student-t (--nu; heavy tails, so one unmodelled deviation cannot drive a belief to 1).")
+               "student-t (--nu; heavy tails, so one unmodelled deviation cannot drive a belief to 1),\n"
+               "view-mixture and view-mixture-lowrank (--rank; one component per rendered view near each\n"
+               "training view: needs --view-jitter and a database with 'jitter' rows).")
 
 #: ``--covariance`` (the older option) -> the ``--likelihood`` it stands for
 _COVARIANCE = {"diag": "gaussian-diag", "full": "gaussian-full"}

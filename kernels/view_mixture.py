@@ -1,0 +1,274 @@
+"""A sensor model that knows the views between its training views: a mixture
+with one component per *rendered view* of a class near the training view
+(issue 18).
+
+    p(g | c, k, v) = sum_m w[v, c, k, m] p_m(g | c, k, v)
+
+``p_m`` is a family of its own (``component``): the thesis's diagonal
+Gaussian (``view-mixture``) or the low-rank-plus-diagonal Gaussian
+(``view-mixture-lowrank``).  A mixture stores its component family's fields
+with an ``M`` axis after ``L`` (``mu [V, C, L, M, K]``, ...) plus ``log_w
+[V, C, L, M]``; every method reads the components as one set of the component
+family over ``L * M`` "levels" (:meth:`_ViewMixture.components`).
+
+Component ``m = 0`` is fitted to the augmented samples of the training image
+itself (exactly the thesis's diagonal Gaussian, eq. 4.23-4.24); components
+``m = 1 .. M-1`` to those of the database's ``jitter`` images of the same
+view: the object turned a few degrees off the training pose
+(``train_model(view_jitter=True)``).  Why a mixture and not one Gaussian
+over all of them (``gaussian-diag`` with view jitter, which pools the jitter
+samples into one component): pooling makes every component broad in the
+directions the sticker of a look-alike moves, so a sticker object's model
+learns "sticker or not" and the plain object's on-grid capture fits it
+(docs/results.md, "Training against confident errors"); the mixture keeps
+each rendered view sharp, so an on-grid capture is still explained best by
+its own component, while a capture a few degrees off the grid finds the
+component rendered nearest to it instead of being far from everything.
+
+    log p = logsumexp_m [log w_m + log p_m(g | c, k, v)]
+
+Draws use one more normal number than the component family: ``z[0]`` picks
+the component by inverse CDF of the weights (``u = Phi(z[0])``), ``z[1:]``
+draws from it.  Moments are the mixture's (mean ``sum w mu_m``, covariance
+``sum w (Sigma_m + (mu_m - mean)(mu_m - mean)^T)``, a form without the
+cancellation of ``E[g g^T] - mean mean^T`` in float32).
+
+Pairwise divergence (the ``mi-*-pairwise`` planners).  There is no closed
+form between mixtures.  :meth:`ViewMixture.bhattacharyya` uses
+``sqrt(sum_i a_i) <= sum_i sqrt(a_i)``::
+
+    BC(p, q) = int sqrt(sum_m w_m p_m  sum_n w'_n q_n)
+            <= sum_{m,n} sqrt(w_m w'_n) BC(p_m, q_n)
+    D(p, q)  >= -log sum_{m,n} sqrt(w_m w'_n) exp(-D_B(p_m, q_n))   (what it returns)
+
+a lower bound on the Bhattacharyya distance, so the pairwise estimator
+I_D (a lower bound on I with the exact D_B, Kolchinsky & Tracey 2017) stays a
+lower bound; it is exact for one component.  ``kl`` has no form here: the
+planners' KL variant falls back to the moment-matched Gaussians
+(:meth:`Likelihood.divergence`).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import ClassVar
+
+import jax.numpy as jnp
+import jax.scipy.special as jsp
+import numpy as np
+from jaxtyping import Array, ArrayLike, Float
+
+from ._grid import lse
+from .gaussian_diag import DiagonalGaussian
+from .gaussian_lowrank import LowRankGaussian
+from .likelihood import Likelihood, register_likelihood
+
+__all__ = ["ViewMixture", "LowRankViewMixture", "mixture_log_weights"]
+
+_LOG_2PI = math.log(2.0 * math.pi)
+
+
+def mixture_log_weights(n_components: int, nominal_weight: float | None = None) -> np.ndarray:
+    """``log w [M]``: uniform (``nominal_weight=None``), or ``w_0 = nominal_weight``
+    for the training view and the rest shared equally by the ``M - 1`` others."""
+    m = int(n_components)
+    if m < 1:
+        raise ValueError(f"view-mixture: need at least one component, got {m}")
+    if nominal_weight is None:
+        return np.full(m, -math.log(m))
+    w0 = float(nominal_weight)
+    if not (0.0 < w0 <= 1.0) or (m == 1 and w0 != 1.0) or (m > 1 and w0 == 1.0):
+        raise ValueError(f"view-mixture: nominal_weight must be in (0, 1) with {m} components "
+                         f"(1 with one), got {nominal_weight}")
+    if m == 1:
+        return np.zeros(1)
+    return np.log(np.r_[w0, np.full(m - 1, (1.0 - w0) / (m - 1))])
+
+
+class _ViewMixture(Likelihood):
+    """A mixture of ``M`` components of the family ``component`` per class ``c``
+    and level ``k`` (module docstring).  Subclasses name ``component`` and
+    declare its fields with the extra ``M`` axis, plus ``log_w [V, C, L, M]``."""
+
+    component: ClassVar[type[Likelihood]]
+    view_components: ClassVar[bool] = True
+
+    @classmethod
+    def _component_fields(cls) -> tuple[str, ...]:
+        return tuple(cls.component.field_shapes)
+
+    @property
+    def n_components(self) -> int:
+        return self.sizes()["M"]
+
+    @property
+    def noise_dim(self) -> int:
+        """One normal number picks the component, the rest draw from it."""
+        return self.components().noise_dim + 1
+
+    def components(self) -> Likelihood:
+        """The ``[C, L, M]`` components of one position as one ``component`` set
+        over ``L * M`` levels (index ``k * M + m``)."""
+        lead = np.ndim(self.log_w) - 2
+        return self.component(**{f: _merge(getattr(self, f), lead) for f in self._component_fields()})
+
+    def _from_components(self, flat: Likelihood, log_w) -> "_ViewMixture":
+        lead, m = np.ndim(log_w) - 2, np.shape(log_w)[-1]
+        return type(self)(**{f: _split(getattr(flat, f), lead, m) for f in self._component_fields()}, log_w=log_w)
+
+    def component_log_density(self, g: Float[ArrayLike, "*B K"]) -> Float[Array, "*B C L M"]:
+        """``log w_m + log p_m(g | c, k)`` for every component."""
+        c, l, m = self.log_w.shape
+        ld = self.components().log_density(g)                                 # [*B, C, L*M]
+        return ld.reshape(ld.shape[:-1] + (l, m)) + self.log_w.reshape((1,) * (g.ndim - 1) + (c, l, m))
+
+    def log_density(self, g: Float[ArrayLike, "*B K"]) -> Float[Array, "*B C L"]:
+        """``logsumexp_m [log w_m + log p_m(g | c, k)]`` (module docstring)."""
+        return lse(self.component_log_density(g), axis=-1)
+
+    def sample(self, z: Float[ArrayLike, "C L J Z"]) -> Float[Array, "C L J K"]:
+        """Component ``m = #{cumulative weights < Phi(z[0])}``, then its draw from ``z[1:]``."""
+        c, l, m = self.log_w.shape
+        u = jsp.ndtr(z[..., 0])                                               # [C, L, J]
+        cum = jnp.cumsum(jnp.exp(self.log_w), axis=-1)[..., :-1]              # [C, L, M-1]
+        pick = jnp.sum(u[..., None] > cum[:, :, None, :], axis=-1)            # [C, L, J]
+        zz = jnp.repeat(z[..., 1:], m, axis=1)                                # [C, L*M, J, Z-1]
+        g = self.components().sample(zz)                                      # [C, L*M, J, K]
+        g = g.reshape((c, l, m) + g.shape[2:])
+        return jnp.take_along_axis(g, pick[:, :, None, :, None], axis=2)[:, :, 0]
+
+    def _weights(self):
+        return jnp.exp(self.log_w)                                            # [C, L, M]
+
+    def _component_moments(self):
+        c, l, m = self.log_w.shape
+        flat = self.components()
+        mu = flat.mean().reshape(c, l, m, -1)
+        return mu, flat, (c, l, m)
+
+    def mean(self) -> Float[Array, "C L K"]:
+        mu, _, _ = self._component_moments()
+        return jnp.einsum("clm,clmk->clk", self._weights(), mu)
+
+    def covariance(self) -> Float[Array, "C L K K"]:
+        mu, flat, (c, l, m) = self._component_moments()
+        w = self._weights()
+        cov = flat.covariance().reshape(c, l, m, mu.shape[-1], mu.shape[-1])
+        d = mu - jnp.einsum("clm,clmk->clk", w, mu)[:, :, None, :]           # about the mixture mean:
+        return jnp.einsum("clm,clmkj->clkj", w, cov + d[..., :, None] * d[..., None, :])  # no cancellation
+
+    def variance(self) -> Float[Array, "C L K"]:
+        mu, flat, (c, l, m) = self._component_moments()
+        w = self._weights()
+        var = flat.variance().reshape(c, l, m, -1)
+        d = mu - jnp.einsum("clm,clmk->clk", w, mu)[:, :, None, :]
+        return jnp.einsum("clm,clmk->clk", w, var + d * d)
+
+    def scaled(self, factor: Float[ArrayLike, " L"]) -> "_ViewMixture":
+        """Every component of level k with its covariance times ``factor[k]`` (the weights stay)."""
+        m = self.log_w.shape[-1]
+        return self._from_components(self.components().scaled(jnp.repeat(factor, m)), self.log_w)
+
+    def bhattacharyya(self) -> Float[Array, "C L C L"]:
+        """The lower bound ``-log sum_{m,n} sqrt(w_m w'_n) exp(-D_B(p_m, q_n))``
+        (module docstring), from the component family's closed form per pair."""
+        c, l, m = self.log_w.shape
+        d = self.components().bhattacharyya().reshape(c, l, m, c, l, m)
+        half = 0.5 * self.log_w
+        x = half[:, :, :, None, None, None] + half[None, None, None] - d
+        return -lse(lse(x, axis=-1), axis=2)
+
+    def problems(self) -> list[tuple[str, str]]:
+        lead = np.ndim(self.log_w) - 2
+        flat = self.component(**{f: _merge(np.asarray(getattr(self, f)), lead) for f in self._component_fields()})
+        out = list(flat.problems())
+        total = np.logaddexp.reduce(np.asarray(self.log_w, np.float64), axis=-1)
+        if np.any(np.abs(total) > 1e-3):
+            out.append(("log_w", "has mixture weights that do not sum to 1"))
+        return out
+
+    @classmethod
+    def fit(cls, mean, second, floor, *, nominal_weight: float | None = None, **options) -> "_ViewMixture":
+        """The component family's fit (eq. 4.23-4.24 for the Gaussians) per component.
+
+        Args:
+            mean: ``[C, L, M, K]`` sample means per component (``m = 0``: the
+                training image's samples, then one per jitter image of the view).
+            second: ``[C, L, M, K]`` sample variances or ``[C, L, M, K, K]``
+                covariances (the component family's ``second_moments``).
+            floor: ``[C, L]`` variance floor.
+            nominal_weight: weight of the training view's component (default:
+                all ``M`` components weigh ``1 / M``).
+            **options: the component family's fit options.
+        """
+        mean = np.asarray(mean, np.float64)
+        if mean.ndim != 4:
+            raise ValueError(f"{cls.kind}: fit needs per-component moments [C, L, M, K], got {mean.shape} "
+                             f"(train with view jitter)")
+        c, l, m, _ = mean.shape
+        log_w = np.array(np.broadcast_to(mixture_log_weights(m, nominal_weight), (c, l, m)))
+        second = np.asarray(second, np.float64)
+        flat = cls.component.fit(mean.reshape(c, l * m, -1), second.reshape((c, l * m) + second.shape[3:]),
+                                 np.repeat(np.asarray(floor, np.float64), m, axis=1), **options)
+        return cls(**{f: _split(np.asarray(getattr(flat, f)), 1, m) for f in cls._component_fields()}, log_w=log_w)
+
+
+def _merge(x, lead: int):
+    """``[*V, C, L, M, ...]`` -> ``[*V, C, L*M, ...]`` (``lead`` = number of axes before L)."""
+    sh = tuple(x.shape)
+    return x.reshape(sh[:lead] + (sh[lead] * sh[lead + 1],) + sh[lead + 2:])
+
+
+def _split(x, lead: int, m: int):
+    """``[*V, C, L*M, ...]`` -> ``[*V, C, L, M, ...]``."""
+    sh = tuple(x.shape)
+    return x.reshape(sh[:lead] + (sh[lead] // m, m) + sh[lead + 1:])
+
+
+def _with_m(spec: str) -> str:
+    """A component field's axes with ``M`` after ``L``."""
+    return spec.replace("L", "L M", 1)
+
+
+@register_likelihood
+class ViewMixture(_ViewMixture):
+    """Mixture of diagonal Gaussians (:class:`~.gaussian_diag.DiagonalGaussian`).
+
+    Attributes:
+        mu: ``[V, C, L, M, K]`` component means (``m = 0``: the training view).
+        var: ``[V, C, L, M, K]`` component variances, strictly positive.
+        log_w: ``[V, C, L, M]`` log mixture weights (each row sums to 1).
+    """
+
+    kind: ClassVar[str] = "view-mixture"
+    component: ClassVar[type[Likelihood]] = DiagonalGaussian
+    field_shapes: ClassVar[dict[str, str]] = {**{f: _with_m(s) for f, s in DiagonalGaussian.field_shapes.items()},
+                                              "log_w": "V C L M"}
+    second_moments: ClassVar[str] = DiagonalGaussian.second_moments
+    fit_options: ClassVar[tuple[str, ...]] = ("nominal_weight",)
+
+    mu: Float[ArrayLike, "*V C L M K"]
+    var: Float[ArrayLike, "*V C L M K"]
+    log_w: Float[ArrayLike, "*V C L M"]
+
+
+@register_likelihood
+class LowRankViewMixture(_ViewMixture):
+    """Mixture of low-rank-plus-diagonal Gaussians (:class:`~.gaussian_lowrank.LowRankGaussian`).
+
+    Attributes:
+        mu: ``[V, C, L, M, K]``; W: ``[V, C, L, M, K, R]``; psi: ``[V, C, L, M, K]``.
+        log_w: ``[V, C, L, M]`` log mixture weights (each row sums to 1).
+    """
+
+    kind: ClassVar[str] = "view-mixture-lowrank"
+    component: ClassVar[type[Likelihood]] = LowRankGaussian
+    field_shapes: ClassVar[dict[str, str]] = {**{f: _with_m(s) for f, s in LowRankGaussian.field_shapes.items()},
+                                              "log_w": "V C L M"}
+    second_moments: ClassVar[str] = LowRankGaussian.second_moments
+    fit_options: ClassVar[tuple[str, ...]] = ("nominal_weight", *LowRankGaussian.fit_options)
+
+    mu: Float[ArrayLike, "*V C L M K"]
+    W: Float[ArrayLike, "*V C L M K R"]
+    psi: Float[ArrayLike, "*V C L M K"]
+    log_w: Float[ArrayLike, "*V C L M"]
