@@ -33,6 +33,7 @@ import jax.random as jr
 import numpy as np
 
 from jaxrecog.campaign import batched_step, run_campaign
+from jaxrecog.cli._options import likelihood_choice, likelihood_options, render_jitter_options, render_jitter_values
 from jaxrecog.planners import samples_per_stratum
 from jaxrecog.experiments import CASES, Settings, case_model, make_recognizer, case_trials, make_rig, prepare, rig_pool
 
@@ -76,6 +77,12 @@ def step_latency(model, planner: str, settings: Settings, images, repeat: int) -
     }
 
 
+def _row_name(r: dict) -> str:
+    """A latency row's key in the ratio tables: planner, then the variant or the likelihood in brackets."""
+    extra = r.get("variant") or r.get("likelihood")
+    return r["planner"] + (f" ({extra})" if extra else "")
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__)
     p.add_argument("--out", default="out/bench/recognizer.json")
@@ -91,6 +98,8 @@ def main(argv=None) -> int:
                    help="every stride-th position of each camera (quick runs; 1 = the thesis's 32 x 7, A = 224)")
     p.add_argument("--samples-per-image", type=int, default=None,
                    help="augmented training samples per image (default: Settings'; fewer trains faster, same shapes)")
+    likelihood_options(p)
+    render_jitter_options(p)
     args = p.parse_args(argv)
 
     extra = {} if args.samples_per_image is None else {"samples_per_image": args.samples_per_image}
@@ -98,12 +107,23 @@ def main(argv=None) -> int:
     prepared = prepare(settings, databases=("DB2",))
     case = CASES["iii"]
     model = case_model(prepared, case)
+    other = None  # --likelihood: the same planners' steps with that family's model, in the same run
+    if args.likelihood is not None:
+        name, options = likelihood_choice(args.likelihood, args.rank, args.nu)
+        alt = dataclasses.replace(settings, likelihood=name, likelihood_options=options, **render_jitter_values(args))
+        other = (name, case_model(prepare(alt, databases=("DB2",)), case))
     rig = make_rig(settings, seed=settings.seed)
     rig.reset(5, 2)
     rig.move((3, 2))
     images = rig.capture().images
 
     latency = [step_latency(model, name, settings, images, args.repeat) for name in args.planners.split(",")]
+    if other is not None:  # interleaved with the default model's rows: same load for both
+        for name in args.planners.split(","):
+            base = next(r for r in latency if r["planner"] == name and "likelihood" not in r)
+            row = dict(step_latency(other[1], name, settings, images, args.repeat), likelihood=other[0])
+            row["ratio_vs_default_likelihood"] = row["median_ms"] / base["median_ms"]
+            latency.append(row)
     # the issue's latency target is defined at 1024 samples per configuration,
     # which for DB2 (1152 strata) is one sample per stratum: measure that too
     one = dataclasses.replace(settings, min_per_stratum=1)
@@ -111,8 +131,10 @@ def main(argv=None) -> int:
         latency += [dict(step_latency(model, name, one, images, args.repeat), variant="samples=1024, J=1")
                     for name in args.planners.split(",") if name.startswith("mi") and "pairwise" not in name]
     for r in latency:
-        print(f"step {r['planner']:9s} (J={r['samples_per_stratum']}): median {r['median_ms']:7.2f} ms (min {r['min_ms']:.2f}), "
-              f"in a batch of 16: {r['batched_per_trial_ms']:.2f} ms/trial, compile {r['compile_s']:.1f} s")
+        print(f"step {r['planner']:9s} (J={r['samples_per_stratum']}){' ' + r['likelihood'] if 'likelihood' in r else ''}: "
+              f"median {r['median_ms']:7.2f} ms (min {r['min_ms']:.2f}), "
+              f"in a batch of 16: {r['batched_per_trial_ms']:.2f} ms/trial, compile {r['compile_s']:.1f} s"
+              + (f", {r['ratio_vs_default_likelihood']:.2f}x the default likelihood's" if "likelihood" in r else ""))
 
     accuracy = None
     if not args.skip_accuracy:
@@ -169,13 +191,14 @@ def main(argv=None) -> int:
         "ratios": {
             "step_mi_vs_target": next((r["median_ms"] for r in latency if r["planner"] == "mi" and "variant" in r),
                                       float("nan")) / 5.0,
-            "step_mi_default_vs_target": next((r["median_ms"] for r in latency
-                                               if r["planner"] == "mi" and "variant" not in r), float("nan")) / 5.0,
+            "step_mi_default_vs_target": next((r["median_ms"] for r in latency if r["planner"] == "mi"
+                                               and "variant" not in r and "likelihood" not in r), float("nan")) / 5.0,
             "campaign_vs_target": None if campaign is None else campaign["seconds"] * (800 / max(campaign["trials"], 1)) / 60.0,
             # issue 15: every step against the 2 ms target, and against the campaign-default MI step (same run)
-            "step_vs_2ms": {r["planner"] + (f" ({r['variant']})" if "variant" in r else ""): r["median_ms"] / 2.0 for r in latency},
-            "step_vs_mi_default": {r["planner"] + (f" ({r['variant']})" if "variant" in r else ""):
-                                   r["median_ms"] / next(x["median_ms"] for x in latency if x["planner"] == "mi" and "variant" not in x)
+            "step_vs_2ms": {_row_name(r): r["median_ms"] / 2.0 for r in latency},
+            "step_vs_mi_default": {_row_name(r):
+                                   r["median_ms"] / next(x["median_ms"] for x in latency if x["planner"] == "mi"
+                                                         and "variant" not in x and "likelihood" not in x)
                                    for r in latency} if any(x["planner"] == "mi" for x in latency) else None,
         },
     }

@@ -29,11 +29,12 @@ from pathlib import Path
 import jax.random as jr
 
 from jaxrecog.calibration import calibrate_model
+from jaxrecog.cli._options import likelihood_choice, likelihood_options, render_jitter_options, render_jitter_values
 from jaxrecog.calibration_plots import reliability_plot
 from jaxrecog.campaign import run_campaign
 from jaxrecog.database import load_database
-from jaxrecog.experiments import (CASES, OCCLUDER_OFFSET, OCCLUDER_SIZE, Settings, make_recognizer, case_trials,
-                                  make_rig, prepare)
+from jaxrecog.experiments import (CASES, OCCLUDER_OFFSET, OCCLUDER_SIZE, Settings, make_recognizer, case_settings,
+                                  case_trials, make_rig, prepare)
 from jaxrecog.hardware import OccluderLayout, random_occluders
 from jaxrecog.hardware.positions import CameraTable
 from jaxrecog.hardware.scene import default_objects, object_radius
@@ -67,11 +68,18 @@ def main(argv=None) -> int:
     ap.add_argument("--bins", type=int, default=10)
     ap.add_argument("--occluded-fraction", type=float, default=0.5,
                     help="occluded cases: share of calib views with a board in front of that view")
+    ap.add_argument("--exclude-visited", action="store_true", help="never send a camera back to a position it used")
+    likelihood_options(ap)
+    render_jitter_options(ap)
     args = ap.parse_args(argv)
 
     case = CASES[args.case]
+    likelihood, options = likelihood_choice(args.likelihood, args.rank, args.nu)
     settings = Settings(workdir=args.workdir, trials_per_object=args.trials, seed=args.seed, samples=args.samples,
-                        batch=args.batch, n_components=args.n_components, samples_per_image=args.samples_per_image)
+                        batch=args.batch, n_components=args.n_components, samples_per_image=args.samples_per_image,
+                        likelihood=likelihood, likelihood_options=options, exclude_visited_positions=args.exclude_visited,
+                        **render_jitter_values(args))
+    settings = case_settings(case, settings)  # the case's off-grid amounts (jitter cases)
     t0 = time.perf_counter()
     prepared = prepare(settings, progress=True, databases=(case.database,))
 
@@ -115,7 +123,8 @@ def main(argv=None) -> int:
         models = {k: restrict_cameras(m, case.cameras) for k, m in models.items()}
 
     results, metrics = {}, {}
-    tag = (f"-{'perlevel' if args.per_level else 'perpos'}-sd{args.prior_sd:g}-min{min_factor or 0:g}"
+    tag = (f"{model_path.stem.removeprefix('model-')}{'-xv' if args.exclude_visited else ''}"
+           f"-{'perlevel' if args.per_level else 'perpos'}-sd{args.prior_sd:g}-min{min_factor or 0:g}"
            f"-y{args.yaw:g}-e{args.eye_offset:g}-l{args.light:g}-c{args.calib_per_view}"
            f"{f'-front{args.occluded_fraction:g}' if case.occluded else ''}")
     for label, model in models.items():
@@ -123,8 +132,8 @@ def main(argv=None) -> int:
         specs = case_trials(case, settings, rig, model.n_objects, model.n_poses)
         rec = make_recognizer(model, args.planner, settings)
         store = TrialStore(args.workdir / "trials" / (
-            f"calib-{label}-case-{case.name}-{args.planner}-n{args.trials}-seed{args.seed}-v2"
-            f"{tag if label == 'calibrated' else ''}.jsonl"))
+            f"calib-{label}-case-{case.name}-{args.planner}-n{args.trials}-seed{args.seed}-v3"
+            f"{tag if label == 'calibrated' else tag.split('-perl')[0].split('-perp')[0]}.jsonl"))
         t1 = time.perf_counter()
         res = run_campaign(rec, rig, specs, key=jr.PRNGKey(settings.seed + 1), batch=settings.batch, seed=settings.seed, store=store)
         rig.close()
