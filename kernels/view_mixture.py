@@ -169,6 +169,19 @@ class _ViewMixture(Likelihood):
         m = self.log_w.shape[-1]
         return self._from_components(self.components().scaled(jnp.repeat(factor, m)), self.log_w)
 
+    def scaling_terms(self, g: Float[ArrayLike, "N K"]):
+        """The component family's terms of ``g`` over the ``L * M`` components
+        (for the Gaussians ``q`` and ``log|2 pi Sigma|``), computed once."""
+        return self.components().scaling_terms(g)
+
+    def scaled_log_density(self, terms, log_factor: Float[Array, " L"]) -> Float[Array, "N C L"]:
+        """``scaled(exp(log_factor)).log_density(g)`` from :meth:`scaling_terms`:
+        the component family's scaled density with each level's factor on all
+        its ``M`` components, then ``logsumexp_m (log w_m + ...)``."""
+        c, l, m = self.log_w.shape
+        ld = self.components().scaled_log_density(terms, jnp.repeat(log_factor, m))      # [N, C, L*M]
+        return lse(ld.reshape(ld.shape[:-1] + (l, m)) + self.log_w[None], axis=-1)
+
     def bhattacharyya(self) -> Float[Array, "C L C L"]:
         """The lower bound ``-log sum_{m,n} sqrt(w_m w'_n) exp(-D_B(p_m, q_n))``
         (module docstring), from the component family's closed form per pair."""
