@@ -53,6 +53,7 @@ from __future__ import annotations
 import math
 from typing import ClassVar
 
+import jax
 import jax.numpy as jnp
 import jax.scipy.special as jsp
 import numpy as np
@@ -180,7 +181,9 @@ class _ViewMixture(Likelihood):
         its ``M`` components, then ``logsumexp_m (log w_m + ...)``."""
         c, l, m = self.log_w.shape
         ld = self.components().scaled_log_density(terms, jnp.repeat(log_factor, m))      # [N, C, L*M]
-        return lse(ld.reshape(ld.shape[:-1] + (l, m)) + self.log_w[None], axis=-1)
+        # calibration differentiates this: jax.nn.logsumexp's own derivative (``_grid.lse``'s
+        # gradient came out NaN inside the vmapped L-BFGS under XLA's -O0 test flags)
+        return jax.nn.logsumexp(ld.reshape(ld.shape[:-1] + (l, m)) + self.log_w[None], axis=-1)
 
     def bhattacharyya(self) -> Float[Array, "C L C L"]:
         """The lower bound ``-log sum_{m,n} sqrt(w_m w'_n) exp(-D_B(p_m, q_n))``
