@@ -109,7 +109,7 @@ def main(argv=None) -> int:
     model = case_model(prepared, case)
     other = None  # --likelihood: the same planners' steps with that family's model, in the same run
     if args.likelihood is not None:
-        name, options = likelihood_choice(args.likelihood, args.rank, args.nu)
+        name, options = likelihood_choice(args.likelihood, args.rank, args.nu, view_jitter=bool(args.view_jitter))
         alt = dataclasses.replace(settings, likelihood=name, likelihood_options=options, **render_jitter_values(args))
         other = (name, case_model(prepare(alt, databases=("DB2",)), case))
     rig = make_rig(settings, seed=settings.seed)

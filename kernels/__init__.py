@@ -38,6 +38,7 @@ from .likelihood import (
     Likelihood,
     as_likelihoods,
     DEFAULT_LIKELIHOOD,
+    DEFAULT_VIEW_JITTER_LIKELIHOOD,
     camera_log_likelihoods,
     gaussian,
     gaussian_likelihoods,
@@ -54,6 +55,7 @@ from .view_mixture import LowRankViewMixture, ViewMixture
 __all__ = [
     "Belief",
     "DEFAULT_LIKELIHOOD",
+    "DEFAULT_VIEW_JITTER_LIKELIHOOD",
     "DEFAULT_SIGMA_S",
     "DIVERGENCES",
     "DiagonalGaussian",

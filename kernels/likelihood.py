@@ -53,6 +53,7 @@ from jaxtyping import Array, ArrayLike, Float, Int
 
 __all__ = [
     "DEFAULT_LIKELIHOOD",
+    "DEFAULT_VIEW_JITTER_LIKELIHOOD",
     "LIKELIHOODS",
     "Likelihood",
     "as_likelihoods",
@@ -69,6 +70,14 @@ __all__ = [
 #: docs/results.md ("Training against confident errors") gives the measured
 #: reason it stays the default: no other family wins every case.
 DEFAULT_LIKELIHOOD = "gaussian-diag"
+
+#: The family trained when none is named but the training has view jitter
+#: (``jaxrecog train --view-jitter``, ``experiment`` / ``reproduce_thesis.py
+#: --view-jitter``): one low-rank component per rendered view
+#: (``view_mixture.py``).  docs/results.md ("View mixtures") gives the measured
+#: reason: it wins every case against pooling the jitter views into one
+#: diagonal Gaussian and against the thesis's model.
+DEFAULT_VIEW_JITTER_LIKELIHOOD = "view-mixture-lowrank"
 
 LIKELIHOODS: dict[str, type["Likelihood"]] = {}
 """Kind name -> :class:`Likelihood` subclass (filled by :func:`register_likelihood`)."""

@@ -74,7 +74,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
 
     case = CASES[args.case]
-    likelihood, options = likelihood_choice(args.likelihood, args.rank, args.nu)
+    likelihood, options = likelihood_choice(args.likelihood, args.rank, args.nu, view_jitter=bool(args.view_jitter))
     settings = Settings(workdir=args.workdir, trials_per_object=args.trials, seed=args.seed, samples=args.samples,
                         batch=args.batch, n_components=args.n_components, samples_per_image=args.samples_per_image,
                         likelihood=likelihood, likelihood_options=options, exclude_visited_positions=args.exclude_visited,

@@ -91,7 +91,7 @@ def main(argv=None) -> int:
     if args.stride < 1:
         p.error(f"--stride must be >= 1, got {args.stride}")
     try:
-        likelihood, options = likelihood_choice(args.likelihood, args.rank, args.nu)
+        likelihood, options = likelihood_choice(args.likelihood, args.rank, args.nu, view_jitter=bool(args.view_jitter))
         settings = Settings(workdir=args.workdir, trials_per_object=args.trials, seed=args.seed, samples=args.samples,
                             batch=args.batch, stride=args.stride, likelihood=likelihood, likelihood_options=options,
                             **capture_params(args), **render_jitter_values(args))
@@ -142,7 +142,7 @@ def turntable_case(args) -> int:
     from jaxrecog.metrics import campaign_metrics
 
     try:
-        likelihood, options = likelihood_choice(args.likelihood, args.rank, args.nu)
+        likelihood, options = likelihood_choice(args.likelihood, args.rank, args.nu, view_jitter=bool(args.view_jitter))
         settings = Settings(workdir=args.workdir, trials_per_object=args.trials, seed=args.seed, samples=args.samples,
                             batch=args.batch, likelihood=likelihood, likelihood_options=options,
                             **capture_params(args), **render_jitter_values(args))

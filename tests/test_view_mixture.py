@@ -612,3 +612,47 @@ def test_recognizer_step_with_a_mixture_model(trained, planner):
             assert np.all(np.isfinite(np.asarray(leaf)))
         assert abs(float(jnp.sum(jnp.exp(post.log_pc))) - 1.0) < 1e-5
         assert 0.0 <= float(dec.probability) <= 1.0
+
+
+# -- the default family with view jitter ----------------------------------------------
+
+def test_view_jitter_trains_the_low_rank_mixture_unless_told_otherwise(tmp_path, monkeypatch, capsys):
+    """``jaxrecog train --view-jitter`` without ``--likelihood`` trains
+    ``view-mixture-lowrank`` (``kernels.DEFAULT_VIEW_JITTER_LIKELIHOOD``); without
+    view jitter the thesis's Gaussian stays the default; ``--likelihood`` wins."""
+    from jaxrecog import cli
+    from jaxrecog import experiments as ex
+
+    assert K.DEFAULT_VIEW_JITTER_LIKELIHOOD == "view-mixture-lowrank" and K.DEFAULT_LIKELIHOOD == "gaussian-diag"
+    db = make_database(positions=(2,), n_objects=2, n_poses=2, image_shape=(16, 20))
+    folder = tmp_path / "db"
+    from jaxrecog import write_database
+
+    write_database(folder, _with_jitter(db, _jitter_rows(db)))
+    base = ["--quiet", "train", str(folder), "--kind", "DB1", "--components", "3", "--samples", "10"]
+    for extra, family in ((["--view-jitter"], K.LowRankViewMixture), ([], K.DiagonalGaussian),
+                          (["--view-jitter", "--likelihood", "gaussian-diag"], K.DiagonalGaussian),
+                          (["--view-jitter", "--likelihood", "view-mixture"], K.ViewMixture)):
+        out = tmp_path / f"m{len(extra)}-{family.__name__}.npz"
+        assert cli.main(base + ["--out", str(out)] + extra) == 0, capsys.readouterr().err
+        assert type(load_model(out).cameras[0].likelihood) is family
+    # --rank belongs to the low-rank families: with view jitter it is the default family's option
+    out = tmp_path / "r.npz"
+    assert cli.main(base + ["--out", str(out), "--view-jitter", "--rank", "1"]) == 0
+    assert load_model(out).cameras[0].likelihood.W.shape[-1] == 1
+
+    # experiment: --view-jitter N without --likelihood selects the same family
+    seen = {}
+
+    class _Stop(Exception):
+        pass
+
+    def run_case(name, settings, planners=None, **kw):
+        seen["settings"] = settings
+        raise _Stop
+
+    monkeypatch.setattr(ex, "run_case", run_case)
+    for extra, want in ((["--view-jitter", "2"], "view-mixture-lowrank"), ([], "gaussian-diag"),
+                        (["--view-jitter", "2", "--likelihood", "gaussian-diag"], "gaussian-diag")):
+        assert cli.main(["--quiet", "experiment", "i", "--out", str(tmp_path / "x")] + extra) == 1
+        assert seen.pop("settings").likelihood == want

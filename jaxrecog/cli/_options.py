@@ -198,10 +198,11 @@ def likelihood_options(p: argparse._ActionsContainer) -> None:
     """``--likelihood``, ``--rank``, ``--nu`` (``train``, ``experiment``,
     ``scripts/reproduce_thesis.py``; on a parser or an argument group): all default to ``None`` = not given
     (the thesis's diagonal Gaussian; the family's own option defaults)."""
-    from ..kernels import DEFAULT_LIKELIHOOD, likelihood_names
+    from ..kernels import DEFAULT_LIKELIHOOD, DEFAULT_VIEW_JITTER_LIKELIHOOD, likelihood_names
 
     p.add_argument("--likelihood", choices=likelihood_names(), default=None,
-                   help=f"sensor-model family (default: {DEFAULT_LIKELIHOOD}, the thesis's)")
+                   help=f"sensor-model family (default: {DEFAULT_LIKELIHOOD}, the thesis's; with --view-jitter "
+                        f"{DEFAULT_VIEW_JITTER_LIKELIHOOD})")
     p.add_argument("--rank", type=positive, default=None,
                    help="gaussian-lowrank, view-mixture-lowrank: factors R, 1 <= R < K (default: min(4, K - 1))")
     p.add_argument("--nu", type=nu_value, default=None,
@@ -209,13 +210,13 @@ def likelihood_options(p: argparse._ActionsContainer) -> None:
                         "training samples; the default)")
 
 
-def likelihood_choice(name: str | None, rank=None, nu=None) -> tuple[str, dict]:
-    """The likelihood name (default ``gaussian-diag``) and its fit options from
-    ``--likelihood`` / ``--rank`` / ``--nu``; an option of another family is a
-    ``ValueError``."""
-    from ..kernels import DEFAULT_LIKELIHOOD, likelihood_class
+def likelihood_choice(name: str | None, rank=None, nu=None, view_jitter: bool = False) -> tuple[str, dict]:
+    """The likelihood name (default ``gaussian-diag``; with ``view_jitter``
+    ``view-mixture-lowrank``) and its fit options from ``--likelihood`` /
+    ``--rank`` / ``--nu``; an option of another family is a ``ValueError``."""
+    from ..kernels import DEFAULT_LIKELIHOOD, DEFAULT_VIEW_JITTER_LIKELIHOOD, likelihood_class
 
-    name = name or DEFAULT_LIKELIHOOD
+    name = name or (DEFAULT_VIEW_JITTER_LIKELIHOOD if view_jitter else DEFAULT_LIKELIHOOD)
     family = likelihood_class(name)
     options = {k: v for k, v in (("rank", rank), ("nu", nu)) if v is not None}
     for k in options:

@@ -75,6 +75,10 @@ def _training_values(args, values: dict[str, Any]) -> dict[str, Any]:
     out: dict[str, Any] = {}
     if args.likelihood is not None:
         out["likelihood"] = args.likelihood
+    elif args.view_jitter and "likelihood" not in values:  # view jitter trains its own default family
+        from ..kernels import DEFAULT_VIEW_JITTER_LIKELIHOOD
+
+        out["likelihood"] = DEFAULT_VIEW_JITTER_LIKELIHOOD
     opts = {k: v for k, v in (("rank", args.rank), ("nu", args.nu)) if v is not None}
     if opts:
         base = values.get("likelihood_options") or {}

@@ -88,6 +88,6 @@ def _likelihood(args) -> tuple[str, dict]:
                              f"which contradicts --likelihood {name}")
         name = alias
     try:
-        return likelihood_choice(name, args.rank, args.nu)
+        return likelihood_choice(name, args.rank, args.nu, view_jitter=bool(args.view_jitter))
     except ValueError as e:
         raise UsageError(str(e)) from None
