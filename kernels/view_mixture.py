@@ -241,9 +241,10 @@ def _split(x, lead: int, m: int):
     return x.reshape(sh[:lead] + (sh[lead] // m, m) + sh[lead + 1:])
 
 
-def _with_m(spec: str) -> str:
-    """A component field's axes with ``M`` after ``L``."""
-    return spec.replace("L", "L M", 1)
+def _mixture_shapes(component: type[Likelihood]) -> dict[str, str]:
+    """A mixture's ``field_shapes``: the component family's fields with ``M``
+    after ``L``, then ``log_w [V, C, L, M]``."""
+    return {**{f: s.replace("L", "L M", 1) for f, s in component.field_shapes.items()}, "log_w": "V C L M"}
 
 
 @register_likelihood
@@ -258,8 +259,7 @@ class ViewMixture(_ViewMixture):
 
     kind: ClassVar[str] = "view-mixture"
     component: ClassVar[type[Likelihood]] = DiagonalGaussian
-    field_shapes: ClassVar[dict[str, str]] = {**{f: _with_m(s) for f, s in DiagonalGaussian.field_shapes.items()},
-                                              "log_w": "V C L M"}
+    field_shapes: ClassVar[dict[str, str]] = _mixture_shapes(DiagonalGaussian)
     second_moments: ClassVar[str] = DiagonalGaussian.second_moments
     fit_options: ClassVar[tuple[str, ...]] = ("nominal_weight",)
 
@@ -279,8 +279,7 @@ class LowRankViewMixture(_ViewMixture):
 
     kind: ClassVar[str] = "view-mixture-lowrank"
     component: ClassVar[type[Likelihood]] = LowRankGaussian
-    field_shapes: ClassVar[dict[str, str]] = {**{f: _with_m(s) for f, s in LowRankGaussian.field_shapes.items()},
-                                              "log_w": "V C L M"}
+    field_shapes: ClassVar[dict[str, str]] = _mixture_shapes(LowRankGaussian)
     second_moments: ClassVar[str] = LowRankGaussian.second_moments
     fit_options: ClassVar[tuple[str, ...]] = ("nominal_weight", *LowRankGaussian.fit_options)
 
