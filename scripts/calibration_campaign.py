@@ -123,7 +123,7 @@ def main(argv=None) -> int:
         models = {k: restrict_cameras(m, case.cameras) for k, m in models.items()}
 
     results, metrics = {}, {}
-    tag = (f"{model_path.stem.removeprefix('model-')}{'-xv' if args.exclude_visited else ''}"
+    tag = (f"-{model_path.stem.removeprefix('model-')}{'-xv' if args.exclude_visited else ''}"
            f"-{'perlevel' if args.per_level else 'perpos'}-sd{args.prior_sd:g}-min{min_factor or 0:g}"
            f"-y{args.yaw:g}-e{args.eye_offset:g}-l{args.light:g}-c{args.calib_per_view}"
            f"{f'-front{args.occluded_fraction:g}' if case.occluded else ''}")
