@@ -13,6 +13,7 @@ from oracles import bhattacharyya_ref
 from scipy.stats import multivariate_normal
 
 from jaxrecog import kernels as K
+from jaxrecog.kernels.gaussian_full import cholesky_lower
 from jaxrecog.kernels.gaussian_lowrank import factor_analysis
 
 pytestmark = pytest.mark.usefixtures("strict_dtype_promotion")
@@ -130,3 +131,60 @@ def test_fit_and_field_errors(rng):
     assert wide.problems() == [("W", "has rank 4, larger than K = 3")]
     bad = K.LowRankGaussian(lik.mu, lik.W, lik.psi.at[0, 0, 0, 0].set(0.0))
     assert bad.problems() == [("psi", "has non-positive variances")]
+
+
+def _pair_model(rng, C, L, k, r, dtype=np.float64):
+    mu = rng.normal(size=(C, L, k)) * 1.5
+    w = rng.normal(size=(C, L, k, r)) * rng.uniform(0.2, 1.5, size=(C, L, 1, r))
+    psi = rng.uniform(0.1, 1.0, size=(C, L, k))
+    cov = w @ np.swapaxes(w, -1, -2) + psi[..., None] * np.eye(k)
+    lik = K.LowRankGaussian(*(jnp.asarray(x.astype(dtype)) for x in (mu, w, psi)))
+    return lik, mu, cov
+
+
+@pytest.mark.parametrize("unrolled", [True, False], ids=["unrolled", "lapack"])
+@pytest.mark.parametrize("k, r", [(5, 1), (5, 2), (5, 4), (8, 7), (2, 1)])
+def test_bhattacharyya_woodbury_is_the_full_form(rng, x64, monkeypatch, k, r, unrolled):
+    """The 2R x 2R Woodbury form equals FullGaussian's K x K Cholesky form and
+    the NumPy reference, rank 1 to K - 1 (2R > K included), by the unrolled
+    Cholesky and by the LAPACK one; symmetric, 0 on the diagonal."""
+    from jaxrecog.kernels import gaussian_lowrank
+
+    monkeypatch.setattr(gaussian_lowrank, "_UNROLL_MAX_RANK", 64 if unrolled else 0)
+    lik, mu, cov = _pair_model(rng, 3, 2, k, r)
+    got = np.asarray(lik.bhattacharyya())
+    assert got.shape == (3, 2, 3, 2) and got.dtype == np.float64
+    full = np.asarray(K.FullGaussian(lik.mu, cholesky_lower(lik.covariance())).bhattacharyya())
+    np.testing.assert_allclose(got, full, rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(got, bhattacharyya_ref(mu, cov), rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(got, np.transpose(got, (2, 3, 0, 1)), rtol=1e-12, atol=1e-13)
+    np.testing.assert_allclose(np.diagonal(got.reshape(6, 6)), 0.0, atol=1e-13)
+    off = got.reshape(6, 6)[~np.eye(6, dtype=bool)]
+    assert np.all(off > 0)
+
+
+def test_bhattacharyya_chunks_with_a_remainder(rng, x64, monkeypatch):
+    """Rows of first components in chunks that do not divide C * L give the same table."""
+    from jaxrecog.kernels import gaussian_lowrank
+
+    lik, mu, cov = _pair_model(rng, 3, 3, 4, 2)
+    whole = np.asarray(lik.bhattacharyya())
+    per_row = 9 * (4 * (2 + 3) + 2 * 3 + 2 * 2 + 5 * 5) * 8                 # the kernel's estimate, float64
+    for budget in (4 * per_row, 1):                                        # chunks of 4 + 4 + 1 rows; one row at a time
+        monkeypatch.setattr(gaussian_lowrank, "_pair_chunk_bytes", lambda: budget)
+        np.testing.assert_allclose(np.asarray(lik.bhattacharyya()), whole, rtol=1e-13, atol=1e-14)
+    np.testing.assert_allclose(whole, bhattacharyya_ref(mu, cov), rtol=1e-10, atol=1e-12)
+
+
+@pytest.mark.parametrize("k, r", [(6, 1), (12, 4), (6, 5), (20, 10)])
+def test_bhattacharyya_float32(rng, k, r):
+    """Single precision (both Cholesky paths: R = 10 > _UNROLL_MAX_RANK): finite,
+    float32, close to the float64 reference, symmetric, ~0 on the diagonal."""
+    lik, mu, cov = _pair_model(rng, 4, 3, k, r, dtype=np.float32)
+    got = np.asarray(lik.bhattacharyya())
+    assert got.dtype == np.float32 and np.all(np.isfinite(got))
+    w, psi = np.asarray(lik.W, np.float64), np.asarray(lik.psi, np.float64)        # the float32 model, exactly
+    want = bhattacharyya_ref(np.asarray(lik.mu, np.float64), w @ np.swapaxes(w, -1, -2) + psi[..., None] * np.eye(k))
+    np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-4)
+    np.testing.assert_allclose(got, np.transpose(got, (2, 3, 0, 1)), rtol=1e-5, atol=1e-5)
+    assert np.max(np.abs(np.diagonal(got.reshape(12, 12)))) < 1e-5
