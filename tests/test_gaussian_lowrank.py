@@ -188,3 +188,15 @@ def test_bhattacharyya_float32(rng, k, r):
     np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-4)
     np.testing.assert_allclose(got, np.transpose(got, (2, 3, 0, 1)), rtol=1e-5, atol=1e-5)
     assert np.max(np.abs(np.diagonal(got.reshape(12, 12)))) < 1e-5
+
+
+def test_log_density_above_the_unrolled_rank_against_scipy(rng, x64):
+    """R > _UNROLL_MAX_RANK takes the batched Cholesky and triangular solve: same density."""
+    from jaxrecog.kernels.gaussian_lowrank import _UNROLL_MAX_RANK
+
+    r = _UNROLL_MAX_RANK + 2
+    lik, mu, w, psi, cov = _lowrank(rng, V=1, C=2, L=2, k=r + 2, r=r)
+    g = rng.normal(size=(3, r + 2))
+    got = np.asarray(lik.at(0).log_density(jnp.asarray(g)))
+    for c, l in np.ndindex(2, 2):
+        np.testing.assert_allclose(got[:, c, l], multivariate_normal(mu[0, c, l], cov[0, c, l]).logpdf(g), rtol=1e-11)
