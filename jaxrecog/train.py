@@ -187,7 +187,7 @@ def train_model(
             done += 1
             if progress is not None:
                 progress(done, total)
-        cameras.append(CameraModel(*(_stack(*x) for x in zip(*eigen)), likelihood=jax.tree.map(_stack, *liks)))
+        cameras.append(CameraModel(*(_stack(*x) for x in zip(*eigen)), likelihood=_stack_likelihoods(liks)))
     model = SensorModel(
         cameras=tuple(cameras),
         n_objects=db.n_objects,
@@ -241,6 +241,14 @@ def _jitter_images(db: ImageDatabase) -> dict[tuple[int, int], tuple[np.ndarray,
         sel = rows[(db.camera[rows] == i) & (db.position[rows] == v)]
         out[i, v] = (db.images[sel], cls[sel].astype(np.int64))
     return out
+
+
+def _stack_likelihoods(liks: list[Likelihood]) -> Likelihood:
+    """One camera's likelihood from its per-position fits: the stored fields
+    stacked (float32), and whatever the family derives from them computed on
+    the stack, exactly as the model file's load does (``from_arrays``)."""
+    names = type(liks[0]).field_shapes
+    return type(liks[0]).from_arrays({f: _stack(*(getattr(lik, f) for lik in liks)) for f in names})
 
 
 def _stack(*per_position):

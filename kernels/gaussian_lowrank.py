@@ -122,6 +122,31 @@ def _cholesky_schur(entry, p: int):
     raise ValueError("_cholesky_schur: p must be >= 1")
 
 
+def whiten(W, psi):
+    """``(A [..., R, K], sum log diag B [...])`` with ``B B^T = I + W^T Psi^-1 W``
+    (lower Cholesky) and ``A = B^-1 W^T Psi^-1``: ``d^T Sigma^-1 d = d^T Psi^-1 d
+    - |A d|^2`` and ``log|Sigma| = sum log psi + 2 sum log diag B``.  NumPy for
+    NumPy input (a fit, a model file), JAX otherwise.  A non-positive or
+    non-finite entry of ``psi`` / ``W`` gives meaningless values here, never an
+    exception: the model file rejects it by name (:meth:`LowRankGaussian.problems`)."""
+    if isinstance(W, np.ndarray) and isinstance(psi, np.ndarray):
+        with np.errstate(all="ignore"):
+            p = np.where(np.isfinite(psi) & (psi > 0), psi, 1.0)
+            w = np.where(np.isfinite(W), W, 0.0)
+            wt = np.swapaxes(w, -1, -2)
+            b = np.linalg.cholesky(wt @ (w / p[..., None]) + np.eye(w.shape[-1]))
+            a = np.linalg.solve(b, wt / p[..., None, :])
+            half = np.sum(np.log(np.diagonal(b, axis1=-2, axis2=-1)), axis=-1)
+        dtype = np.result_type(W, psi)
+        return a.astype(dtype), half.astype(dtype)
+    W, psi = jnp.asarray(W), jnp.asarray(psi)
+    wt = jnp.swapaxes(W, -1, -2)
+    eye = jnp.eye(W.shape[-1], dtype=W.dtype).reshape((1,) * (W.ndim - 2) + (W.shape[-1],) * 2)
+    b = cholesky_lower(wt @ (W / psi[..., None]) + eye)
+    a = solve_triangular(b, wt / psi[..., None, :], lower=True)
+    return a, jnp.sum(jnp.log(jnp.diagonal(b, axis1=-2, axis2=-1)), axis=-1)
+
+
 @register_likelihood
 class LowRankGaussian(Likelihood):
     """N(g; mu[c, k], W W^T + diag(psi)) for every class c and level k.
@@ -140,6 +165,18 @@ class LowRankGaussian(Likelihood):
     mu: Float[ArrayLike, "*V C L K"]
     W: Float[ArrayLike, "*V C L K R"]
     psi: Float[ArrayLike, "*V C L K"]
+    #: derived from ``W`` and ``psi`` when the set is built, never stored
+    #: (:func:`whiten`): the density of a capture is then two multiply-reduces
+    whitened: Float[ArrayLike, "*V C L R K"]
+    half_logdet_capacitance: Float[ArrayLike, "*V C L"]
+
+    derived_shapes: ClassVar[dict[str, str]] = {"whitened": "V C L R K", "half_logdet_capacitance": "V C L"}
+
+    def __init__(self, mu, W, psi, whitened=None, half_logdet_capacitance=None):
+        self.mu, self.W, self.psi = mu, W, psi
+        if whitened is None or half_logdet_capacitance is None:
+            whitened, half_logdet_capacitance = whiten(W, psi)
+        self.whitened, self.half_logdet_capacitance = whitened, half_logdet_capacitance
 
     @property
     def rank(self) -> int:
@@ -162,6 +199,10 @@ class LowRankGaussian(Likelihood):
         a = d / self.psi[None]
         wt = jnp.swapaxes(self.W, -1, -2)                                # [C, L, R, K]
         log_psi = jnp.sum(jnp.log(self.psi), axis=-1)
+        if self.whitened is not None:  # q = d^T Psi^-1 d - |A d|^2 (whiten)
+            z = jnp.einsum("clrk,nclk->nclr", self.whitened, d)           # [N, C, L, R]
+            q = jnp.sum(d * d / self.psi[None], axis=-1) - jnp.sum(z * z, axis=-1)
+            return q, log_psi + 2.0 * self.half_logdet_capacitance + k * _LOG_2PI
         if r <= _UNROLL_MAX_RANK:
             # the Cholesky of [[M, u], [u^T, d^T Psi^-1 d]] written out, vectorised over
             # the components (a batched LAPACK call per R x R matrix costs ~8x more per
@@ -242,7 +283,7 @@ class LowRankGaussian(Likelihood):
         w = self.W.reshape(n, k, r)
         psi = self.psi.reshape(n, k)
         log_psi = jnp.log(psi)
-        cap = jnp.sum(jnp.log(jnp.diagonal(self._capacitance_cholesky(), axis1=-2, axis2=-1)), -1).reshape(n)
+        cap = self.half_logdet_capacitance.reshape(n)
         ri, si = np.triu_indices(r)                                      # the R (R + 1) / 2 distinct products
         tri = np.zeros((r, r), dtype=int)
         tri[ri, si] = tri[si, ri] = np.arange(ri.size)

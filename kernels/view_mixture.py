@@ -61,7 +61,7 @@ from jaxtyping import Array, ArrayLike, Float
 
 from ._grid import lse
 from .gaussian_diag import DiagonalGaussian
-from .gaussian_lowrank import LowRankGaussian
+from .gaussian_lowrank import LowRankGaussian, whiten
 from .likelihood import Likelihood, register_likelihood
 
 __all__ = ["ViewMixture", "LowRankViewMixture", "mixture_log_weights"]
@@ -96,7 +96,8 @@ class _ViewMixture(Likelihood):
 
     @classmethod
     def _component_fields(cls) -> tuple[str, ...]:
-        return tuple(cls.component.field_shapes)
+        """The component family's stored fields, then its derived ones (not stored)."""
+        return tuple(cls.component.field_shapes) + tuple(getattr(cls.component, "derived_shapes", {}))
 
     @property
     def n_components(self) -> int:
@@ -196,7 +197,7 @@ class _ViewMixture(Likelihood):
 
     def problems(self) -> list[tuple[str, str]]:
         lead = np.ndim(self.log_w) - 2
-        flat = self.component(**{f: _merge(np.asarray(getattr(self, f)), lead) for f in self._component_fields()})
+        flat = self.component(**{f: _merge(np.asarray(getattr(self, f)), lead) for f in self.component.field_shapes})
         out = list(flat.problems())
         total = np.logaddexp.reduce(np.asarray(self.log_w, np.float64), axis=-1)
         if np.any(np.abs(total) > 1e-3):
@@ -287,3 +288,12 @@ class LowRankViewMixture(_ViewMixture):
     W: Float[ArrayLike, "*V C L M K R"]
     psi: Float[ArrayLike, "*V C L M K"]
     log_w: Float[ArrayLike, "*V C L M"]
+    # the components' derived arrays (gaussian_lowrank.whiten), never stored
+    whitened: Float[ArrayLike, "*V C L M R K"]
+    half_logdet_capacitance: Float[ArrayLike, "*V C L M"]
+
+    def __init__(self, mu, W, psi, log_w, whitened=None, half_logdet_capacitance=None):
+        self.mu, self.W, self.psi, self.log_w = mu, W, psi, log_w
+        if whitened is None or half_logdet_capacitance is None:
+            whitened, half_logdet_capacitance = whiten(W, psi)
+        self.whitened, self.half_logdet_capacitance = whitened, half_logdet_capacitance

@@ -497,8 +497,15 @@ def test_model_file_round_trip(tmp_path, trained):
         back = load_model(p)
         assert back.likelihood_kinds == (name,) and load_model_meta(p)["likelihoods"] == [name]
         assert type(back.cameras[0].likelihood) is type(model.cameras[0].likelihood)
-        a, b = jax.tree.leaves(model), jax.tree.leaves(back)
-        assert len(a) == len(b) and all(np.asarray(x).tobytes() == np.asarray(y).tobytes() for x, y in zip(a, b))
+        # the stored arrays byte for byte; the derived ones (low-rank whitening, not stored) are
+        # recomputed on load from the float32 arrays: equal to float32 rounding
+        for cam_a, cam_b in zip(model.cameras, back.cameras):
+            a, b = cam_a.likelihood.arrays(), cam_b.likelihood.arrays()
+            assert a.keys() == b.keys()
+            assert all(np.asarray(a[f]).tobytes() == np.asarray(b[f]).tobytes() for f in a)
+            for f in getattr(type(cam_a.likelihood).component, "derived_shapes", {}):
+                np.testing.assert_allclose(np.asarray(getattr(cam_b.likelihood, f)),
+                                           np.asarray(getattr(cam_a.likelihood, f)), rtol=1e-4, atol=1e-4)
 
 
 @pytest.mark.parametrize("name, change, message", [
