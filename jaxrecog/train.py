@@ -123,7 +123,8 @@ def train_model(
             class's moments, and the training image's own samples are those
             of a run without jitter.  The eigenspace stays that of the
             training images.  The info records ``params["view_jitter"]``
-            (mode ``"added"``, the jitter images used and the views that
+            (mode ``"added"``, or ``"components"`` for a family with one
+            component per rendered view; the jitter images used and the views that
             have any).  A database without ``jitter`` rows is a
             ``ValueError``.
         return_info: also return a :class:`TrainingInfo`.
@@ -215,7 +216,7 @@ def train_model(
             "n_poses": db.n_poses,
             "image_shape": [H, W],
             **({} if jitter is None else {"view_jitter": {
-                "mode": "added",
+                "mode": "components" if family.view_components else "added",
                 "images": int(sum(len(x[1]) for x in jitter.values())),
                 "views": int(sum(len(np.unique(x[1])) for x in jitter.values())),
                 "positions": len(jitter),

@@ -417,7 +417,7 @@ def test_training_makes_one_component_per_rendered_view(trained):
     np.testing.assert_allclose(mean, np.asarray(pooled.mu), rtol=1e-5, atol=1e-6)
     np.testing.assert_allclose(variance, np.asarray(pooled.var), rtol=1e-4)
     assert trained.info.params["likelihood"] == "view-mixture"
-    assert trained.info.params["view_jitter"] == {"mode": "added", "images": 16, "views": 8, "positions": 2}
+    assert trained.info.params["view_jitter"] == {"mode": "components", "images": 16, "views": 8, "positions": 2}
 
 
 def test_training_the_lowrank_mixture(trained):
@@ -643,6 +643,11 @@ def test_view_jitter_trains_the_low_rank_mixture_unless_told_otherwise(tmp_path,
         out = tmp_path / f"m{len(extra)}-{family.__name__}.npz"
         assert cli.main(base + ["--out", str(out)] + extra) == 0, capsys.readouterr().err
         assert type(load_model(out).cameras[0].likelihood) is family
+        if extra:  # inspect says how the jitter images were used
+            capsys.readouterr()
+            assert cli.main(["inspect", str(out)]) == 0
+            how = "one mixture component each" if family is not K.DiagonalGaussian else "added to the training"
+            assert how in capsys.readouterr().out
     # --rank belongs to the low-rank families: with view jitter it is the default family's option
     out = tmp_path / "r.npz"
     assert cli.main(base + ["--out", str(out), "--view-jitter", "--rank", "1"]) == 0

@@ -116,6 +116,7 @@ def model_report(path, model=None) -> str:
             lines.append("  augmentation: " + _augment_line(aug))
         vj = train.get("view_jitter")
         if isinstance(vj, dict):
-            lines.append(f"  view jitter: {vj.get('images')} jitter image(s) of {vj.get('views')} view(s), "
-                         f"{vj.get('mode')} to the training images' samples")
+            how = ("one mixture component each" if vj.get("mode") == "components"
+                   else f"{vj.get('mode')} to the training images' samples")
+            lines.append(f"  view jitter: {vj.get('images')} jitter image(s) of {vj.get('views')} view(s), {how}")
     return "\n".join(lines + _calibration_lines(model))
