@@ -23,7 +23,8 @@ import numpy as np
 
 from jaxrecog import ImageDatabase, write_database
 
-__all__ = ["render_view", "make_database", "write_synthetic_database", "moving_database", "random_sensor_model"]
+__all__ = ["render_view", "make_database", "write_synthetic_database", "moving_database", "random_sensor_model",
+           "steps_stay_finite", "odd_images"]
 
 
 def render_view(
@@ -176,3 +177,28 @@ def random_sensor_model(positions=(4, 3), n_objects=3, n_poses=2, levels=(0.0, 0
             var=jnp.asarray(rng.uniform(0.01, 0.05, (v, n_objects * n_poses, len(levels), k)), jnp.float32),
         ))
     return SensorModel(tuple(cams), n_objects, n_poses, tuple(levels), hw, "diag")
+
+
+def steps_stay_finite(rec, state, image_sets, key):
+    """Run ``rec.step`` on each ``[n_cameras, H, W]`` image set of ``image_sets``
+    (traced), asserting every image set is usable and every planner score and
+    belief entry is finite; returns the last ``(state, decision)``."""
+    import jax
+    import jax.numpy as jnp
+    import jax.random as jr
+
+    dec = None
+    for t, images in enumerate(image_sets):
+        state, dec = rec.step(state, jnp.asarray(images), jr.fold_in(key, t), trace=True)
+        assert bool(dec.valid)
+        assert np.all(np.isfinite(np.asarray(dec.trace.scores)))
+        for leaf in jax.tree.leaves(dec.trace.posterior):
+            assert np.all(np.isfinite(np.asarray(leaf)))
+    return state, dec
+
+
+def odd_images(like: np.ndarray) -> np.ndarray:
+    """A nearly constant dark image set with one bright band: unlike any training view."""
+    odd = np.full_like(like, 3)
+    odd[:, :4] = 250
+    return odd

@@ -14,6 +14,7 @@ import jax.numpy as jnp
 import jax.random as jr
 import numpy as np
 import pytest
+from builders import odd_images, steps_stay_finite
 from scipy.stats import multivariate_t
 
 from jaxrecog import cli
@@ -190,12 +191,6 @@ def test_planners_run_with_the_new_likelihoods(models, small_db, name, planner):
     rows = [np.flatnonzero((small_db.split == "test") & (small_db.camera == i) & (small_db.position == v)
                            & (small_db.object == 1) & (small_db.pose == 0))[0] for i, v in enumerate((1, 0))]
     views = small_db.images[rows]
-    odd = np.full_like(views, 3)
-    odd[:, :4] = 250
-    for t, images in enumerate((views, odd)):
-        state, dec = rec.step(state, jnp.asarray(images), jr.fold_in(key, t), trace=True)
-        assert bool(dec.valid)
-        assert np.all(np.isfinite(np.asarray(dec.trace.scores)))
-        for leaf in jax.tree.leaves(dec.trace.posterior):
-            assert np.all(np.isfinite(np.asarray(leaf)))
+    for t, images in enumerate((views, odd_images(views))):
+        state, dec = steps_stay_finite(rec, state, [images], jr.fold_in(key, t))
         assert 0.0 <= float(dec.probability) <= 1.0

@@ -19,7 +19,7 @@ import jax.numpy as jnp
 import jax.random as jr
 import numpy as np
 import pytest
-from builders import make_database
+from builders import make_database, odd_images, steps_stay_finite
 from oracles import bhattacharyya_ref, joint_uniform_ref, joint_update_ref, kl_ref
 from scipy.special import logsumexp
 from scipy.stats import multivariate_normal, norm
@@ -608,16 +608,9 @@ def test_recognizer_step_with_a_mixture_model(trained, planner):
     state = rec.init(config=(1,))
     (row,) = np.flatnonzero((db.split == "test") & (db.position == 1) & (db.object == 0) & (db.pose == 1))
     view = db.images[row][None]
-    odd = np.full_like(view, 3)
-    odd[:, :4] = 250
-    for t, images in enumerate((view, odd)):
-        state, dec = rec.step(state, jnp.asarray(images), jr.fold_in(key, t), trace=True)
-        assert bool(dec.valid)
-        assert np.all(np.isfinite(np.asarray(dec.trace.scores)))
-        post = dec.trace.posterior
-        for leaf in jax.tree.leaves(post):
-            assert np.all(np.isfinite(np.asarray(leaf)))
-        assert abs(float(jnp.sum(jnp.exp(post.log_pc))) - 1.0) < 1e-5
+    for t, images in enumerate((view, odd_images(view))):
+        state, dec = steps_stay_finite(rec, state, [images], jr.fold_in(key, t))
+        assert abs(float(jnp.sum(jnp.exp(dec.trace.posterior.log_pc))) - 1.0) < 1e-5
         assert 0.0 <= float(dec.probability) <= 1.0
 
 
