@@ -323,15 +323,15 @@ def _fit_position(images, mean, basis, lam, levels, params, bank, seed, camera, 
                 qz = table_q[p.image, idx]
             g = _noisy_features(pz, qz, p.brightness, alpha[sl], beta[sl], gamma[sl],
                                 vt1, vt_mean, D)
-            cls_ = labels[p.image]
+            cls_, sub = labels[p.image], comp[p.image]   # class, and component within it (0 but for a mixture)
             if period:
                 first = np.eye(C, dtype=np.int64)[cls_]      # [b, C] one-hot
                 rank = seen[cls_] + np.cumsum(first, axis=0)[np.arange(len(p)), cls_] - 1
                 seen += first.sum(axis=0)
                 out = rank % period == period - 1
                 held.append((g[out], cls_[out], np.full(int(out.sum()), k)))
-                g, cls_ = g[~out], cls_[~out]
-            acc.add(g, cls_ * M + comp[p.image] if M > 1 else cls_, k)
+                g, cls_, sub = g[~out], cls_[~out], sub[~out]
+            acc.add(g, cls_ * M + sub, k)
     floor = var_floor * lam.sum() / (K * C)
     if period:
         options = {**(options or {}), "holdout": tuple(np.concatenate(x) for x in zip(*held))}

@@ -187,44 +187,13 @@ class LowRankGaussian(Likelihood):
         """R normal numbers for the factors, K for the unique parts."""
         return self.rank + self.dim
 
-    def _capacitance_cholesky(self) -> Float[Array, "C L R R"]:
-        """Lower Cholesky factor of ``M = I + W^T Psi^-1 W`` per component."""
-        m = jnp.swapaxes(self.W, -1, -2) @ (self.W / self.psi[..., None])
-        return cholesky_lower(m + jnp.eye(self.rank, dtype=self.W.dtype)[None, None])
-
     def _terms(self, g: Float[ArrayLike, "N K"]):
-        """``(q [N, C, L], log|2 pi Sigma| [C, L])`` by Woodbury (module docstring)."""
-        k, r = self.dim, self.rank
+        """``(q [N, C, L], log|2 pi Sigma| [C, L])`` from the whitened loadings
+        (:func:`whiten`): ``q = d^T Psi^-1 d - |A d|^2``, ``d = g - mu``."""
         d = g[:, None, None, :] - self.mu[None]                          # [N, C, L, K]
-        a = d / self.psi[None]
-        wt = jnp.swapaxes(self.W, -1, -2)                                # [C, L, R, K]
-        log_psi = jnp.sum(jnp.log(self.psi), axis=-1)
-        if self.whitened is not None:  # q = d^T Psi^-1 d - |A d|^2 (whiten)
-            z = jnp.einsum("clrk,nclk->nclr", self.whitened, d)           # [N, C, L, R]
-            q = jnp.sum(d * d / self.psi[None], axis=-1) - jnp.sum(z * z, axis=-1)
-            return q, log_psi + 2.0 * self.half_logdet_capacitance + k * _LOG_2PI
-        if r <= _UNROLL_MAX_RANK:
-            # the Cholesky of [[M, u], [u^T, d^T Psi^-1 d]] written out, vectorised over
-            # the components (a batched LAPACK call per R x R matrix costs ~8x more per
-            # step): its leading diagonal gives log|M|, its last pivot q (Schur complement)
-            # (every entry a multiply-reduce over K: XLA's batched R x K GEMMs are slower here)
-            w = self.W[None]                                              # [1, C, L, K, R]
-            wp = w / self.psi[None, ..., None]
-            qd = jnp.sum(d * a, axis=-1)                                  # [N, C, L]
-
-            def entry(i, j):
-                if i == r:
-                    return qd if j == r else jnp.sum(a * w[..., j], axis=-1)
-                return jnp.sum(wp[..., i] * w[..., j], axis=-1) + (1.0 if i == j else 0.0)
-
-            half, q = _cholesky_schur(entry, r + 1)
-            return q, log_psi + 2.0 * half[0] + k * _LOG_2PI
-        b = self._capacitance_cholesky()                                 # [C, L, R, R]
-        u = jnp.einsum("clrk,nclk->clrn", wt, a)
-        w = solve_triangular(b, u, lower=True)                           # [C, L, R, N]
-        q = jnp.sum(d * a, axis=-1) - jnp.moveaxis(jnp.sum(w * w, axis=-2), -1, 0)
-        logdet = log_psi + 2.0 * jnp.sum(jnp.log(jnp.diagonal(b, axis1=-2, axis2=-1)), axis=-1) + k * _LOG_2PI
-        return q, logdet
+        z = jnp.einsum("clrk,nclk->nclr", self.whitened, d)               # [N, C, L, R]
+        q = jnp.sum(d * d / self.psi[None], axis=-1) - jnp.sum(z * z, axis=-1)
+        return q, jnp.sum(jnp.log(self.psi), axis=-1) + 2.0 * self.half_logdet_capacitance + self.dim * _LOG_2PI
 
     def log_density(self, g: Float[ArrayLike, "*B K"]) -> Float[Array, "*B C L"]:
         batch = g.shape[:-1]

@@ -102,6 +102,11 @@ class Likelihood(eqx.Module):
         calibration_shapes: names of the per-level shape parameters that
             calibration fits besides the variance factor (e.g. ``("nu",)``),
             through :meth:`calibrated_log_density` / :meth:`shape_shifted`.
+        derived_shapes: arrays the family computes from its stored fields
+            when it is built (``__init__``), e.g. a factorisation its density
+            reuses at every capture; never stored by the model file (which
+            rebuilds them on load through :meth:`from_arrays`), sliced and
+            stacked with the stored fields like any other leaf.
         view_components: ``True`` for a family with one component per
             rendered view of a class (the training image, then each of the
             database's ``jitter`` images of that view): training then passes
@@ -115,6 +120,7 @@ class Likelihood(eqx.Module):
     name: ClassVar[str | None] = None
     fit_options: ClassVar[tuple[str, ...]] = ()
     calibration_shapes: ClassVar[tuple[str, ...]] = ()
+    derived_shapes: ClassVar[dict[str, str]] = {}
     view_components: ClassVar[bool] = False
 
     def __check_init__(self):

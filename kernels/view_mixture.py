@@ -66,9 +66,6 @@ from .likelihood import Likelihood, register_likelihood
 
 __all__ = ["ViewMixture", "LowRankViewMixture", "mixture_log_weights"]
 
-_LOG_2PI = math.log(2.0 * math.pi)
-
-
 def mixture_log_weights(n_components: int, nominal_weight: float | None = None) -> np.ndarray:
     """``log w [M]``: uniform (``nominal_weight=None``), or ``w_0 = nominal_weight``
     for the training view and the rest shared equally by the ``M - 1`` others."""
@@ -97,7 +94,7 @@ class _ViewMixture(Likelihood):
     @classmethod
     def _component_fields(cls) -> tuple[str, ...]:
         """The component family's stored fields, then its derived ones (not stored)."""
-        return tuple(cls.component.field_shapes) + tuple(getattr(cls.component, "derived_shapes", {}))
+        return tuple(cls.component.field_shapes) + tuple(cls.component.derived_shapes)
 
     @property
     def n_components(self) -> int:

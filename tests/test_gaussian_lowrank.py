@@ -191,7 +191,7 @@ def test_bhattacharyya_float32(rng, k, r):
 
 
 def test_log_density_above_the_unrolled_rank_against_scipy(rng, x64):
-    """R > _UNROLL_MAX_RANK takes the batched Cholesky and triangular solve: same density."""
+    """Above the Bhattacharyya distance's unrolled rank the whitened density still matches SciPy."""
     from jaxrecog.kernels.gaussian_lowrank import _UNROLL_MAX_RANK
 
     r = _UNROLL_MAX_RANK + 2
