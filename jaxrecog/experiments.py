@@ -150,6 +150,11 @@ class Settings:
         exclude_visited_positions: never send a camera back to a position it
             already used (:class:`~jaxrecog.recognizer.Recognizer`; a departure
             from the thesis, off by default).
+        shared_view: keep a view mixture's component (the object's turn) in
+            the belief, one per trial for every camera and step
+            (:class:`~jaxrecog.recognizer.Recognizer`,
+            :mod:`jaxrecog.kernels.shared_latent`; not in the thesis, off by
+            default; needs a view-mixture likelihood).
         motion_cost: λ >= 0 of motion-cost-aware planning, score units per
             second (nats/s for MI): each configuration's score is lowered by
             λ times the seconds the rig needs to move there
@@ -199,6 +204,7 @@ class Settings:
     transition: str = "uniform"
     stride: int = 1
     exclude_visited_positions: bool = False
+    shared_view: bool = False
     motion_cost: float = 0.0
     devices: int = 1
     off_grid_deg: float | None = None
@@ -389,7 +395,7 @@ def _run_id(settings: Settings, model_path: Path | str) -> str:
 
     fields = {k: v for k, v in dataclasses.asdict(settings).items() if k not in ("workdir", "batch", "devices")}
     # added later: off keeps the digests of earlier runs
-    for k in ("exclude_visited_positions", "motion_cost", *_OFF_GRID_FIELDS):
+    for k in ("exclude_visited_positions", "shared_view", "motion_cost", *_OFF_GRID_FIELDS):
         if not fields[k]:
             del fields[k]
     defaults = _training_defaults()
@@ -559,7 +565,8 @@ def make_recognizer(model, planner_name: str, settings: Settings, travel=None):
                            min_per_stratum=settings.min_per_stratum)
     motion = None if travel is None else MotionCost(travel, settings.motion_cost)
     return Recognizer(model, planner, p_threshold=settings.p_threshold, max_steps=settings.max_steps, transition=settings.transition,
-                      exclude_visited_positions=settings.exclude_visited_positions, motion=motion)
+                      exclude_visited_positions=settings.exclude_visited_positions, motion=motion,
+                      shared_view=settings.shared_view)
 
 
 def case_model(prepared: Prepared, case: Case):

@@ -163,6 +163,14 @@ class Recognizer(eqx.Module):
             all its positions are used (e.g. camera 2 after 7 views), so some
             configuration always remains; configurations already used stay
             excluded as before.  Ignored where revisits are allowed.
+        shared_view: for a view-mixture model, keep the mixture component
+            (the object's turn off the training pose) in the state, one for
+            every camera and step, instead of marginalising it per capture
+            (:mod:`jaxrecog.kernels.shared_latent`; default off).  *Not in the
+            thesis*: the belief is over ``(c, m, k_i)``; everything outside
+            the step (decisions, planner, trace) sees its marginal over ``m``
+            (:meth:`belief`).  A ``ValueError`` for a model without view
+            components.
     """
 
     model: object
@@ -174,10 +182,31 @@ class Recognizer(eqx.Module):
     revisit: bool = eqx.field(static=True, default=False)
     exclude_visited_positions: bool = eqx.field(static=True, default=False)
     motion: MotionCost | None = None
+    shared_view: bool = eqx.field(static=True, default=False)
 
     def __check_init__(self):
         if self.motion is not None and tuple(self.motion.positions) != tuple(self.positions):
             raise ValueError(f"motion cost tables have positions {self.motion.positions}, the model {tuple(self.positions)}")
+        if self.shared_view:
+            K.shared_latent.shared_components(self.model.likelihoods)
+            for i, lik in enumerate(self.model.likelihoods):
+                try:
+                    w = np.asarray(lik.log_w)
+                except Exception:   # traced (inside a transform): checked where it was built
+                    continue
+                if not np.allclose(w, w[:1, :, :1, :], atol=1e-5):
+                    raise ValueError(f"shared_view: camera {i}'s mixture weights differ between positions or "
+                                     f"levels; a shared view component needs one prior over components per class")
+
+    @property
+    def n_view_components(self) -> int:
+        """``M`` of the shared view component (1 without ``shared_view``)."""
+        return K.shared_latent.shared_components(self.model.likelihoods) if self.shared_view else 1
+
+    def belief(self, prior: K.Belief) -> K.Belief:
+        """The belief over (class, levels) of a state's ``prior`` (with
+        ``shared_view``, its marginal over the view component; else itself)."""
+        return K.shared_latent.marginal(prior, self.n_view_components) if self.shared_view else prior
 
     @property
     def positions(self) -> tuple[int, ...]:
@@ -202,6 +231,9 @@ class Recognizer(eqx.Module):
             raise ValueError(f"config must give one position per camera ({len(positions)}), got shape {config.shape}")
         dtype = self.model.cameras[0].likelihood.dtype
         prior = K.uniform_belief(self.model.n_objects * self.model.n_poses, tuple(len(self.model.levels) for _ in positions), dtype=dtype)
+        if self.shared_view:
+            log_pm = K.shared_latent.prior_log_weights(self.model.likelihoods[0]).astype(dtype)
+            prior = K.shared_latent.extend(prior, log_pm)
         return RecognizerState(prior, config, jnp.zeros((), jnp.int32), jnp.zeros((self.n_configs,), bool),
                                tuple(jnp.zeros((v,), bool) for v in positions))
 
@@ -215,10 +247,16 @@ class Recognizer(eqx.Module):
         model = self.model
         positions = self.positions
         gs, ok = image_features(model, state.config, jnp.asarray(images))
-        logliks = K.camera_log_likelihoods(gs, state.config, model.likelihoods)
-        posterior, info = K.update_with_info(state.prior, logliks, valid=ok)
+        if self.shared_view:
+            logliks = K.shared_latent.component_log_likelihoods(gs, state.config, model.likelihoods)
+        else:
+            logliks = K.camera_log_likelihoods(gs, state.config, model.likelihoods)
+        # the state's own belief (over (c, m, k) with shared_view), and its
+        # marginal over (c, k), which everything after the update reads
+        state_posterior, info = K.update_with_info(state.prior, logliks, valid=ok)
+        posterior = self.belief(state_posterior)
 
-        pc = K.class_marginal(posterior)
+        pc = jnp.minimum(K.class_marginal(posterior), 1.0)   # exp of a float32 log-probability may round above 1
         best = jnp.argmax(pc)
         prob = pc[best]
         steps = state.steps + 1
@@ -229,7 +267,8 @@ class Recognizer(eqx.Module):
         visited = state.visited.at[here].set(True)
         seen = state.visited_positions or tuple(jnp.zeros((v,), bool) for v in positions)
         seen = tuple(s.at[state.config[i]].set(True) for i, s in enumerate(seen))
-        predicted = K.transition_per_position(posterior, state.config, positions, kind=self.transition, rho=self.rho)
+        state_predicted = K.transition_per_position(state_posterior, state.config, positions, kind=self.transition, rho=self.rho)
+        predicted = self.belief(state_predicted)
         # a planner that looks past this prior predicts with the recognizer's transition
         scores = self.planner.with_transition(self.transition, self.rho).scores(predicted, key)
         if self.motion is not None:
@@ -252,7 +291,7 @@ class Recognizer(eqx.Module):
         next_config = jnp.stack(config_from_index(nxt, positions)).astype(jnp.int32)
 
         # the prior for the next images: the predicted prior at the chosen positions
-        next_prior = K.Belief(predicted.log_pc, tuple(lp[v] for lp, v in zip(predicted.log_pk, next_config)))
+        next_prior = K.Belief(state_predicted.log_pc, tuple(lp[v] for lp, v in zip(state_predicted.log_pk, next_config)))
         new_state = RecognizerState(next_prior, next_config, steps, visited, seen)
         step_trace = None
         if trace:

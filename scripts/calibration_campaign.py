@@ -69,6 +69,8 @@ def main(argv=None) -> int:
     ap.add_argument("--occluded-fraction", type=float, default=0.5,
                     help="occluded cases: share of calib views with a board in front of that view")
     ap.add_argument("--exclude-visited", action="store_true", help="never send a camera back to a position it used")
+    ap.add_argument("--shared-view", action="store_true",
+                    help="keep a view mixture's component in the belief, one per trial (Recognizer(shared_view=True))")
     likelihood_options(ap)
     render_jitter_options(ap)
     args = ap.parse_args(argv)
@@ -78,7 +80,7 @@ def main(argv=None) -> int:
     settings = Settings(workdir=args.workdir, trials_per_object=args.trials, seed=args.seed, samples=args.samples,
                         batch=args.batch, n_components=args.n_components, samples_per_image=args.samples_per_image,
                         likelihood=likelihood, likelihood_options=options, exclude_visited_positions=args.exclude_visited,
-                        **render_jitter_values(args))
+                        shared_view=args.shared_view, **render_jitter_values(args))
     settings = case_settings(case, settings)  # the case's off-grid amounts (jitter cases)
     t0 = time.perf_counter()
     prepared = prepare(settings, progress=True, databases=(case.database,))
@@ -123,7 +125,7 @@ def main(argv=None) -> int:
         models = {k: restrict_cameras(m, case.cameras) for k, m in models.items()}
 
     results, metrics = {}, {}
-    tag = (f"-{model_path.stem.removeprefix('model-')}{'-xv' if args.exclude_visited else ''}"
+    tag = (f"-{model_path.stem.removeprefix('model-')}{'-xv' if args.exclude_visited else ''}{'-sv' if args.shared_view else ''}"
            f"-{'perlevel' if args.per_level else 'perpos'}-sd{args.prior_sd:g}-min{min_factor or 0:g}"
            f"-y{args.yaw:g}-e{args.eye_offset:g}-l{args.light:g}-c{args.calib_per_view}"
            f"{f'-front{args.occluded_fraction:g}' if case.occluded else ''}")

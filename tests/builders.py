@@ -85,14 +85,23 @@ def make_database(
     *,
     n_calib: int = 0,
     view_offset: float = 0.0,
+    n_jitter: int = 0,
+    jitter_offset: float = 0.25,
 ) -> ImageDatabase:
     """An in-memory synthetic database: one ``train`` image per
     (camera, position, object, pose), plus ``n_test`` ``test`` and ``n_calib``
     ``calib`` images of each: shifted by up to 2 pixels, gray noise sd 3 and,
     with ``view_offset`` > 0, taken *between* the positions (at
     ``v + U(-view_offset, view_offset)``, labelled with the nearest ``v``:
-    views the augmentation does not model)."""
+    views the augmentation does not model); and ``n_jitter`` clean ``jitter``
+    images of each, rendered at ``v + d`` for the alternating offsets ``d`` of
+    ``hardware.render_db.alternating_offsets(n_jitter, jitter_offset)``
+    (positions; the same offsets at every view, in the same order, as the
+    rendered databases' view jitter)."""
+    from jaxrecog.hardware.render_db import alternating_offsets
+
     rng = np.random.default_rng(seed)
+    jitter = alternating_offsets(n_jitter, jitter_offset) if n_jitter else ()
     imgs, cam, pos, obj, pose, split = [], [], [], [], [], []
     for i, n_pos in enumerate(positions):
         for v in range(n_pos):
@@ -101,6 +110,7 @@ def make_database(
                     kw = dict(n_poses=n_poses, n_positions=n_pos, image_shape=image_shape)
                     clean = render_view(i, v, m, p, **kw)
                     variants = [("train", clean)]
+                    variants += [("jitter", render_view(i, v + d, m, p, **kw)) for d in jitter]
                     for s, count in (("test", n_test), ("calib", n_calib)):
                         for _ in range(count):
                             near = render_view(i, v + rng.uniform(-view_offset, view_offset), m, p, **kw) \

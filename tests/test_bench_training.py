@@ -29,3 +29,16 @@ def test_one_row_per_likelihood_with_ratios(tmp_path, capsys):
 def test_unknown_likelihood_is_an_error(tmp_path, capsys):
     assert _bench().main([*TINY, "--likelihoods", "nope", "--out", str(tmp_path / "t.json")]) == 2
     assert "unknown likelihood" in capsys.readouterr().err
+
+
+def test_view_mixtures_train_on_jitter_images(tmp_path):
+    """A view mixture trains on ``--view-jitter`` extra images per view (one
+    component each); the thesis's Gaussian of the same run on none."""
+    out = tmp_path / "t.json"
+    assert _bench().main([*TINY, "--view-jitter", "2", "--likelihoods", "gaussian-diag", "view-mixture-lowrank",
+                          "--out", str(out)]) == 0
+    rows = {r["likelihood"]: r for r in json.loads(out.read_text())["rows"]}
+    assert rows["gaussian-diag"]["sizes"]["view_jitter_images_per_view"] == 0
+    mix = rows["view-mixture-lowrank"]["sizes"]
+    assert mix["view_jitter_images_per_view"] == 2
+    assert mix["augmented_samples"] == 3 * rows["gaussian-diag"]["sizes"]["augmented_samples"]

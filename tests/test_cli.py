@@ -625,6 +625,9 @@ def test_experiment_view_choice_and_devices_flags(fake_experiments, tmp_path, ca
     assert cli.main(["--quiet", "experiment", str(toml), "--out", str(out)]) == 0
     s = fake_experiments["run_case"][1]
     assert (s.exclude_visited_positions, s.motion_cost) == (True, 0.5)
+    assert not s.shared_view
+    assert cli.main(["--quiet", "experiment", "i", "--out", str(out), "--planners", "mi", "--shared-view"]) == 0
+    assert fake_experiments["run_case"][1].shared_view
     capsys.readouterr()
     assert cli.main(["experiment", "i", "--out", str(out), "--motion-cost", "-1"]) == 2
     assert "motion cost" in capsys.readouterr().err
@@ -644,6 +647,10 @@ def test_recognize_view_choice_flags(tiny, capsys):
     # a replayed database has no geometry: no travel times to weigh
     assert cli.main(["recognize", str(tiny["model"]), "--rig", rig, "--samples", "64", "--motion-cost", "1"]) == 2
     assert "geometry" in capsys.readouterr().err
+    # --shared-view needs a view-mixture model: one clear line, no traceback
+    assert cli.main(["recognize", str(tiny["model"]), "--rig", rig, "--samples", "64", "--shared-view"]) != 0
+    err = capsys.readouterr().err
+    assert "no view components" in err and "Traceback" not in err
 
 
 def test_default_planner_is_one_registered_name_everywhere():

@@ -98,14 +98,18 @@ def motion_weight(text: str) -> float:
 
 def choice_options(p: argparse.ArgumentParser, *, unset: bool = False) -> None:
     """How the next configuration is chosen beyond the planner's scores
-    (``experiment`` and ``recognize``): ``--exclude-visited`` and
-    ``--motion-cost``.  Both depart from the thesis and are off by default.
+    (``experiment`` and ``recognize``): ``--exclude-visited``,
+    ``--shared-view`` and ``--motion-cost``.  All depart from the thesis and are off by default.
     ``unset``: leave them ``None`` when not given (``experiment``, where an
     experiment TOML may set them)."""
     g = p.add_argument_group("view choice (departures from the thesis, off by default)")
     g.add_argument("--exclude-visited", action="store_true", default=None if unset else False,
                    help="never send a camera back to a position it already took an image from (the thesis "
                         "excludes only whole configurations already used, so one camera may stay on its view)")
+    g.add_argument("--shared-view", action="store_true", default=None if unset else False,
+                   help="a view-mixture model's component (the object's turn off the training pose) is one per "
+                        "trial, shared by every camera and step, and kept in the belief (instead of chosen anew "
+                        "for each capture)")
     g.add_argument("--motion-cost", type=motion_weight, metavar="LAMBDA", default=None if unset else 0.0,
                    help="score(a) - LAMBDA * seconds to move the rig to a: LAMBDA >= 0 in score units per second "
                         "(nats/s for the MI planners); travel times from the rig's geometry and axis speeds "

@@ -72,7 +72,7 @@ def run(args) -> int:
         what = f"belief after images at ({fmt_cfg(args.at)}){unused}"
     else:
         state = rec.init(config=(0,) * len(positions))
-        scores = np.asarray(planner.scores(state.prior, k_score))
+        scores = np.asarray(planner.scores(rec.belief(state.prior), k_score))
         what = "uniform belief"
     best, rows = _scores_report(scores, positions, args.top)
     cfg = config_from_index(int(best), positions)

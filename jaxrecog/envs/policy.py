@@ -80,7 +80,7 @@ class PlannerPolicy:
         self.last_decision = dec
         # the class marginal after these images: the next prior's (the level
         # transition leaves P(c) as it is, eq. 3.8)
-        pc = np.clip(np.asarray(K.class_marginal(self._state.prior), np.float64), 0.0, 1.0)
+        pc = np.clip(np.asarray(K.class_marginal(self.recognizer.belief(self._state.prior)), np.float64), 0.0, 1.0)
         form = self.env.prediction_form
         if form == "index":
             pred: Any = np.int64(np.argmax(pc)) if bool(dec.stop) else np.int64(self.env.n_classes)
