@@ -79,6 +79,29 @@ def step_latency(model, planner: str, settings: Settings, images, repeat: int) -
     }
 
 
+def paired_step_ratio(model_a, model_b, planner: str, settings: Settings, images, repeat: int) -> dict:
+    """Steps of two models' recognizers timed alternately (a, b, a, b, ...)
+    after warm-up, so both see the same machine load: the ratio of their
+    medians and the median of the per-pair ratios b / a.  On a shared machine
+    whose speed drifts between runs this is the comparison to trust; the
+    separate medians of :func:`step_latency` are not from the same moments."""
+    recs = [make_recognizer(m, planner, settings) for m in (model_a, model_b)]
+    states = [r.init(config=(3, 2)) for r in recs]
+    for r, st in zip(recs, states):
+        for i in range(11):
+            jax.block_until_ready(r.step(st, images, jr.PRNGKey(10_000 + i))[1])
+    keys = [jr.PRNGKey(i) for i in range(repeat)]
+    times = np.empty((repeat, 2))
+    for i, k in enumerate(keys):
+        for j, (r, st) in enumerate(zip(recs, states)):
+            t0 = time.perf_counter()
+            jax.block_until_ready(r.step(st, images, k)[1])
+            times[i, j] = time.perf_counter() - t0
+    med = np.median(times, axis=0)
+    return {"median_ms": [1e3 * float(x) for x in med], "ratio_of_medians": float(med[1] / med[0]),
+            "median_pair_ratio": float(np.median(times[:, 1] / times[:, 0])), "steps_each": repeat}
+
+
 def _row_name(r: dict) -> str:
     """A latency row's key in the ratio tables: planner, then the variant or the likelihood in brackets."""
     extra = r.get("variant") or r.get("likelihood")
@@ -125,6 +148,7 @@ def main(argv=None) -> int:
             base = next(r for r in latency if r["planner"] == name and "likelihood" not in r)
             row = dict(step_latency(other[1], name, settings, images, args.repeat), likelihood=other[0])
             row["ratio_vs_default_likelihood"] = row["median_ms"] / base["median_ms"]
+            row["paired"] = paired_step_ratio(model, other[1], name, settings, images, max(args.repeat, 200))
             latency.append(row)
     # the issue's latency target is defined at 1024 samples per configuration,
     # which for DB2 (1152 strata) is one sample per stratum: measure that too
@@ -136,7 +160,10 @@ def main(argv=None) -> int:
         print(f"step {r['planner']:9s} (J={r['samples_per_stratum']}){' ' + r['likelihood'] if 'likelihood' in r else ''}: "
               f"median {r['median_ms']:7.2f} ms (min {r['min_ms']:.2f}), "
               f"in a batch of 16: {r['batched_per_trial_ms']:.2f} ms/trial, compile {r['compile_s']:.1f} s"
-              + (f", {r['ratio_vs_default_likelihood']:.2f}x the default likelihood's" if "likelihood" in r else ""))
+              + (f", {r['ratio_vs_default_likelihood']:.2f}x the default likelihood's (timed alternately: "
+                 f"{r['paired']['median_ms'][1]:.2f} vs {r['paired']['median_ms'][0]:.2f} ms, "
+                 f"{r['paired']['ratio_of_medians']:.2f}x; median pair ratio {r['paired']['median_pair_ratio']:.2f}x)"
+                 if "likelihood" in r else ""))
 
     accuracy = None
     if not args.skip_accuracy:
