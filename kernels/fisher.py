@@ -185,12 +185,14 @@ def _fisher_information(tables: MITables, belief: Belief, key: PRNGKeyArray, n_o
     letters = "pqrstuvwxy"[:n]
     caps = "PQRSTUVWXY"[:n]
     shaped = delta.reshape((n_c, j) + sum(((v, t.shape[2]) for v, t in zip(positions, tables.ld)), ()) + (n + 2,))
-    grid_in = "cj" + "".join(a + b for a, b in zip(letters, caps))
-    spec = (
-        "c," + grid_in + "d," + grid_in + "e," + ",".join(f"{a}c{b}" for a, b in zip(letters, caps))
-        + "->" + ("j" if with_stderr else "") + letters + "de"
-    )
-    fis = jnp.einsum(spec, pc, shaped, shaped, *pk)
+    grid_w = "c" + "".join(a + b for a, b in zip(letters, caps))
+    grid_in = "cj" + grid_w[1:]
+    # the stratum weights P(c) prod_i P_i[v_i](k_i | c) on the grid first, then one
+    # contraction with the score outer products (all five operands in one einsum
+    # were contracted in a slower order: 0.8x the time at J = 1 and 4, thesis size)
+    w = jnp.einsum("c," + ",".join(f"{a}c{b}" for a, b in zip(letters, caps)) + "->" + grid_w, pc, *pk)
+    spec = f"{grid_w},{grid_in}d,{grid_in}e->" + ("j" if with_stderr else "") + letters + "de"
+    fis = jnp.einsum(spec, w, shaped, shaped)
     if not with_stderr:
         fis = (fis / j).reshape((-1, n + 2, n + 2))
         return 0.5 * (fis + jnp.swapaxes(fis, -1, -2))
