@@ -18,11 +18,16 @@ level.  One sample is (pixel model, before 8-bit rounding and clipping)::
                              ``gain_cells × gain_cells`` grid c ~ U(-gain_amplitude,
                              gain_amplitude) to H × W (so |g - 1| <= gain_amplitude)
     m                        occlusion mask (0 on the occluder, 1 elsewhere)
+    (1 - m) v                the occluder's own gray level, v ~ U(occluder_gray); off
+                             by default (v = 0: black, the thesis's occluder)
     b ~ N(0, brightness_sigma²)   global brightness change of the image
     n ~ N(0, noise_sigma² I)      per-pixel camera noise
 
-so the occluder is a black object in the scene that the camera then images
-with the same brightness change and noise as everything else.  ``A``, ``G``
+so the occluder is a black (or, with ``occluder_gray``, a uniformly gray)
+object in the scene that the camera then images with the same brightness
+change and noise as everything else.  A real occluder is rarely black (the
+synthetic rig's boards are cardboard gray); ``occluder_gray = (lo, hi)``
+draws its gray level per sample (not in the thesis; off by default).  ``A``, ``G``
 and ``g`` model what a real capture does off the training grid (a slightly
 turned or nearer camera, defocus, uneven lighting); they are *off by
 default* (``max_rotation = max_scale = gain_amplitude = 0``, ``blur_sigma =
@@ -119,6 +124,14 @@ class AugmentParams:
     gain_amplitude: float = 0.0
     #: control grid of the gain field: ``gain_cells × gain_cells`` values (>= 2)
     gain_cells: int = 3
+    #: the occluder's gray level v ~ U(lo, hi) (0..255) per sample; ``(0, 0)`` =
+    #: black, the thesis's occluder
+    occluder_gray: tuple[float, float] = (0.0, 0.0)
+
+    @property
+    def gray_occluders(self) -> bool:
+        """Whether the occluder's gray level is drawn (else it is black)."""
+        return self.occluder_gray[1] > 0
 
     @property
     def capture(self) -> bool:
@@ -128,6 +141,11 @@ class AugmentParams:
 
     def __post_init__(self):
         object.__setattr__(self, "blur_sigma", tuple(float(x) for x in self.blur_sigma))
+        object.__setattr__(self, "occluder_gray", tuple(float(x) for x in self.occluder_gray))
+        if len(self.occluder_gray) != 2 or not all(np.isfinite(x) and 0 <= x <= 255 for x in self.occluder_gray) \
+                or self.occluder_gray[0] > self.occluder_gray[1]:
+            raise ValueError(f"occluder_gray must be (lo, hi) gray levels with 0 <= lo <= hi <= 255, "
+                             f"got {self.occluder_gray}")
         for name in ("max_rotation", "max_scale", "gain_amplitude"):
             v = getattr(self, name)
             if not (np.isfinite(v) and v >= 0):
@@ -262,8 +280,10 @@ def occluder_bank(levels: tuple[float, ...], image_shape: tuple[int, int],
 class SamplePlan:
     """Random parameters of ``B`` samples (all ``[B]``): source image, shift,
     occluder template (-1 = none) and its top-left corner, brightness offset;
-    and, when :attr:`AugmentParams.capture` is on (else ``None``): rotation
-    (degrees), scale offset ``a``, blur σ, gain grid ``[B, cells, cells]``."""
+    when :attr:`AugmentParams.capture` is on (else ``None``): rotation
+    (degrees), scale offset ``a``, blur σ, gain grid ``[B, cells, cells]``;
+    when :attr:`AugmentParams.gray_occluders` is on (else ``None``, black):
+    the occluder's gray level."""
 
     image: np.ndarray
     dy: np.ndarray
@@ -276,6 +296,7 @@ class SamplePlan:
     scale: np.ndarray | None = None
     blur: np.ndarray | None = None
     gain: np.ndarray | None = None
+    occluder_value: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.image.shape[0])
@@ -303,9 +324,10 @@ def draw_plan(rng: np.random.Generator, n_images: int, params: AugmentParams,
     (sample ``j`` of image ``i`` is row ``i * samples_per_image + j``).
 
     ``capture``: the generator of the capture transforms (:func:`capture_rng`),
-    needed when ``params.capture``; it draws, in this order and whatever is on,
-    rotation, scale, blur σ and gain grid, so one transform's draws never
-    depend on which others are on."""
+    needed when ``params.capture`` or ``params.gray_occluders``; it draws, in
+    this order and whatever is on, rotation, scale, blur σ, gain grid and the
+    occluders' gray level, so one transform's draws never depend on which
+    others are on (and the gray level, drawn last, changes none of them)."""
     H, W = image_shape
     n = params.samples_per_image
     B = n_images * n
@@ -329,20 +351,27 @@ def draw_plan(rng: np.random.Generator, n_images: int, params: AugmentParams,
         x0 = np.zeros(m, np.int64)
     if params.shared_draws:  # row i * n + j takes draw j
         dy, dx, template, y0, x0, brightness = (np.tile(a, n_images) for a in (dy, dx, template, y0, x0, brightness))
-    if not params.capture:
+    if not (params.capture or params.gray_occluders):
         return SamplePlan(image, dy, dx, template, y0, x0, brightness)
     if capture is None:
-        raise ValueError("rotation, scale, blur or gain is on: draw_plan needs the capture generator")
-    g = params.gain_cells
-    rotation = capture.uniform(-1.0, 1.0, size=m) * params.max_rotation
-    scale = capture.uniform(-1.0, 1.0, size=m) * params.max_scale
-    lo, hi = params.blur_sigma
-    blur = lo + capture.random(m) * (hi - lo)
-    gain = capture.uniform(-1.0, 1.0, size=(m, g, g)) * params.gain_amplitude
-    if params.shared_draws:
-        rotation, scale, blur = (np.tile(a, n_images) for a in (rotation, scale, blur))
-        gain = np.tile(gain, (n_images, 1, 1))
-    return SamplePlan(image, dy, dx, template, y0, x0, brightness, rotation, scale, blur, gain)
+        raise ValueError("rotation, scale, blur, gain or gray occluders are on: draw_plan needs the capture generator")
+    rotation = scale = blur = gain = value = None
+    if params.capture:
+        g = params.gain_cells
+        rotation = capture.uniform(-1.0, 1.0, size=m) * params.max_rotation
+        scale = capture.uniform(-1.0, 1.0, size=m) * params.max_scale
+        lo, hi = params.blur_sigma
+        blur = lo + capture.random(m) * (hi - lo)
+        gain = capture.uniform(-1.0, 1.0, size=(m, g, g)) * params.gain_amplitude
+        if params.shared_draws:
+            rotation, scale, blur = (np.tile(a, n_images) for a in (rotation, scale, blur))
+            gain = np.tile(gain, (n_images, 1, 1))
+    if params.gray_occluders:
+        lo, hi = params.occluder_gray
+        value = lo + capture.random(m) * (hi - lo)
+        if params.shared_draws:
+            value = np.tile(value, n_images)
+    return SamplePlan(image, dy, dx, template, y0, x0, brightness, rotation, scale, blur, gain, value)
 
 
 def capture_transform(image: np.ndarray, rotation: float, scale: float, blur: float,
@@ -385,7 +414,9 @@ def apply_geometry(images: np.ndarray | ShiftWindows, plan: SamplePlan, bank: Oc
                    max_shift: int, *, return_masks: bool = False):
     """``m ⊙ S_d x`` for every sample of ``plan``: shift then occlude, ``uint8 [B, H, W]``;
     with capture transforms in the plan (``plan.rotation`` not ``None``),
-    ``m ⊙ (g ⊙ G_σ A_{θ,a} S_d x)``, ``float32 [B, H, W]`` (not rounded).
+    ``m ⊙ (g ⊙ G_σ A_{θ,a} S_d x)``, ``float32 [B, H, W]`` (not rounded); with
+    gray occluders (``plan.occluder_value``), ``+ (1 - m) v`` (``v`` rounded to
+    an integer gray level in the ``uint8`` form).
 
     Shifts are vectorised through a sliding-window view of the edge-padded
     images (pass a :class:`ShiftWindows` to reuse it across batches); occluders are pasted per sample (a slice each).  With
@@ -402,11 +433,16 @@ def apply_geometry(images: np.ndarray | ShiftWindows, plan: SamplePlan, bank: Oc
     temps = bank.templates[level]
     if temps:
         keep = [(1 - t).astype(out.dtype, copy=False) for t in temps]
+        value = plan.occluder_value
+        if value is not None and out.dtype == np.uint8:
+            value = np.clip(np.round(value), 0, 255)
         for b in range(len(plan)):
             j = plan.template[b]
             t = keep[j]
             y0, x0 = plan.y0[b], plan.x0[b]
             out[b, y0: y0 + t.shape[0], x0: x0 + t.shape[1]] *= t
+            if value is not None:   # keep is 0 on the occluder: add v there (no overflow)
+                out[b, y0: y0 + t.shape[0], x0: x0 + t.shape[1]] += (temps[j] * value[b]).astype(out.dtype)
             if return_masks:
                 masks[b, y0: y0 + t.shape[0], x0: x0 + t.shape[1]] = temps[j] > 0
     return (out, masks) if return_masks else out

@@ -178,7 +178,10 @@ class Settings:
         max_rotation, max_scale, blur_sigma, gain_amplitude, gain_cells: the
             capture augmentation of training
             (:class:`~jaxrecog.augment.AugmentParams`; off by default).
-            Anything but the defaults of these six fields gives the models
+        occluder_gray: ``(lo, hi)``: DB2's training occluders get a gray
+            level drawn from ``U(lo, hi)`` (0..255) instead of black (the
+            thesis's; ``(0, 0)``, the default).
+            Anything but the defaults of these seven fields gives the models
             their own file names and cache keys (:func:`prepare`).
         view_jitter, view_jitter_deg: render this many views *near* each
             training view (the object turned up to ±``view_jitter_deg``
@@ -218,6 +221,7 @@ class Settings:
     blur_sigma: tuple[float, float] | list[float] | float = (0.0, 0.0)  # one number: (0, sigma)
     gain_amplitude: float = 0.0
     gain_cells: int = 3
+    occluder_gray: tuple[float, float] | list[float] = (0.0, 0.0)
     view_jitter: int = 0
     view_jitter_deg: float = 10.0
 
@@ -275,6 +279,7 @@ class Settings:
         blur = self.blur_sigma
         blur = (0.0, float(blur)) if isinstance(blur, (int, float)) else tuple(float(x) for x in blur)
         object.__setattr__(self, "blur_sigma", blur)
+        object.__setattr__(self, "occluder_gray", tuple(float(x) for x in self.occluder_gray))
         self.augment_params()  # raises on a bad augmentation
 
     def augment_params(self):
@@ -285,7 +290,8 @@ class Settings:
 
         return AugmentParams(samples_per_image=self.samples_per_image, max_rotation=float(self.max_rotation),
                              max_scale=float(self.max_scale), blur_sigma=self.blur_sigma,
-                             gain_amplitude=float(self.gain_amplitude), gain_cells=int(self.gain_cells))
+                             gain_amplitude=float(self.gain_amplitude), gain_cells=int(self.gain_cells),
+                             occluder_gray=self.occluder_gray)
 
 
 _OFF_GRID_FIELDS = ("off_grid_deg", "off_grid_eye", "off_grid_light")
@@ -324,7 +330,8 @@ def _progress_bar(total: int, desc: str, enabled: bool):
 #: Settings fields of the likelihood and the capture augmentation, and their
 #: defaults: models trained with these keep the file names and cache keys
 #: they had before the fields existed.
-_AUGMENT_FIELDS = ("max_rotation", "max_scale", "blur_sigma", "gain_amplitude", "gain_cells")
+_AUGMENT_FIELDS = ("max_rotation", "max_scale", "blur_sigma", "gain_amplitude", "gain_cells", "occluder_gray")
+_LATER_AUGMENT_FIELDS = ("occluder_gray",)
 _TRAINING_FIELDS = ("likelihood", "likelihood_options", *_AUGMENT_FIELDS, "view_jitter", "view_jitter_deg")
 
 
@@ -353,7 +360,10 @@ def _training_params(settings: Settings, kind: str) -> dict:
         params["likelihood"] = likelihood_class(settings.likelihood).kind
         params["likelihood_options"] = {k: v for k, v in settings.likelihood_options}
         aug = dataclasses.asdict(settings.augment_params())
-        params["augment"] = {k: (list(aug[k]) if isinstance(aug[k], tuple) else aug[k]) for k in _AUGMENT_FIELDS}
+        # a field added later counts only when set: model files from before it stay valid
+        later = {k for k in _LATER_AUGMENT_FIELDS if getattr(settings, k) == _training_defaults()[k]}
+        params["augment"] = {k: (list(aug[k]) if isinstance(aug[k], tuple) else aug[k])
+                             for k in _AUGMENT_FIELDS if k not in later}
     return params
 
 

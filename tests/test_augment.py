@@ -254,6 +254,9 @@ def test_capture_then_occluder_keeps_the_occluder_black():
     ({"blur_sigma": (-1.0, 1.0)}, "blur_sigma"),
     ({"blur_sigma": (2.0, 1.0)}, "blur_sigma"),
     ({"gain_cells": 1}, "gain_cells"),
+    ({"occluder_gray": (10.0, 5.0)}, "occluder_gray"),
+    ({"occluder_gray": (0.0, 300.0)}, "occluder_gray"),
+    ({"occluder_gray": (float("nan"), 5.0)}, "occluder_gray"),
 ])
 def test_capture_parameter_validation(kw, needle):
     with pytest.raises(ValueError, match=needle):
@@ -265,3 +268,45 @@ def test_draw_plan_needs_the_capture_generator():
     bank = occluder_bank((0.0,), SHAPE, p, 0)
     with pytest.raises(ValueError, match="capture generator"):
         draw_plan(plan_rng(0, 0, 0, 0), 1, p, bank, 0, SHAPE)
+
+
+# -- gray occluders ------------------------------------------------------------
+
+@pytest.mark.parametrize("capture", [False, True])
+def test_gray_occluders_paint_the_occluder_with_its_drawn_level(capture):
+    """``occluder_gray = (lo, hi)``: every occluded pixel of sample b is its own
+    v_b (rounded in the uint8 form; exactly v_b in the float form of the capture
+    transforms), v_b spread over [lo, hi]; the pixels outside are untouched."""
+    white = np.full((2, *SHAPE), 255, np.uint8)
+    extra = dict(max_rotation=5.0) if capture else {}
+    p = AugmentParams(samples_per_image=40, noise_sigma=0, brightness_sigma=0, max_shift=1,
+                      occluder_gray=(60.0, 200.0), **extra)
+    y, masks = augment_images(white, level=3, levels=DB2_LEVELS, params=p, return_masks=True, seed=4)
+    y, masks = y.reshape(-1, *SHAPE), masks.reshape(-1, *SHAPE)          # one row per sample
+    values = []
+    for b in range(len(y)):
+        occ = y[b][masks[b]]
+        assert occ.size and np.ptp(occ) <= (1 if capture else 0)       # one level per sample
+        values.append(float(np.median(occ)))
+        if not capture:
+            assert np.all(y[b][~masks[b]] == 255)
+    values = np.array(values)
+    assert values.min() >= 60 - 1 and values.max() <= 200 + 1 and np.ptp(values) > 70
+
+
+def test_gray_occluders_leave_every_other_draw_alone():
+    """Switching gray occluders on changes no shift, occluder, brightness or
+    capture draw (it draws last from the capture generator), and off it is
+    the black occluder, no extra field."""
+    for extra in ({}, {"max_rotation": 3.0, "blur_sigma": (0.0, 1.0)}):
+        base = AugmentParams(**extra)
+        gray = AugmentParams(occluder_gray=(0.0, 255.0), **extra)
+        bank = occluder_bank(DB2_LEVELS, SHAPE, base, 1)
+        a = draw_plan(plan_rng(1, 0, 3, 2), 4, base, bank, 2, SHAPE, capture_rng(1, 0, 3, 2))
+        b = draw_plan(plan_rng(1, 0, 3, 2), 4, gray, bank, 2, SHAPE, capture_rng(1, 0, 3, 2))
+        assert a.occluder_value is None and b.occluder_value.shape == (len(b),)
+        for f in ("image", "dy", "dx", "template", "y0", "x0", "brightness", "rotation", "scale", "blur", "gain"):
+            va, vb = getattr(a, f), getattr(b, f)
+            assert (va is None and vb is None) or np.array_equal(va, vb), f
+    with pytest.raises(ValueError, match="capture generator"):
+        draw_plan(plan_rng(0, 0, 0, 0), 1, gray, bank, 1, SHAPE)

@@ -164,17 +164,19 @@ def test_train_writes_a_loadable_model_and_config_file(tiny, tmp_path):
 def test_train_capture_augmentation_in_the_model_file_and_inspect(tiny, tmp_path):
     out = tmp_path / "cap.npz"
     p = run("-q", "train", tiny["db"], "--out", out, "--kind", "DB1", "--components", 3, "--samples", 4,
-            "--rotation", 4, "--scale", 0.05, "--blur", "0.5,1.5", "--gain", 0.1, "--gain-cells", 4)
+            "--rotation", 4, "--scale", 0.05, "--blur", "0.5,1.5", "--gain", 0.1, "--gain-cells", 4,
+            "--occluder-gray", "30,220")
     assert p.returncode == 0, p.stderr
     from jaxrecog.modelfile import load_model_meta
 
     aug = load_model_meta(out)["training"]["augment"]
     assert aug["max_rotation"] == 4.0 and aug["max_scale"] == 0.05 and aug["gain_amplitude"] == 0.1
     assert list(aug["blur_sigma"]) == [0.5, 1.5] and aug["gain_cells"] == 4
+    assert list(aug["occluder_gray"]) == [30.0, 220.0]
     p = run("inspect", out)
     assert p.returncode == 0, p.stderr
-    assert ("capture rotation +-4 deg, scale +-0.05, blur sigma 0.5..1.5 px, gain +-0.1 (4x4 grid)"
-            in p.stdout), p.stdout
+    assert ("capture rotation +-4 deg, scale +-0.05, blur sigma 0.5..1.5 px, gain +-0.1 (4x4 grid); "
+            "occluders gray 30..220" in p.stdout), p.stdout
     p = run("inspect", tiny["model"])  # trained without: says so
     assert "noise_sigma 4.0, brightness_sigma 8.0, max_shift 3; capture off" in p.stdout, p.stdout
     cfg = tmp_path / "cap.toml"
@@ -185,7 +187,8 @@ def test_train_capture_augmentation_in_the_model_file_and_inspect(tiny, tmp_path
     aug = load_model_meta(out)["training"]["augment"]
     assert list(aug["blur_sigma"]) == [0.0, 1.0] and aug["max_rotation"] == 2.0
     for bad, needle in ((["--rotation", "-1"], "--rotation"), (["--blur", "2,1"], "--blur"),
-                        (["--scale", "1"], "--scale"), (["--gain-cells", "1"], "--gain-cells")):
+                        (["--scale", "1"], "--scale"), (["--gain-cells", "1"], "--gain-cells"),
+                        (["--occluder-gray", "200,100"], "--occluder-gray"), (["--occluder-gray", "0,300"], "--occluder-gray")):
         p = run("train", tiny["db"], "--out", out, *bad)
         assert p.returncode == 2 and needle in p.stderr, p.stderr
 

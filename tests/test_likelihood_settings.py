@@ -55,6 +55,7 @@ def test_non_default_likelihood_or_augmentation_gets_its_own_names(tmp_path):
         ex.Settings(workdir=tmp_path, max_rotation=3.0),
         ex.Settings(workdir=tmp_path, blur_sigma=1.0),
         ex.Settings(workdir=tmp_path, likelihood="student-t", max_scale=0.03, gain_amplitude=0.05),
+        ex.Settings(workdir=tmp_path, occluder_gray=(0, 255)),
     ]
     names = {ex.model_path(s, "DB2") for s in [base, *variants]}
     assert len(names) == len(variants) + 1
@@ -64,6 +65,8 @@ def test_non_default_likelihood_or_augmentation_gets_its_own_names(tmp_path):
     assert all(k != ex._training_params(base, "DB2") for k in keys)
     assert keys[1]["likelihood"] == "student-t" and keys[1]["likelihood_options"] == {"nu": 5.0}
     assert keys[5]["augment"]["blur_sigma"] == [0.0, 1.0]
+    # a field added later counts only when set: model files from before it match as they did
+    assert "occluder_gray" not in keys[5]["augment"] and keys[7]["augment"]["occluder_gray"] == [0.0, 255.0]
     # hashable, options normalised to sorted pairs
     assert hash(variants[1]) == hash(ex.Settings(workdir=tmp_path, likelihood="student-t",
                                                  likelihood_options=(("nu", 5.0),)))
@@ -229,9 +232,10 @@ def test_experiment_cli_flags_reach_settings(tmp_path, monkeypatch, capsys):
 
     monkeypatch.setattr(ex, "run_case", run_case)
     argv = ["--quiet", "experiment", "i", "--out", str(tmp_path), "--likelihood", "gaussian-lowrank", "--rank", "2",
-            "--rotation", "3", "--blur", "0.5,1", "--gain", "0.05", "--gain-cells", "4"]
+            "--rotation", "3", "--blur", "0.5,1", "--gain", "0.05", "--gain-cells", "4", "--occluder-gray", "20,200"]
     assert cli.main(argv) == 1  # the stub stops the campaign
     s = seen["settings"]
+    assert s.occluder_gray == (20.0, 200.0)
     assert (s.likelihood, s.likelihood_options) == ("gaussian-lowrank", (("rank", 2),))
     assert (s.max_rotation, s.max_scale, s.blur_sigma, s.gain_amplitude, s.gain_cells) == (3.0, 0.0, (0.5, 1.0),
                                                                                            0.05, 4)

@@ -97,7 +97,9 @@ def _augment_line(aug: dict) -> str:
     ]
     on = (aug.get("max_rotation", 0) or aug.get("max_scale", 0) or float(blur[1]) > 0
           or aug.get("gain_amplitude", 0))
-    return ", ".join(parts) + "; capture " + (", ".join(capture) if on else "off")
+    gray = aug.get("occluder_gray") or (0.0, 0.0)
+    occluders = (f"; occluders gray {float(gray[0]):g}..{float(gray[1]):g}" if float(gray[1]) > 0 else "")
+    return ", ".join(parts) + "; capture " + (", ".join(capture) if on else "off") + occluders
 
 
 def model_report(path, model=None) -> str:

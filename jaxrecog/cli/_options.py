@@ -185,6 +185,17 @@ def sigma_range(text: str) -> tuple[float, float]:
     return vals[0], vals[1]
 
 
+def gray_range(text: str) -> tuple[float, float]:
+    """An argparse type: ``LO,HI`` gray levels with ``0 <= LO <= HI <= 255``."""
+    try:
+        vals = [float(x) for x in str(text).replace(" ", "").split(",")]
+    except ValueError:
+        vals = []
+    if len(vals) != 2 or not all(0.0 <= v <= 255.0 for v in vals) or vals[0] > vals[1]:
+        raise argparse.ArgumentTypeError(f"expected LO,HI gray levels with 0 <= LO <= HI <= 255, got {text!r}")
+    return vals[0], vals[1]
+
+
 def nu_value(text: str) -> str | float:
     """An argparse type: ``auto`` or a number > 2."""
     if str(text).strip().lower() == "auto":
@@ -247,6 +258,9 @@ def capture_options(p: argparse.ArgumentParser, *, unset: bool = False) -> None:
                         "from a CELLS x CELLS grid of uniform values")
     g.add_argument("--gain-cells", type=int_at_least(2, "an integer >= 2"), default=None if unset else 3,
                    metavar="CELLS", help="control grid of the --gain field")
+    g.add_argument("--occluder-gray", type=gray_range, default=None if unset else "0,0", metavar="LO,HI",
+                   help="DB2: each training occluder's gray level uniform in [LO, HI] (0..255) instead of black "
+                        "(the thesis's; a real occluder is rarely black)")
 
 
 def capture_params(args) -> dict:
@@ -264,6 +278,10 @@ def capture_params(args) -> dict:
         if not isinstance(blur, tuple):
             blur = sigma_range(",".join(map(str, blur)) if isinstance(blur, list) else str(blur))
         out["blur_sigma"] = blur
+    gray = getattr(args, "occluder_gray", None)
+    if gray is not None:
+        out["occluder_gray"] = gray if isinstance(gray, tuple) else gray_range(
+            ",".join(map(str, gray)) if isinstance(gray, list) else str(gray))
     return out
 
 
