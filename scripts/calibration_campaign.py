@@ -29,7 +29,8 @@ from pathlib import Path
 import jax.random as jr
 
 from jaxrecog.calibration import calibrate_model
-from jaxrecog.cli._options import likelihood_choice, likelihood_options, render_jitter_options, render_jitter_values
+from jaxrecog.cli._options import (gray_range, likelihood_choice, likelihood_options, render_jitter_options,
+                                   render_jitter_values)
 from jaxrecog.calibration_plots import reliability_plot
 from jaxrecog.campaign import run_campaign
 from jaxrecog.database import load_database
@@ -69,6 +70,8 @@ def main(argv=None) -> int:
     ap.add_argument("--occluded-fraction", type=float, default=0.5,
                     help="occluded cases: share of calib views with a board in front of that view")
     ap.add_argument("--exclude-visited", action="store_true", help="never send a camera back to a position it used")
+    ap.add_argument("--occluder-gray", type=gray_range, default=(0.0, 0.0), metavar="LO,HI",
+                    help="DB2 training occluders with a gray level uniform in [LO, HI] (default black, the thesis's)")
     ap.add_argument("--shared-view", action="store_true",
                     help="keep a view mixture's component in the belief, one per trial (Recognizer(shared_view=True))")
     likelihood_options(ap)
@@ -80,7 +83,7 @@ def main(argv=None) -> int:
     settings = Settings(workdir=args.workdir, trials_per_object=args.trials, seed=args.seed, samples=args.samples,
                         batch=args.batch, n_components=args.n_components, samples_per_image=args.samples_per_image,
                         likelihood=likelihood, likelihood_options=options, exclude_visited_positions=args.exclude_visited,
-                        shared_view=args.shared_view, **render_jitter_values(args))
+                        shared_view=args.shared_view, occluder_gray=args.occluder_gray, **render_jitter_values(args))
     settings = case_settings(case, settings)  # the case's off-grid amounts (jitter cases)
     t0 = time.perf_counter()
     prepared = prepare(settings, progress=True, databases=(case.database,))
