@@ -190,10 +190,9 @@ class Recognizer(eqx.Module):
         if self.shared_view:
             K.shared_latent.shared_components(self.model.likelihoods)
             for i, lik in enumerate(self.model.likelihoods):
-                try:
-                    w = np.asarray(lik.log_w)
-                except Exception:   # traced (inside a transform): checked where it was built
+                if isinstance(lik.log_w, jax.core.Tracer):   # inside a transform: checked where it was built
                     continue
+                w = np.asarray(lik.log_w)
                 if not np.allclose(w, w[:1, :, :1, :], atol=1e-5):
                     raise ValueError(f"shared_view: camera {i}'s mixture weights differ between positions or "
                                      f"levels; a shared view component needs one prior over components per class")
