@@ -41,15 +41,21 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))  # tes
 from compiles import count_compiles  # noqa: E402
 
 
-def step_latency(model, planner: str, settings: Settings, images, repeat: int) -> dict:
+def _warm_recognizer(model, planner: str, settings: Settings, images):
+    """``(recognizer, state at (3, 2), compile seconds)`` after the first step
+    and 10 more: the first calls after compiling touch fresh memory (~2x slower)."""
     rec = make_recognizer(model, planner, settings)
     state = rec.init(config=(3, 2))
     t0 = time.perf_counter()
-    s, d = rec.step(state, images, jr.PRNGKey(0))
-    jax.block_until_ready(d)
+    jax.block_until_ready(rec.step(state, images, jr.PRNGKey(0))[1])
     compile_s = time.perf_counter() - t0
-    for i in range(10):  # steady state: the first calls after compiling touch fresh memory (~2x slower)
+    for i in range(10):
         jax.block_until_ready(rec.step(state, images, jr.PRNGKey(10_000 + i))[1])
+    return rec, state, compile_s
+
+
+def step_latency(model, planner: str, settings: Settings, images, repeat: int) -> dict:
+    rec, state, compile_s = _warm_recognizer(model, planner, settings, images)
     times = []
     keys = [jr.PRNGKey(i) for i in range(repeat)]  # made outside the timed region (~0.6 ms each here)
     for k in keys:
@@ -85,11 +91,7 @@ def paired_step_ratio(model_a, model_b, planner: str, settings: Settings, images
     medians and the median of the per-pair ratios b / a.  On a shared machine
     whose speed drifts between runs this is the comparison to trust; the
     separate medians of :func:`step_latency` are not from the same moments."""
-    recs = [make_recognizer(m, planner, settings) for m in (model_a, model_b)]
-    states = [r.init(config=(3, 2)) for r in recs]
-    for r, st in zip(recs, states):
-        for i in range(11):
-            jax.block_until_ready(r.step(st, images, jr.PRNGKey(10_000 + i))[1])
+    recs, states, _ = zip(*(_warm_recognizer(m, planner, settings, images) for m in (model_a, model_b)))
     keys = [jr.PRNGKey(i) for i in range(repeat)]
     times = np.empty((repeat, 2))
     for i, k in enumerate(keys):

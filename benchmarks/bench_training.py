@@ -64,10 +64,11 @@ def main(argv=None) -> int:
     from jaxrecog.train import train_model
 
     positions = tuple(int(x) for x in args.positions.split(","))
-    view_jitter = args.view_jitter if likelihood_class(args.likelihood).view_components else 0
-    if likelihood_class(args.likelihood).view_components and view_jitter < 1:
+    needs_jitter = likelihood_class(args.likelihood).view_components
+    if needs_jitter and args.view_jitter < 1:
         print(f"bench_training: error: {args.likelihood} needs --view-jitter >= 1", file=sys.stderr)
         return 2
+    view_jitter = args.view_jitter if needs_jitter else 0
     t = time.perf_counter()
     db = make_database(positions=positions, n_objects=args.objects, n_poses=args.poses,
                        image_shape=(args.height, args.width), n_jitter=view_jitter)

@@ -361,9 +361,8 @@ def _training_params(settings: Settings, kind: str) -> dict:
         params["likelihood_options"] = {k: v for k, v in settings.likelihood_options}
         aug = dataclasses.asdict(settings.augment_params())
         # a field added later counts only when set: model files from before it stay valid
-        later = {k for k in _LATER_AUGMENT_FIELDS if getattr(settings, k) == _training_defaults()[k]}
         params["augment"] = {k: (list(aug[k]) if isinstance(aug[k], tuple) else aug[k])
-                             for k in _AUGMENT_FIELDS if k not in later}
+                             for k in _AUGMENT_FIELDS if k in extra or k not in _LATER_AUGMENT_FIELDS}
     return params
 
 

@@ -66,6 +66,7 @@ from .likelihood import Likelihood, register_likelihood
 
 __all__ = ["ViewMixture", "LowRankViewMixture", "mixture_log_weights"]
 
+
 def mixture_log_weights(n_components: int, nominal_weight: float | None = None) -> np.ndarray:
     """``log w [M]``: uniform (``nominal_weight=None``), or ``w_0 = nominal_weight``
     for the training view and the rest shared equally by the ``M - 1`` others."""

@@ -172,12 +172,17 @@ def bounded(high: float, what: str, inclusive: bool = False):
     return parse
 
 
+def _numbers(text: str) -> list[float]:
+    """``"a,b,..."`` as floats (spaces ignored); ``[]`` if any is not a number."""
+    try:
+        return [float(x) for x in str(text).replace(" ", "").split(",")]
+    except ValueError:
+        return []
+
+
 def sigma_range(text: str) -> tuple[float, float]:
     """An argparse type: ``SIGMA`` (= ``0,SIGMA``) or ``LO,HI`` with ``0 <= LO <= HI``."""
-    try:
-        vals = [float(x) for x in str(text).replace(" ", "").split(",")]
-    except ValueError:
-        vals = []
+    vals = _numbers(text)
     if len(vals) == 1:
         vals = [0.0, vals[0]]
     if len(vals) != 2 or not all(0.0 <= v < float("inf") for v in vals) or vals[0] > vals[1]:
@@ -187,10 +192,7 @@ def sigma_range(text: str) -> tuple[float, float]:
 
 def gray_range(text: str) -> tuple[float, float]:
     """An argparse type: ``LO,HI`` gray levels with ``0 <= LO <= HI <= 255``."""
-    try:
-        vals = [float(x) for x in str(text).replace(" ", "").split(",")]
-    except ValueError:
-        vals = []
+    vals = _numbers(text)
     if len(vals) != 2 or not all(0.0 <= v <= 255.0 for v in vals) or vals[0] > vals[1]:
         raise argparse.ArgumentTypeError(f"expected LO,HI gray levels with 0 <= LO <= HI <= 255, got {text!r}")
     return vals[0], vals[1]
@@ -273,15 +275,11 @@ def capture_params(args) -> dict:
             out[field] = float(getattr(args, opt))
     if getattr(args, "gain_cells", None) is not None:
         out["gain_cells"] = int(args.gain_cells)
-    blur = getattr(args, "blur", None)
-    if blur is not None:
-        if not isinstance(blur, tuple):
-            blur = sigma_range(",".join(map(str, blur)) if isinstance(blur, list) else str(blur))
-        out["blur_sigma"] = blur
-    gray = getattr(args, "occluder_gray", None)
-    if gray is not None:
-        out["occluder_gray"] = gray if isinstance(gray, tuple) else gray_range(
-            ",".join(map(str, gray)) if isinstance(gray, list) else str(gray))
+    for opt, field, parse in (("blur", "blur_sigma", sigma_range), ("occluder_gray", "occluder_gray", gray_range)):
+        value = getattr(args, opt, None)
+        if value is not None:  # parsed on the command line; a number, string or list from a TOML file
+            out[field] = value if isinstance(value, tuple) else parse(
+                ",".join(map(str, value)) if isinstance(value, list) else str(value))
     return out
 
 
