@@ -33,7 +33,8 @@ import jax.random as jr
 import numpy as np
 
 from jaxrecog.campaign import batched_step, run_campaign
-from jaxrecog.cli._options import likelihood_choice, likelihood_options, render_jitter_options, render_jitter_values
+from jaxrecog.cli._options import (given_likelihood_options, likelihood_choice, likelihood_options,
+                                   render_jitter_options, render_jitter_values)
 from jaxrecog.planners import samples_per_stratum
 from jaxrecog.experiments import CASES, Settings, case_model, make_recognizer, case_trials, make_rig, prepare, rig_pool
 
@@ -136,7 +137,8 @@ def main(argv=None) -> int:
     model = case_model(prepared, case)
     other = None  # --likelihood: the same planners' steps with that family's model, in the same run
     if args.likelihood is not None:
-        name, options = likelihood_choice(args.likelihood, args.rank, args.nu, view_jitter=bool(args.view_jitter))
+        name, options = likelihood_choice(args.likelihood, given_likelihood_options(args),
+                                          view_jitter=bool(args.view_jitter))
         alt = dataclasses.replace(settings, likelihood=name, likelihood_options=options, **render_jitter_values(args))
         other = (name, case_model(prepare(alt, databases=("DB2",)), case))
     rig = make_rig(settings, seed=settings.seed)

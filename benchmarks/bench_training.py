@@ -53,6 +53,10 @@ def main(argv=None) -> int:
     ap.add_argument("--view-jitter", type=int, default=8,
                     help="jitter images per training view for the families that need them (the view mixtures: "
                          "one component each); the other families train without (default 8, as the campaigns)")
+    ap.add_argument("--occluded-jitter", nargs="+", choices=["sampled", "translated"],
+                    default=["sampled", "translated"],
+                    help="view mixtures: how their occluded jitter components are trained (one row each; "
+                         "kernels/view_mixture.py)")
     ap.add_argument("--likelihood", help="train this one family in this process (what each child runs)")
     ap.add_argument("--likelihoods", nargs="+", help="families to compare (default: every registered one)")
     args = ap.parse_args(argv)
@@ -69,6 +73,7 @@ def main(argv=None) -> int:
         print(f"bench_training: error: {args.likelihood} needs --view-jitter >= 1", file=sys.stderr)
         return 2
     view_jitter = args.view_jitter if needs_jitter else 0
+    mode = args.occluded_jitter[0] if needs_jitter else None
     t = time.perf_counter()
     db = make_database(positions=positions, n_objects=args.objects, n_poses=args.poses,
                        image_shape=(args.height, args.width), n_jitter=view_jitter)
@@ -77,16 +82,21 @@ def main(argv=None) -> int:
     t = time.perf_counter()
     model = train_model(db, kind=args.kind, n_components=args.components,
                         samples_per_image=args.samples, likelihood=args.likelihood, seed=0,
-                        view_jitter=bool(view_jitter))
+                        view_jitter=bool(view_jitter),
+                        likelihood_options={"occluded_jitter": mode} if mode else None)
     for cam in model.cameras:
         cam.mu.block_until_ready()
     wall = time.perf_counter() - t
     n_levels = len(model.levels)
     n_images = sum(positions) * args.objects * args.poses
+    # samples per training image: every level of it and of its jitter images, or
+    # (translated) of the jitter images at level 0 only
+    per_image = args.samples * (n_levels * (1 + view_jitter) if mode != "translated" else n_levels + view_jitter)
     result = {
         "benchmark": "training",
         "kind": args.kind,
         "likelihood": args.likelihood,
+        "occluded_jitter": mode,
         "wall_s": wall,
         "database_generation_s": t_db,
         "peak_rss_mb": _peak_rss_mb(),
@@ -99,10 +109,10 @@ def main(argv=None) -> int:
             "levels": n_levels,
             "samples_per_image": args.samples,
             "view_jitter_images_per_view": view_jitter,
-            "augmented_samples": n_images * (1 + view_jitter) * n_levels * args.samples,
+            "augmented_samples": n_images * per_image,
             "K": model.n_components,
         },
-        "samples_per_s": n_images * (1 + view_jitter) * n_levels * args.samples / wall,
+        "samples_per_s": n_images * per_image / wall,
         "cpu_count": os.cpu_count(),
         "platform": platform.platform(),
         "targets": {"wall_s": 60.0, "peak_rss_mb": 2048.0},
@@ -125,22 +135,25 @@ def _compare(args, argv) -> int:
         print(f"bench_training: error: unknown likelihood(s) {', '.join(unknown)}; "
               f"choose from {', '.join(likelihood_names())}", file=sys.stderr)
         return 2
+    from jaxrecog.kernels import likelihood_class
+
     passthrough = [a for a in (argv if argv is not None else sys.argv[1:])]
-    cut = []  # drop --out / --likelihoods and their values: each child writes its own file
+    cut = []  # drop --out / --likelihoods / --occluded-jitter and their values: set per child
     skip = False
     for a in passthrough:
         if skip and not a.startswith("--"):
             continue
-        skip = a in ("--out", "--likelihoods")
+        skip = a in ("--out", "--likelihoods", "--occluded-jitter")
         if not skip:
             cut.append(a)
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for name in names:
-            out = Path(tmp) / f"{name}.json"
-            subprocess.run([sys.executable, __file__, *cut, "--likelihood", name, "--out", str(out)],
-                           check=True, stdout=subprocess.DEVNULL)
-            rows.append(json.loads(out.read_text()))
+            for mode in (args.occluded_jitter if likelihood_class(name).view_components else ["sampled"]):
+                out = Path(tmp) / f"{name}-{mode}.json"
+                subprocess.run([sys.executable, __file__, *cut, "--likelihood", name, "--occluded-jitter", mode,
+                                "--out", str(out)], check=True, stdout=subprocess.DEVNULL)
+                rows.append(json.loads(out.read_text()))
     base = next((r["wall_s"] for r in rows if r["likelihood"] == "gaussian-diag"), None)
     for r in rows:
         r["ratio_vs_diag"] = None if base is None else r["wall_s"] / base
@@ -151,7 +164,8 @@ def _compare(args, argv) -> int:
     out.write_text(json.dumps(result, indent=2) + "\n")
     for r in rows:
         ratio = "" if r["ratio_vs_diag"] is None else f"  {r['ratio_vs_diag']:.2f}x diag"
-        print(f"{r['likelihood']:18s} {r['wall_s']:7.1f} s  {r['peak_rss_mb']:7.0f} MB{ratio}")
+        label = r["likelihood"] + (f" ({r['occluded_jitter']})" if r.get("occluded_jitter") else "")
+        print(f"{label:33s} {r['wall_s']:7.1f} s  {r['peak_rss_mb']:7.0f} MB{ratio}")
     print(f"wrote {out}")
     return 0
 

@@ -215,12 +215,14 @@ class GaussianAccumulator:
         sq = d[:, :, None] * d[:, None, :] if self.full else d * d
         self.s2[c, l] += np.add.reduceat(sq, starts, axis=0)
 
-    def moments(self) -> tuple[np.ndarray, np.ndarray]:
+    def moments(self, *, allow_empty: bool = False) -> tuple[np.ndarray, np.ndarray]:
         """ML moments (divisor ``n``): means ``[C, L, K]`` and variances ``[C, L, K]``
-        (diag) or symmetrised covariances ``[C, L, K, K]`` (full)."""
-        if np.any(self.n < 2):
+        (diag) or symmetrised covariances ``[C, L, K, K]`` (full).  With
+        ``allow_empty`` a (class, level) without samples gets NaN moments."""
+        empty = self.n == 0 if allow_empty else np.zeros(self.n.shape, bool)
+        if np.any((self.n < 2) & ~empty):
             raise ValueError("every (class, level) needs at least two samples")
-        n = self.n[..., None]
+        n = np.where(empty, np.nan, self.n)[..., None]
         m = self.s1 / n
         mu = self.ref + m
         if not self.full:

@@ -284,15 +284,16 @@ def _fit_position(images, mean, basis, lam, levels, params, bank, seed, camera, 
     # level 0: a table of Vᵀz, Σz, ||z||² over every shift of every image
     side = 2 * s + 1
     dy, dx = np.meshgrid(np.arange(-s, s + 1), np.arange(-s, s + 1), indexing="ij")
-    table_p = np.empty((N, side * side, K + 1), np.float64)
-    table_q = np.empty((N, side * side), np.float64)
-    for c in range(N):
-        z = side * side
-        plan = SamplePlan(np.full(z, c), dy.ravel(), dx.ravel(), np.full(z, -1),
-                          np.zeros(z, np.int64), np.zeros(z, np.int64), np.zeros(z))
-        w = apply_geometry(win, plan, bank, 0, s).reshape(z, D).astype(np.float32)
-        table_p[c] = w @ vaug
-        table_q[c] = np.einsum("bd,bd->b", w, w, dtype=np.float64)
+    z = side * side
+    table_p = np.empty((N, z, K + 1), np.float64)
+    for c0 in range(0, N, _TABLE_IMAGES):   # a few images' shifts per product (fewer, larger BLAS calls)
+        cs = np.arange(c0, min(N, c0 + _TABLE_IMAGES))
+        b = len(cs) * z
+        plan = SamplePlan(np.repeat(cs, z), np.tile(dy.ravel(), len(cs)), np.tile(dx.ravel(), len(cs)),
+                          np.full(b, -1), np.zeros(b, np.int64), np.zeros(b, np.int64), np.zeros(b))
+        w = apply_geometry(win, plan, bank, 0, s).reshape(b, D).astype(np.float32)
+        table_p[cs] = (w @ vaug).reshape(len(cs), z, K + 1)
+    table_q = _shifted_energies(win, dy.ravel(), dx.ravel())
 
     buf = np.empty((batch_size, D), np.float32)
     period = max(2, round(1.0 / holdout)) if holdout > 0 else 0
@@ -300,14 +301,16 @@ def _fit_position(images, mean, basis, lam, levels, params, bank, seed, camera, 
     for k in range(len(levels)):
         seen = np.zeros(C, np.int64)  # samples of each class so far at this level
         rng = plan_rng(seed, camera, position, k)
-        plan = draw_plan(rng, N, params, bank, k, (H, W), capture_rng(seed, camera, position, k))
+        # a mixture may take its occluded jitter components from the training view's (view_mixture.py)
+        n_img = N if not family.view_components or family.jitter_sampled(k, **(options or {})) else C
+        plan = draw_plan(rng, n_img, params, bank, k, (H, W), capture_rng(seed, camera, position, k))
         B = len(plan)
         m = params.samples_per_image if params.shared_draws else B
         alpha = rng.standard_normal((m, K)) * sigma
         beta = rng.standard_normal(m) * sigma
         gamma = rng.chisquare(D - K - 1, size=m) * sigma**2 if sigma > 0 else np.zeros(m)
         if params.shared_draws:  # same noise draw j for every class (AugmentParams.shared_draws)
-            alpha, beta, gamma = np.tile(alpha, (N, 1)), np.tile(beta, N), np.tile(gamma, N)
+            alpha, beta, gamma = np.tile(alpha, (n_img, 1)), np.tile(beta, n_img), np.tile(gamma, n_img)
         for start in range(0, B, batch_size):
             sl = slice(start, min(start + batch_size, B))
             p = plan.take(sl)
@@ -336,10 +339,34 @@ def _fit_position(images, mean, basis, lam, levels, params, bank, seed, camera, 
     if period:
         options = {**(options or {}), "holdout": tuple(np.concatenate(x) for x in zip(*held))}
     if family.view_components:  # moments per (class, component) -> [C, L, M, K]
-        mean, second = acc.moments()
+        mean, second = acc.moments(allow_empty=True)   # NaN where fit derives a component
         per = lambda x: np.swapaxes(x.reshape((C, M) + x.shape[1:]), 1, 2)  # noqa: E731
         return family.fit(per(mean), per(second), np.full((C, len(levels)), floor), **(options or {}))
     return acc.fit(family, floor, **(options or {}))
+
+
+_TABLE_IMAGES = 8   # images per product of the level-0 shift table
+
+
+def _shifted_energies(win: ShiftWindows, dy: np.ndarray, dx: np.ndarray) -> np.ndarray:
+    """``||S_d x_c||^2`` for every image ``c`` of ``win`` and shift ``d = (dy[j], dx[j])``,
+    float64 ``[N, len(dy)]``: window sums of the squared edge-padded images, in
+    integers (exact: the same numbers as summing the shifted images' squares in
+    float64), from running sums along each row (int32: a row of ``W + 2s``
+    squares of 8-bit values stays below 2^31), then down the columns of the few
+    window starts (int64)."""
+    s = win.max_shift
+    H, W = win.view.shape[-2:]
+    y0, x0 = s - dy, s - dx                       # the window of shift d starts at (s - dy, s - dx)
+    sq = win.padded.astype(np.int32) ** 2                                         # [N, H+2s, W+2s]
+    along = np.zeros(sq.shape[:2] + (sq.shape[2] + 1,), np.int32)
+    np.cumsum(sq, axis=2, out=along[:, :, 1:])
+    starts = np.unique(x0)
+    rows = (along[:, :, starts + W] - along[:, :, starts]).astype(np.int64)      # [N, H+2s, |starts|]
+    down = np.zeros((rows.shape[0], rows.shape[1] + 1, rows.shape[2]), np.int64)
+    np.cumsum(rows, axis=1, out=down[:, 1:])
+    col = np.searchsorted(starts, x0)
+    return (down[:, y0 + H, col] - down[:, y0, col]).astype(np.float64)
 
 
 def _view_components(labels, n_classes, camera, position):

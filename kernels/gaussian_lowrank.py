@@ -139,7 +139,13 @@ def whiten(W, psi):
             half = np.sum(np.log(np.diagonal(b, axis1=-2, axis2=-1)), axis=-1)
         dtype = np.result_type(W, psi)
         return a.astype(dtype), half.astype(dtype)
-    W, psi = jnp.asarray(W), jnp.asarray(psi)
+    return _whiten_jax(jnp.asarray(W), jnp.asarray(psi))
+
+
+@jax.jit
+def _whiten_jax(W, psi):
+    """:func:`whiten` of JAX arrays, compiled as one program (op by op it
+    compiled ~25 small programs per shape, seconds per trained or loaded model)."""
     wt = jnp.swapaxes(W, -1, -2)
     eye = jnp.eye(W.shape[-1], dtype=W.dtype).reshape((1,) * (W.ndim - 2) + (W.shape[-1],) * 2)
     b = cholesky_lower(wt @ (W / psi[..., None]) + eye)
@@ -340,6 +346,29 @@ class LowRankGaussian(Likelihood):
         return cls(np.asarray(mean, np.float64), w, psi)
 
 
+def _spd_solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``a^-1 b`` for symmetric positive definite ``a [..., R, R]`` and ``b [..., R, P]``
+    (NumPy): Cholesky ``a = L L^T`` and the two triangular solves, each row of
+    ``L`` computed for the whole batch at once.  For the small ``R`` of factor
+    analysis this is ~10x faster than ``np.linalg.solve``, whose cost is one
+    LAPACK call per matrix."""
+    r = a.shape[-1]
+    low = np.zeros_like(a)
+    for j in range(r):
+        lj = low[..., j:j + 1, :j]                                          # [..., 1, j]
+        low[..., j, j] = np.sqrt(a[..., j, j] - np.sum(lj[..., 0, :] ** 2, axis=-1))
+        if j + 1 < r:
+            below = a[..., j + 1:, j:j + 1] - low[..., j + 1:, :j] @ np.swapaxes(lj, -1, -2)
+            low[..., j + 1:, j] = below[..., 0] / low[..., j, j][..., None]
+    y = np.empty(np.broadcast_shapes(a.shape[:-2], b.shape[:-2]) + b.shape[-2:], np.result_type(a, b))
+    for i in range(r):                                                      # L y = b
+        y[..., i, :] = (b[..., i, :] - (low[..., i:i + 1, :i] @ y[..., :i, :])[..., 0, :]) / low[..., i, i][..., None]
+    for i in reversed(range(r)):                                            # L^T x = y (in place)
+        upper = np.swapaxes(low[..., i + 1:, i:i + 1], -1, -2)              # [..., 1, r-i-1]
+        y[..., i, :] = (y[..., i, :] - (upper @ y[..., i + 1:, :])[..., 0, :]) / low[..., i, i][..., None]
+    return y
+
+
 def factor_analysis(s: np.ndarray, rank: int, *, min_uniqueness: float = DEFAULT_MIN_UNIQUENESS,
                     floor: np.ndarray | float = 0.0, iterations: int = 200) -> tuple[np.ndarray, np.ndarray]:
     """ML factor analysis ``S ~ W W^T + diag(psi)`` of covariances ``s [..., K, K]``
@@ -360,9 +389,9 @@ def factor_analysis(s: np.ndarray, rank: int, *, min_uniqueness: float = DEFAULT
         # E step through the R x R capacitance: beta = W^T Sigma^-1 = M^-1 W^T Psi^-1
         wp = w / psi[..., :, None]                                # Psi^-1 W  [..., K, R]
         m = eye + np.swapaxes(w, -1, -2) @ wp                     # [..., R, R]
-        beta = np.linalg.solve(m, np.swapaxes(wp, -1, -2))        # [..., R, K]
+        beta = _spd_solve(m, np.swapaxes(wp, -1, -2))             # [..., R, K]
         bs = beta @ s                                             # [..., R, K]
-        ezz = np.linalg.solve(m, np.broadcast_to(eye, m.shape)) + bs @ np.swapaxes(beta, -1, -2)  # I - beta W = M^-1
-        w = np.swapaxes(np.linalg.solve(ezz, bs), -1, -2)         # S beta^T Ezz^-1 (Ezz symmetric)
+        ezz = _spd_solve(m, np.broadcast_to(eye, m.shape)) + bs @ np.swapaxes(beta, -1, -2)  # I - beta W = M^-1
+        w = np.swapaxes(_spd_solve(ezz, bs), -1, -2)              # S beta^T Ezz^-1 (Ezz symmetric)
         psi = np.maximum(diag - np.sum(w * bs.swapaxes(-1, -2), axis=-1), low)
     return w, psi

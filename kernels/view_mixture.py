@@ -27,6 +27,19 @@ component rendered nearest to it instead of being far from everything.
 
     log p = logsumexp_m [log w_m + log p_m(g | c, k, v)]
 
+Occluded jitter components (``occluded_jitter``).  Augmenting every jitter
+image at every occlusion level costs ``M`` times the thesis model's training
+(the occluded samples are projected pixel by pixel).  With
+``occluded_jitter="translated"`` training augments the jitter images at level
+0 only, and the occluded components of a jitter view are the training view's
+component of that level, moved by the jitter view's level-0 offset::
+
+    mu[c, k, m]    = mu[c, k, 0] + (mu[c, 0, m] - mu[c, 0, 0])     (k >= 1, m >= 1)
+    Sigma[c, k, m] = Sigma[c, k, 0]
+
+(an occluder changes a turned view as it changes the training view).  The
+default, ``"sampled"``, fits every component to its own samples.
+
 Draws use one more normal number than the component family: ``z[0]`` picks
 the component by inverse CDF of the weights (``u = Phi(z[0])``), ``z[1:]``
 draws from it.  Moments are the mixture's (mean ``sum w mu_m``, covariance
@@ -203,7 +216,17 @@ class _ViewMixture(Likelihood):
         return out
 
     @classmethod
-    def fit(cls, mean, second, floor, *, nominal_weight: float | None = None, **options) -> "_ViewMixture":
+    def jitter_sampled(cls, level: int, *, occluded_jitter: str = "sampled", **options) -> bool:
+        """Whether training augments the jitter images at occlusion level
+        ``level``: always at level 0; at the occluded levels only with
+        ``occluded_jitter="sampled"`` (with ``"translated"`` :meth:`fit`
+        derives those components, module docstring)."""
+        _check_occluded_jitter(occluded_jitter)
+        return level == 0 or occluded_jitter == "sampled"
+
+    @classmethod
+    def fit(cls, mean, second, floor, *, nominal_weight: float | None = None, occluded_jitter: str = "sampled",
+            **options) -> "_ViewMixture":
         """The component family's fit (eq. 4.23-4.24 for the Gaussians) per component.
 
         Args:
@@ -214,8 +237,14 @@ class _ViewMixture(Likelihood):
             floor: ``[C, L]`` variance floor.
             nominal_weight: weight of the training view's component (default:
                 all ``M`` components weigh ``1 / M``).
+            occluded_jitter: ``"sampled"`` (default): every component from its
+                own moments; ``"translated"``: the jitter components of the
+                occluded levels (``k >= 1, m >= 1``; their moments are not read
+                and may be NaN) are the training view's component of that level
+                moved by the jitter view's level-0 offset (module docstring).
             **options: the component family's fit options.
         """
+        _check_occluded_jitter(occluded_jitter)
         mean = np.asarray(mean, np.float64)
         if mean.ndim != 4:
             raise ValueError(f"{cls.kind}: fit needs per-component moments [C, L, M, K], got {mean.shape} "
@@ -223,9 +252,32 @@ class _ViewMixture(Likelihood):
         c, l, m, _ = mean.shape
         log_w = np.array(np.broadcast_to(mixture_log_weights(m, nominal_weight), (c, l, m)))
         second = np.asarray(second, np.float64)
-        flat = cls.component.fit(mean.reshape(c, l * m, -1), second.reshape((c, l * m) + second.shape[3:]),
-                                 np.repeat(np.asarray(floor, np.float64), m, axis=1), **options)
-        return cls(**{f: _split(np.asarray(getattr(flat, f)), 1, m) for f in cls._component_fields()}, log_w=log_w)
+        floor = np.asarray(floor, np.float64)
+        if occluded_jitter == "sampled" or l == 1 or m == 1:
+            flat = cls.component.fit(mean.reshape(c, l * m, -1), second.reshape((c, l * m) + second.shape[3:]),
+                                     np.repeat(floor, m, axis=1), **options)
+            return cls(**{f: _split(np.asarray(getattr(flat, f)), 1, m) for f in cls._component_fields()},
+                       log_w=log_w)
+        # translated: fit the L training-view components and the M - 1 level-0 jitter
+        # components (the distinct covariances), then index them into [C, L, M]
+        flat = cls.component.fit(np.concatenate([mean[:, :, 0], mean[:, 0, 1:]], axis=1),
+                                 np.concatenate([second[:, :, 0], second[:, 0, 1:]], axis=1),
+                                 np.concatenate([floor, np.repeat(floor[:, :1], m - 1, axis=1)], axis=1), **options)
+        pick = np.empty((l, m), np.int64)
+        pick[:, 0] = np.arange(l)                     # (k, 0): the training view's own fit
+        pick[0, 1:] = l + np.arange(m - 1)            # (0, m): the jitter view's own fit
+        pick[1:, 1:] = np.arange(1, l)[:, None]       # (k, m): the training view's level k ...
+        fields = {f: np.take(np.asarray(getattr(flat, f)), pick, axis=1) for f in cls._component_fields()}
+        fields["mu"][:, 1:, 1:] = mean[:, 1:, :1] + (mean[:, :1, 1:] - mean[:, :1, :1])  # ... moved
+        return cls(**fields, log_w=log_w)
+
+
+OCCLUDED_JITTER = ("sampled", "translated")
+
+
+def _check_occluded_jitter(value) -> None:
+    if value not in OCCLUDED_JITTER:
+        raise ValueError(f"view-mixture: occluded_jitter must be one of {', '.join(OCCLUDED_JITTER)}, got {value!r}")
 
 
 def _merge(x, lead: int):
@@ -260,7 +312,7 @@ class ViewMixture(_ViewMixture):
     component: ClassVar[type[Likelihood]] = DiagonalGaussian
     field_shapes: ClassVar[dict[str, str]] = _mixture_shapes(DiagonalGaussian)
     second_moments: ClassVar[str] = DiagonalGaussian.second_moments
-    fit_options: ClassVar[tuple[str, ...]] = ("nominal_weight",)
+    fit_options: ClassVar[tuple[str, ...]] = ("nominal_weight", "occluded_jitter")
 
     mu: Float[ArrayLike, "*V C L M K"]
     var: Float[ArrayLike, "*V C L M K"]
@@ -280,7 +332,7 @@ class LowRankViewMixture(_ViewMixture):
     component: ClassVar[type[Likelihood]] = LowRankGaussian
     field_shapes: ClassVar[dict[str, str]] = _mixture_shapes(LowRankGaussian)
     second_moments: ClassVar[str] = LowRankGaussian.second_moments
-    fit_options: ClassVar[tuple[str, ...]] = ("nominal_weight", *LowRankGaussian.fit_options)
+    fit_options: ClassVar[tuple[str, ...]] = ("nominal_weight", "occluded_jitter", *LowRankGaussian.fit_options)
 
     mu: Float[ArrayLike, "*V C L M K"]
     W: Float[ArrayLike, "*V C L M K R"]

@@ -29,8 +29,8 @@ from pathlib import Path
 import jax.random as jr
 
 from jaxrecog.calibration import calibrate_model
-from jaxrecog.cli._options import (gray_range, likelihood_choice, likelihood_options, render_jitter_options,
-                                   render_jitter_values)
+from jaxrecog.cli._options import (given_likelihood_options, gray_range, likelihood_choice, likelihood_options,
+                                   render_jitter_options, render_jitter_values)
 from jaxrecog.calibration_plots import reliability_plot
 from jaxrecog.campaign import run_campaign
 from jaxrecog.database import load_database
@@ -79,7 +79,8 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
 
     case = CASES[args.case]
-    likelihood, options = likelihood_choice(args.likelihood, args.rank, args.nu, view_jitter=bool(args.view_jitter))
+    likelihood, options = likelihood_choice(args.likelihood, given_likelihood_options(args),
+                                            view_jitter=bool(args.view_jitter))
     settings = Settings(workdir=args.workdir, trials_per_object=args.trials, seed=args.seed, samples=args.samples,
                         batch=args.batch, n_components=args.n_components, samples_per_image=args.samples_per_image,
                         likelihood=likelihood, likelihood_options=options, exclude_visited_positions=args.exclude_visited,

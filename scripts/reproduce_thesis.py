@@ -38,8 +38,8 @@ import json
 import sys
 import time
 
-from jaxrecog.cli._options import (capture_options, capture_params, likelihood_choice, likelihood_options,
-                                   render_jitter_options, render_jitter_values)
+from jaxrecog.cli._options import (capture_options, capture_params, given_likelihood_options, likelihood_choice,
+                                   likelihood_options, render_jitter_options, render_jitter_values)
 from jaxrecog.metrics import campaign_metrics
 from jaxrecog.experiments import CASES, Settings, prepare, results_dir, run_case, run_trace
 
@@ -91,7 +91,8 @@ def main(argv=None) -> int:
     if args.stride < 1:
         p.error(f"--stride must be >= 1, got {args.stride}")
     try:
-        likelihood, options = likelihood_choice(args.likelihood, args.rank, args.nu, view_jitter=bool(args.view_jitter))
+        likelihood, options = likelihood_choice(args.likelihood, given_likelihood_options(args),
+                                                view_jitter=bool(args.view_jitter))
         settings = Settings(workdir=args.workdir, trials_per_object=args.trials, seed=args.seed, samples=args.samples,
                             batch=args.batch, stride=args.stride, likelihood=likelihood, likelihood_options=options,
                             **capture_params(args), **render_jitter_values(args))
@@ -142,7 +143,8 @@ def turntable_case(args) -> int:
     from jaxrecog.metrics import campaign_metrics
 
     try:
-        likelihood, options = likelihood_choice(args.likelihood, args.rank, args.nu, view_jitter=bool(args.view_jitter))
+        likelihood, options = likelihood_choice(args.likelihood, given_likelihood_options(args),
+                                                view_jitter=bool(args.view_jitter))
         settings = Settings(workdir=args.workdir, trials_per_object=args.trials, seed=args.seed, samples=args.samples,
                             batch=args.batch, likelihood=likelihood, likelihood_options=options,
                             **capture_params(args), **render_jitter_values(args))

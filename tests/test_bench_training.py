@@ -37,8 +37,24 @@ def test_view_mixtures_train_on_jitter_images(tmp_path):
     out = tmp_path / "t.json"
     assert _bench().main([*TINY, "--view-jitter", "2", "--likelihoods", "gaussian-diag", "view-mixture-lowrank",
                           "--out", str(out)]) == 0
-    rows = {r["likelihood"]: r for r in json.loads(out.read_text())["rows"]}
-    assert rows["gaussian-diag"]["sizes"]["view_jitter_images_per_view"] == 0
-    mix = rows["view-mixture-lowrank"]["sizes"]
+    rows = {(r["likelihood"], r["occluded_jitter"]): r for r in json.loads(out.read_text())["rows"]}
+    assert list(rows) == [("gaussian-diag", None), ("view-mixture-lowrank", "sampled"),
+                          ("view-mixture-lowrank", "translated")]
+    diag = rows["gaussian-diag", None]["sizes"]
+    assert diag["view_jitter_images_per_view"] == 0
+    mix = rows["view-mixture-lowrank", "sampled"]["sizes"]
     assert mix["view_jitter_images_per_view"] == 2
-    assert mix["augmented_samples"] == 3 * rows["gaussian-diag"]["sizes"]["augmented_samples"]
+    assert mix["augmented_samples"] == 3 * diag["augmented_samples"]
+    # DB1 has one level: translating occluded components samples the same
+    assert rows["view-mixture-lowrank", "translated"]["sizes"]["augmented_samples"] == mix["augmented_samples"]
+
+
+def test_translated_view_mixtures_sample_jitter_images_at_level_0(tmp_path):
+    out = tmp_path / "t.json"
+    db2 = ["--height", "30", "--width", "40", "--kind", "DB2"]   # occluders need a larger image
+    assert _bench().main([*TINY, *db2, "--view-jitter", "2", "--likelihoods", "view-mixture",
+                          "--occluded-jitter", "translated", "--out", str(out)]) == 0
+    (row,) = json.loads(out.read_text())["rows"]
+    assert row["occluded_jitter"] == "translated"
+    # 6 levels of each of the 2*1 + 1 = 3 positions x 4 classes, plus 2 jitter images at level 0
+    assert row["sizes"]["augmented_samples"] == 3 * 4 * 4 * (6 + 2)

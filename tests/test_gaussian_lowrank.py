@@ -97,6 +97,20 @@ def test_factor_analysis_recovers_a_planted_model(rng):
     assert np.max(np.abs(cov - s[0])) < 0.1 * np.max(np.abs(s[0]))
 
 
+@pytest.mark.parametrize("r", [1, 4, 7])
+def test_spd_solve_is_numpy_solve(rng, r):
+    """The batched Cholesky solve of factor analysis against ``np.linalg.solve``,
+    with a broadcast right-hand side (the identity of the E step)."""
+    from jaxrecog.kernels.gaussian_lowrank import _spd_solve
+
+    a = rng.normal(size=(3, 5, r, r + 2))
+    m = a @ np.swapaxes(a, -1, -2) + 0.1 * np.eye(r)
+    b = rng.normal(size=(3, 5, r, 6))
+    np.testing.assert_allclose(_spd_solve(m, b), np.linalg.solve(m, b), rtol=1e-10, atol=1e-12)
+    eye = np.broadcast_to(np.eye(r), m.shape)
+    np.testing.assert_allclose(_spd_solve(m, eye), np.linalg.inv(m), rtol=1e-10, atol=1e-12)
+
+
 def test_uniqueness_floor_bounds_the_tightening_at_a_near_singular_level_0(rng, x64):
     """Level-0-like moments: two shift directions plus tiny noise.  The full
     covariance's Mahalanobis distance of an off-grid deviation is huge; the

@@ -157,3 +157,19 @@ def test_capture_pixel_path_agrees_with_the_shift_table_at_level_0(db):
     for ca, cb in zip(a.cameras, b.cameras):
         np.testing.assert_allclose(ca.mu, cb.mu, rtol=1e-5, atol=1e-6)
         np.testing.assert_allclose(ca.var, cb.var, rtol=1e-4, atol=1e-9)
+
+
+def test_shifted_energies_are_the_float64_sums_of_the_shifted_images(rng):
+    """The level-0 table's ``||S_d x||^2`` (running integer sums) is exactly the
+    float64 sum of squares of each shifted image, saturated images included."""
+    from jaxrecog.augment import ShiftWindows
+    from jaxrecog.train import _shifted_energies
+
+    images = rng.integers(0, 256, size=(4, 11, 17), dtype=np.uint8)
+    images[0] = 255
+    s = 3
+    win = ShiftWindows(images, s)
+    dy, dx = (x.ravel() for x in np.meshgrid(np.arange(-s, s + 1), np.arange(-s, s + 1), indexing="ij"))
+    want = np.array([[np.sum(win.view[c, s - a, s - b].astype(np.float64) ** 2) for a, b in zip(dy, dx)]
+                     for c in range(4)])
+    np.testing.assert_array_equal(_shifted_energies(win, dy, dx), want)

@@ -443,6 +443,70 @@ def test_nominal_weight_option(trained):
         train_model(trained.jdb, likelihood="view-mixture", likelihood_options={"rank": 2}, view_jitter=True, **_KW)
 
 
+@pytest.mark.parametrize("name", ["view-mixture", "view-mixture-lowrank"])
+def test_translated_occluded_jitter_components(trained, name):
+    """``occluded_jitter="translated"``: the jitter images are augmented at level
+    0 only; an occluded jitter component is the training view's component of
+    that level moved by the level-0 offset, with its covariance; the rest are
+    the sampled mixture's own components."""
+    opts = {"rank": 2} if name.endswith("lowrank") else {}
+    sampled = (trained.low if opts else trained.mix).cameras[0].likelihood
+    model, info = train_model(trained.jdb, likelihood=name, view_jitter=True, return_info=True,
+                              likelihood_options={**opts, "occluded_jitter": "translated"}, **_KW)
+    assert info.params["likelihood_options"] == {**opts, "occluded_jitter": "translated"}
+    lik = model.cameras[0].likelihood
+    assert type(lik) is type(sampled) and lik.problems() == []
+    fields = [f for f in type(lik).field_shapes if f not in ("mu", "log_w")]
+    get = lambda x, f: np.asarray(getattr(x, f), np.float64)  # noqa: E731
+    tol = dict(rtol=1e-5, atol=1e-7)
+    # level 0 (every image augmented) and the training view's components: the sampled mixture's
+    for f in ("mu", *fields):
+        np.testing.assert_allclose(get(lik, f)[:, :, 0], get(sampled, f)[:, :, 0], **tol)
+        np.testing.assert_allclose(get(lik, f)[:, :, 1:, 0], get(sampled, f)[:, :, 1:, 0], **tol)
+        # the occluded jitter components share the training view's covariance of their level
+        np.testing.assert_allclose(get(lik, f)[:, :, 1:, 1:],
+                                   np.broadcast_to(get(lik, f)[:, :, 1:, :1], get(lik, f)[:, :, 1:, 1:].shape)
+                                   if f != "mu" else get(lik, f)[:, :, 1:, 1:], **tol)
+    mu = get(lik, "mu")
+    want = mu[:, :, 1:, :1] + (mu[:, :, :1, 1:] - mu[:, :, :1, :1])
+    np.testing.assert_allclose(mu[:, :, 1:, 1:], want, rtol=1e-5, atol=1e-6)
+    # a jitter image equal to the training image: no offset, its components are the training view's
+    for (v, c, j) in _SAME:
+        np.testing.assert_allclose(mu[v, c, :, j + 1], mu[v, c, :, 0], rtol=1e-5, atol=1e-6)
+    # a rolled jitter image: its occluded components differ from the sampled ones (not sampled)
+    assert not np.allclose(mu[:, :, 1:, 1:], get(sampled, "mu")[:, :, 1:, 1:], atol=1e-4)
+    with pytest.raises(ValueError, match="occluded_jitter must be one of sampled, translated"):
+        train_model(trained.jdb, likelihood=name, view_jitter=True, likelihood_options={"occluded_jitter": "x"},
+                    **_KW)
+
+
+@_FAMILIES
+def test_translated_fit_reads_no_occluded_jitter_moments(rng, lowrank):
+    """``fit(occluded_jitter="translated")`` never reads the moments it derives
+    (NaN there is fine), and equals the sampled fit where it fits."""
+    c, l, m, k = 3, 4, 3, 5
+    mean = rng.normal(size=(c, l, m, k))
+    a = rng.normal(size=(c, l, m, k, k))
+    cov = a @ np.swapaxes(a, -1, -2) / k + np.eye(k)
+    cls, second, opts = (K.LowRankViewMixture, cov, {"rank": 2}) if lowrank else \
+        (K.ViewMixture, np.diagonal(cov, axis1=-2, axis2=-1).copy(), {})
+    floor = np.full((c, l), 1e-3)
+    blank_mean, blank_second = mean.copy(), second.copy()
+    blank_mean[:, 1:, 1:] = np.nan
+    blank_second[:, 1:, 1:] = np.nan
+    tr = cls.fit(blank_mean, blank_second, floor, occluded_jitter="translated", **opts)
+    full = cls.fit(mean, second, floor, **opts)
+    for f in type(tr).field_shapes:
+        x, y = np.asarray(getattr(tr, f)), np.asarray(getattr(full, f))
+        assert np.all(np.isfinite(x)), f
+        np.testing.assert_allclose(x[:, 0], y[:, 0], rtol=1e-6, atol=1e-9)
+        np.testing.assert_allclose(x[:, :, 0], y[:, :, 0], rtol=1e-6, atol=1e-9)
+    np.testing.assert_allclose(np.asarray(tr.mu)[:, 1:, 1:],
+                               mean[:, 1:, :1] + mean[:, :1, 1:] - mean[:, :1, :1], rtol=1e-12)
+    with pytest.raises(ValueError, match="occluded_jitter must be one of"):
+        cls.fit(mean, second, floor, occluded_jitter="pooled", **opts)
+
+
 def test_training_errors(trained):
     db, jdb = trained.db, trained.jdb
     with pytest.raises(ValueError, match="view jitter"):
@@ -645,6 +709,14 @@ def test_view_jitter_trains_the_low_rank_mixture_unless_told_otherwise(tmp_path,
     out = tmp_path / "r.npz"
     assert cli.main(base + ["--out", str(out), "--view-jitter", "--rank", "1"]) == 0
     assert load_model(out).cameras[0].likelihood.W.shape[-1] == 1
+    # --occluded-jitter: recorded in the model file; a mixture's option only
+    out = tmp_path / "t.npz"
+    assert cli.main(base + ["--out", str(out), "--view-jitter", "--occluded-jitter", "translated"]) == 0
+    assert load_model_meta(out)["training"]["likelihood_options"] == {"occluded_jitter": "translated"}
+    capsys.readouterr()
+    assert cli.main(base + ["--out", str(tmp_path / "x.npz"), "--occluded-jitter", "translated"]) == 2
+    assert "--occluded-jitter applies to view-mixture, view-mixture-lowrank, not to --likelihood gaussian-diag" \
+        in capsys.readouterr().err
 
     # experiment: --view-jitter N without --likelihood selects the same family
     seen = {}
@@ -661,3 +733,6 @@ def test_view_jitter_trains_the_low_rank_mixture_unless_told_otherwise(tmp_path,
                         (["--view-jitter", "2", "--likelihood", "gaussian-diag"], "gaussian-diag")):
         assert cli.main(["--quiet", "experiment", "i", "--out", str(tmp_path / "x")] + extra) == 1
         assert seen.pop("settings").likelihood == want
+    assert cli.main(["--quiet", "experiment", "i", "--out", str(tmp_path / "x"), "--view-jitter", "2",
+                     "--occluded-jitter", "translated"]) == 1
+    assert dict(seen.pop("settings").likelihood_options) == {"occluded_jitter": "translated"}

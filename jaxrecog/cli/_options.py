@@ -11,7 +11,7 @@ __all__ = [
     "global_options", "table_options", "planner_size_options", "skip_invalid_option",
     "motion_weight", "choice_options", "likelihood_options", "capture_options", "view_jitter_option",
     "render_jitter_options", "render_jitter_values",
-    "likelihood_choice", "capture_params", "nu_value", "sigma_range", "bounded",
+    "likelihood_choice", "given_likelihood_options", "capture_params", "nu_value", "sigma_range", "bounded",
 ]
 
 #: The choices of ``--planner`` / ``--planners``: the planner registry's names
@@ -212,10 +212,11 @@ def nu_value(text: str) -> str | float:
 
 
 def likelihood_options(p: argparse._ActionsContainer) -> None:
-    """``--likelihood``, ``--rank``, ``--nu`` (``train``, ``experiment``,
+    """``--likelihood``, ``--rank``, ``--nu``, ``--occluded-jitter`` (``train``, ``experiment``,
     ``scripts/reproduce_thesis.py``; on a parser or an argument group): all default to ``None`` = not given
     (the thesis's diagonal Gaussian; the family's own option defaults)."""
     from ..kernels import DEFAULT_LIKELIHOOD, DEFAULT_VIEW_JITTER_LIKELIHOOD, likelihood_names
+    from ..kernels.view_mixture import OCCLUDED_JITTER
 
     p.add_argument("--likelihood", choices=likelihood_names(), default=None,
                    help=f"sensor-model family (default: {DEFAULT_LIKELIHOOD}, the thesis's; with --view-jitter "
@@ -225,22 +226,33 @@ def likelihood_options(p: argparse._ActionsContainer) -> None:
     p.add_argument("--nu", type=nu_value, default=None,
                    help="student-t: degrees of freedom, a number > 2, or 'auto' (chosen per level on held-out "
                         "training samples; the default)")
+    p.add_argument("--occluded-jitter", choices=OCCLUDED_JITTER, default=None,
+                   help="view-mixture, view-mixture-lowrank: 'sampled' (default) augments every jitter image at "
+                        "every occlusion level; 'translated' at level 0 only, and moves the training view's "
+                        "occluded components by each jitter view's level-0 offset (several times faster)")
 
 
-def likelihood_choice(name: str | None, rank=None, nu=None, view_jitter: bool = False) -> tuple[str, dict]:
+_LIKELIHOOD_FLAGS = ("rank", "nu", "occluded_jitter")   # fit options with a flag of their own
+
+
+def given_likelihood_options(args) -> dict:
+    """The fit options given by :func:`likelihood_options`'s flags (those left ``None`` out)."""
+    return {k: getattr(args, k) for k in _LIKELIHOOD_FLAGS if getattr(args, k, None) is not None}
+
+
+def likelihood_choice(name: str | None, options: dict | None = None, view_jitter: bool = False) -> tuple[str, dict]:
     """The likelihood name (default ``gaussian-diag``; with ``view_jitter``
-    ``view-mixture-lowrank``) and its fit options from ``--likelihood`` /
-    ``--rank`` / ``--nu``; an option of another family is a ``ValueError``."""
-    from ..kernels import DEFAULT_LIKELIHOOD, DEFAULT_VIEW_JITTER_LIKELIHOOD, likelihood_class
+    ``view-mixture-lowrank``) and its fit options (:func:`given_likelihood_options`);
+    an option of another family is a ``ValueError`` naming the families that take it."""
+    from ..kernels import DEFAULT_LIKELIHOOD, DEFAULT_VIEW_JITTER_LIKELIHOOD, LIKELIHOODS, likelihood_class
 
     name = name or (DEFAULT_VIEW_JITTER_LIKELIHOOD if view_jitter else DEFAULT_LIKELIHOOD)
     family = likelihood_class(name)
-    options = {k: v for k, v in (("rank", rank), ("nu", nu)) if v is not None}
+    options = dict(options or {})
     for k in options:
         if k not in family.fit_options:
-            raise ValueError(f"--{k} applies to {'gaussian-lowrank' if k == 'rank' else 'student-t'}"
-                             f"{' and view-mixture-lowrank' if k == 'rank' else ''}, "
-                             f"not to --likelihood {name}")
+            takers = sorted(c.name or c.kind for c in LIKELIHOODS.values() if k in c.fit_options)
+            raise ValueError(f"--{k.replace('_', '-')} applies to {', '.join(takers)}, not to --likelihood {name}")
     return name, options
 
 

@@ -13,8 +13,8 @@ from ..driver import trial_mesh
 from ..planners import DEFAULT_MIN_PER_STRATUM
 from .._progress import enabled as progress_bars
 from ._common import UsageError
-from ._options import (PLANNERS, capture_options, capture_params, choice_options, likelihood_options, positive,
-                       render_jitter_options, render_jitter_values)
+from ._options import (PLANNERS, capture_options, capture_params, choice_options, given_likelihood_options,
+                       likelihood_options, positive, render_jitter_options, render_jitter_values)
 from ._reports import QUICK, make_settings, trace_plot, write_report
 
 NAME = "experiment"
@@ -69,9 +69,10 @@ def add_arguments(p) -> None:
 
 
 def _training_values(args, values: dict[str, Any]) -> dict[str, Any]:
-    """The Settings fields of ``--likelihood`` / ``--rank`` / ``--nu`` and the
-    capture augmentation flags, over those of an experiment file (``values``):
-    ``--rank`` / ``--nu`` update the file's ``likelihood_options``."""
+    """The Settings fields of ``--likelihood`` / ``--rank`` / ``--nu`` /
+    ``--occluded-jitter`` and the capture augmentation flags, over those of an
+    experiment file (``values``): the option flags update the file's
+    ``likelihood_options``."""
     out: dict[str, Any] = {}
     if args.likelihood is not None:
         out["likelihood"] = args.likelihood
@@ -79,7 +80,7 @@ def _training_values(args, values: dict[str, Any]) -> dict[str, Any]:
         from ..kernels import DEFAULT_VIEW_JITTER_LIKELIHOOD
 
         out["likelihood"] = DEFAULT_VIEW_JITTER_LIKELIHOOD
-    opts = {k: v for k, v in (("rank", args.rank), ("nu", args.nu)) if v is not None}
+    opts = given_likelihood_options(args)
     if opts:
         base = values.get("likelihood_options") or {}
         out["likelihood_options"] = {**dict(base.items() if hasattr(base, "items") else base), **opts}

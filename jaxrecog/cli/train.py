@@ -12,8 +12,8 @@ from ..modelfile import save_model
 from .._progress import bar
 from ..train import train_model
 from ._common import UsageError
-from ._options import (capture_options, capture_params, likelihood_choice, likelihood_options, positive,
-                       view_jitter_option)
+from ._options import (capture_options, capture_params, given_likelihood_options, likelihood_choice,
+                       likelihood_options, positive, view_jitter_option)
 
 NAME = "train"
 ORDER = 20
@@ -88,6 +88,6 @@ def _likelihood(args) -> tuple[str, dict]:
                              f"which contradicts --likelihood {name}")
         name = alias
     try:
-        return likelihood_choice(name, args.rank, args.nu, view_jitter=bool(args.view_jitter))
+        return likelihood_choice(name, given_likelihood_options(args), view_jitter=bool(args.view_jitter))
     except ValueError as e:
         raise UsageError(str(e)) from None
