@@ -275,6 +275,7 @@ class Settings:
         if bad:
             raise ValueError(f"likelihood_options: {name!r} has no option {', '.join(map(repr, bad))} "
                              f"(it takes: {', '.join(family.fit_options) or 'none'})")
+        opts = family.with_defaults(**opts)   # a changed default changes the cache key
         object.__setattr__(self, "likelihood_options", tuple(sorted(opts.items())))
         blur = self.blur_sigma
         blur = (0.0, float(blur)) if isinstance(blur, (int, float)) else tuple(float(x) for x in blur)

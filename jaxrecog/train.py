@@ -145,6 +145,7 @@ def train_model(
     if unknown:
         takes = ", ".join(family.fit_options) or "none"
         raise ValueError(f"likelihood {lik_kind!r} has no option {', '.join(map(repr, unknown))} (it takes: {takes})")
+    options = family.with_defaults(**options)   # what the model file records
     holdout = float(family.holdout_fraction(**options))
     levels = levels_for(kind)
     params = dataclasses.replace(augment or AugmentParams(), samples_per_image=samples_per_image)

@@ -288,6 +288,14 @@ class Likelihood(eqx.Module):
         return self
 
     @classmethod
+    def with_defaults(cls, **options) -> dict:
+        """The fit options a model file and an experiment's cache key record:
+        those given, plus the default of any option whose default changed
+        after models were trained without it (so an older model is never
+        taken for a newer one).  Default: the options as given."""
+        return dict(options)
+
+    @classmethod
     def holdout_fraction(cls, **options) -> float:
         """The fraction of each component's training samples that :meth:`fit`
         wants held out of the moments (passed to it as ``holdout``), for the

@@ -375,14 +375,16 @@ def trained():
     off-grid test image per view, and two jitter images per view (M = 3)."""
     db = make_database(positions=(2,), n_objects=2, n_poses=2, image_shape=(16, 20), n_test=1, view_offset=0.4)
     jdb = _with_jitter(db, _jitter_rows(db, _SAME))
-    mix, info = train_model(jdb, likelihood="view-mixture", view_jitter=True, return_info=True, **_KW)
-    low, low_info = train_model(jdb, likelihood="view-mixture-lowrank", likelihood_options={"rank": 2},
+    sampled = {"occluded_jitter": "sampled"}   # every component from its own samples (the default translates)
+    mix, info = train_model(jdb, likelihood="view-mixture", likelihood_options=sampled, view_jitter=True,
+                            return_info=True, **_KW)
+    low, low_info = train_model(jdb, likelihood="view-mixture-lowrank", likelihood_options={"rank": 2, **sampled},
                                 view_jitter=True, return_info=True, **_KW)
     return SimpleNamespace(
         db=db, jdb=jdb, mix=mix, info=info, low=low, low_info=low_info,
         plain=train_model(db, likelihood="gaussian-diag", **_KW),
         pooled=train_model(jdb, likelihood="gaussian-diag", view_jitter=True, **_KW),
-        nominal=train_model(jdb, likelihood="view-mixture", likelihood_options={"nominal_weight": 0.6},
+        nominal=train_model(jdb, likelihood="view-mixture", likelihood_options={"nominal_weight": 0.6, **sampled},
                             view_jitter=True, **_KW),
     )
 
@@ -424,7 +426,7 @@ def test_training_the_lowrank_mixture(trained):
     low, mix = trained.low.cameras[0].likelihood, trained.mix.cameras[0].likelihood
     assert isinstance(low, K.LowRankViewMixture) and low.W.shape == (2, 4, 6, 3, 3, 2)
     assert low.noise_dim == 1 + 2 + 3 and low.problems() == []
-    assert trained.low_info.params["likelihood_options"] == {"rank": 2}
+    assert trained.low_info.params["likelihood_options"] == {"rank": 2, "occluded_jitter": "sampled"}
     # the same samples per component: the same means as the diagonal mixture
     np.testing.assert_array_equal(np.asarray(low.mu), np.asarray(mix.mu))
     np.testing.assert_array_equal(np.asarray(low.log_w), np.asarray(mix.log_w))
@@ -452,7 +454,7 @@ def test_translated_occluded_jitter_components(trained, name):
     opts = {"rank": 2} if name.endswith("lowrank") else {}
     sampled = (trained.low if opts else trained.mix).cameras[0].likelihood
     model, info = train_model(trained.jdb, likelihood=name, view_jitter=True, return_info=True,
-                              likelihood_options={**opts, "occluded_jitter": "translated"}, **_KW)
+                              likelihood_options=opts, **_KW)   # the default
     assert info.params["likelihood_options"] == {**opts, "occluded_jitter": "translated"}
     lik = model.cameras[0].likelihood
     assert type(lik) is type(sampled) and lik.problems() == []
@@ -711,8 +713,12 @@ def test_view_jitter_trains_the_low_rank_mixture_unless_told_otherwise(tmp_path,
     assert load_model(out).cameras[0].likelihood.W.shape[-1] == 1
     # --occluded-jitter: recorded in the model file; a mixture's option only
     out = tmp_path / "t.npz"
-    assert cli.main(base + ["--out", str(out), "--view-jitter", "--occluded-jitter", "translated"]) == 0
-    assert load_model_meta(out)["training"]["likelihood_options"] == {"occluded_jitter": "translated"}
+    for mode in ("sampled", "translated"):
+        assert cli.main(base + ["--out", str(out), "--view-jitter", "--occluded-jitter", mode]) == 0
+        assert load_model_meta(out)["training"]["likelihood_options"] == {"occluded_jitter": mode}
+    # the default is recorded too (a cache key tells it from mixtures trained before it was the default)
+    assert load_model_meta(tmp_path / "m1-LowRankViewMixture.npz")["training"]["likelihood_options"] == \
+        {"occluded_jitter": "translated"}
     capsys.readouterr()
     assert cli.main(base + ["--out", str(tmp_path / "x.npz"), "--occluded-jitter", "translated"]) == 2
     assert "--occluded-jitter applies to view-mixture, view-mixture-lowrank, not to --likelihood gaussian-diag" \
