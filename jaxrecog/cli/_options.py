@@ -11,7 +11,8 @@ __all__ = [
     "global_options", "table_options", "planner_size_options", "skip_invalid_option",
     "motion_weight", "choice_options", "likelihood_options", "capture_options", "view_jitter_option",
     "render_jitter_options", "render_jitter_values",
-    "likelihood_choice", "given_likelihood_options", "capture_params", "nu_value", "sigma_range", "bounded",
+    "likelihood_choice", "given_likelihood_options", "default_likelihood", "capture_params", "nu_value",
+    "sigma_range", "bounded",
 ]
 
 #: The choices of ``--planner`` / ``--planners``: the planner registry's names
@@ -240,13 +241,21 @@ def given_likelihood_options(args) -> dict:
     return {k: getattr(args, k) for k in _LIKELIHOOD_FLAGS if getattr(args, k, None) is not None}
 
 
-def likelihood_choice(name: str | None, options: dict | None = None, view_jitter: bool = False) -> tuple[str, dict]:
-    """The likelihood name (default ``gaussian-diag``; with ``view_jitter``
-    ``view-mixture-lowrank``) and its fit options (:func:`given_likelihood_options`);
-    an option of another family is a ``ValueError`` naming the families that take it."""
-    from ..kernels import DEFAULT_LIKELIHOOD, DEFAULT_VIEW_JITTER_LIKELIHOOD, LIKELIHOODS, likelihood_class
+def default_likelihood(view_jitter: bool) -> str:
+    """The family trained when none is named: the thesis's diagonal Gaussian,
+    or with view jitter the low-rank view mixture."""
+    from ..kernels import DEFAULT_LIKELIHOOD, DEFAULT_VIEW_JITTER_LIKELIHOOD
 
-    name = name or (DEFAULT_VIEW_JITTER_LIKELIHOOD if view_jitter else DEFAULT_LIKELIHOOD)
+    return DEFAULT_VIEW_JITTER_LIKELIHOOD if view_jitter else DEFAULT_LIKELIHOOD
+
+
+def likelihood_choice(name: str | None, options: dict | None = None, view_jitter: bool = False) -> tuple[str, dict]:
+    """The likelihood name (default :func:`default_likelihood`) and its fit
+    options (:func:`given_likelihood_options`); an option of another family
+    is a ``ValueError`` naming the families that take it."""
+    from ..kernels import LIKELIHOODS, likelihood_class
+
+    name = name or default_likelihood(view_jitter)
     family = likelihood_class(name)
     options = dict(options or {})
     for k in options:

@@ -13,8 +13,9 @@ from ..driver import trial_mesh
 from ..planners import DEFAULT_MIN_PER_STRATUM
 from .._progress import enabled as progress_bars
 from ._common import UsageError
-from ._options import (PLANNERS, capture_options, capture_params, choice_options, given_likelihood_options,
-                       likelihood_options, positive, render_jitter_options, render_jitter_values)
+from ._options import (PLANNERS, capture_options, capture_params, choice_options, default_likelihood,
+                       given_likelihood_options, likelihood_options, positive, render_jitter_options,
+                       render_jitter_values)
 from ._reports import QUICK, make_settings, trace_plot, write_report
 
 NAME = "experiment"
@@ -77,9 +78,7 @@ def _training_values(args, values: dict[str, Any]) -> dict[str, Any]:
     if args.likelihood is not None:
         out["likelihood"] = args.likelihood
     elif args.view_jitter and "likelihood" not in values:  # view jitter trains its own default family
-        from ..kernels import DEFAULT_VIEW_JITTER_LIKELIHOOD
-
-        out["likelihood"] = DEFAULT_VIEW_JITTER_LIKELIHOOD
+        out["likelihood"] = default_likelihood(True)
     opts = given_likelihood_options(args)
     if opts:
         base = values.get("likelihood_options") or {}
