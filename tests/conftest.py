@@ -56,15 +56,28 @@ def _share_compilations() -> None:
 
 _share_compilations()
 
-#: XLA flags of the test run: the CPU backend's LLVM optimisations off.  The
-#: suite's time is compile time (tests/conftest.py::_share_compilations), and
-#: for the larger programs (a recognizer step with the CRLB planner on three
-#: cameras) these flags halve it (19 s -> 9 s of CPU for that test) while the
-#: programs compute the same values: they change how the generated code is
-#: optimised, not what it computes (the numerics tests compare against the
-#: NumPy oracles at unchanged tolerances).  Benchmarks and the product do not
-#: use them.  ``JAXRECOG_TEST_XLA_OPT=1`` keeps the optimisations.
-FAST_COMPILE_FLAGS = ("--xla_backend_optimization_level=0", "--xla_llvm_disable_expensive_passes=true")
+#: XLA flags of the test run.  The suite's time is compile time
+#: (tests/conftest.py::_share_compilations), and nine tenths of that is XLA's
+#: CPU backend, not JAX's tracing or lowering (measured per test with
+#: ``jax.monitoring``'s ``backend_compile_duration``).  The flags:
+#:
+#: - the LLVM optimisations off: for the larger programs (a recognizer step
+#:   with the CRLB planner on three cameras) they halve the compile (19 s ->
+#:   9 s of CPU for that test);
+#: - the classic elemental emitters instead of the MLIR fusion emitters
+#:   (``xla_cpu_use_fusion_emitters=false``): tests/test_recognizer.py's
+#:   backend compile 64.5 s -> 24.8 s, the two-step lookahead kernel 1.58 s
+#:   -> 0.64 s a program (stop 25);
+#: - one LLVM module per program instead of parallel codegen splits
+#:   (``xla_cpu_parallel_codegen_split_count=1``): a further ~15 % on two
+#:   cores, where the test workers already use both.
+#:
+#: They change how the code is generated, not what it computes (the numerics
+#: tests compare against the NumPy oracles at unchanged tolerances).
+#: Benchmarks and the product do not use them.  ``JAXRECOG_TEST_XLA_OPT=1``
+#: keeps XLA's defaults.
+FAST_COMPILE_FLAGS = ("--xla_backend_optimization_level=0", "--xla_llvm_disable_expensive_passes=true",
+                      "--xla_cpu_use_fusion_emitters=false", "--xla_cpu_parallel_codegen_split_count=1")
 
 
 def _fast_compiles() -> None:
