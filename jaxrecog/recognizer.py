@@ -91,6 +91,8 @@ class Decision(NamedTuple):
         stop: whether to stop (threshold reached or step limit).
         reached: whether the threshold was reached.
         next_config: ``[n_cameras]`` positions to move to (if not stopping).
+            On a stopping step taken with ``plan_on_stop=False`` the planner
+            is not run and this is the first configuration not yet used.
         next_index: the flat configuration index of ``next_config``.
         valid: ``False`` if the images could not be used (belief unchanged).
         trace: a :class:`StepTrace` when the step was asked to trace, else ``None``.
@@ -238,11 +240,19 @@ class Recognizer(eqx.Module):
 
     @eqx.filter_jit
     def step(self, state: RecognizerState, images: Real[ArrayLike, "n H W"], key: PRNGKeyArray, *,
-             trace: bool = False) -> tuple[RecognizerState, Decision]:
+             trace: bool = False, plan_on_stop: bool = True) -> tuple[RecognizerState, Decision]:
         """One image set in, the belief updated, the next configuration out.
 
         ``trace=True`` (static: one compile per value) adds the
-        :class:`StepTrace` (scores, marginals, posterior) to the decision."""
+        :class:`StepTrace` (scores, marginals, posterior) to the decision.
+        ``plan_on_stop=False`` (static) skips the planner on a step that stops
+        (a ``lax.cond``: under ``jit`` or ``lax.map`` only the taken branch
+        runs; under ``vmap`` both do).  The campaigns' driver uses it: every
+        trial's last step is one of its ~2 steps, and the planner is most of
+        a step's time.  The belief, the decision and every non-stopping step
+        are unchanged; only a stopping step's ``next_config`` is then the first
+        unused configuration instead of the planned one (a caller that goes on
+        after ``stop``, e.g. the Gymnasium policy, keeps the default)."""
         model = self.model
         positions = self.positions
         gs, ok = image_features(model, state.config, jnp.asarray(images))
@@ -269,9 +279,17 @@ class Recognizer(eqx.Module):
         state_predicted = K.transition_per_position(state_posterior, state.config, positions, kind=self.transition, rho=self.rho)
         predicted = self.belief(state_predicted)
         # a planner that looks past this prior predicts with the recognizer's transition
-        scores = self.planner.with_transition(self.transition, self.rho).scores(predicted, key)
-        if self.motion is not None:
-            scores = self.motion.apply(scores, state.config)
+        planner = self.planner.with_transition(self.transition, self.rho)
+
+        def plan(_):
+            out = planner.scores(predicted, key)
+            return out if self.motion is None else self.motion.apply(out, state.config)
+
+        if plan_on_stop or trace:
+            scores = plan(None)
+        else:
+            shape = jax.eval_shape(plan, None)
+            scores = jax.lax.cond(stop, lambda _: jnp.zeros(shape.shape, shape.dtype), plan, None)
         # a non-finite score (a failed estimate) ranks below every finite one,
         # but above a configuration excluded as visited
         usable = jnp.where(jnp.isfinite(scores), scores, jnp.finfo(scores.dtype).min)

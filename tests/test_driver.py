@@ -3,6 +3,7 @@ index <-> configuration helpers."""
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 
 import jax
@@ -218,3 +219,44 @@ def test_update_with_a_false_valid_mask_changes_nothing():
         np.testing.assert_array_equal(x, y)
     moved, info = K.update_with_info(b, ll, valid=True)
     assert bool(info.ok) and not np.allclose(moved.log_pc, b.log_pc)
+
+
+class _CountingPlanner(RandomPlanner):
+    """RandomPlanner that counts its runs on the host (``jax.debug.callback``
+    fires only where the planner's branch actually runs)."""
+
+    def scores(self, prior, key):
+        out = super().scores(prior, key)
+        jax.debug.callback(_PLANNED.append, out[0], ordered=False)
+        return out
+
+
+_PLANNED: list = []
+
+
+def test_campaign_steps_skip_the_planner_on_stopping_steps_and_give_the_same_trials(moving_model):
+    """The driver runs the planner only on steps that do not stop (a trial's
+    last step needs no next configuration), with the same trials as a step
+    that always plans; a stopping step's next configuration is then the first
+    unused one."""
+    db, model = moving_model
+    rec = Recognizer(model, _CountingPlanner(3), p_threshold=0.6, max_steps=3)
+    specs = plan_trials(2, 3, (3,), 2, seed=5)
+    _PLANNED.clear()
+    records = []  # one slot: no idle slot steps beside the trials
+    results = run_trials(rec, StrictRig(db), specs, key=jr.PRNGKey(3), batch=1, on_step=records.append)
+    jax.effects_barrier()
+    steps = sum(r.steps for r in results)
+    assert len(_PLANNED) == steps - len(results) < steps  # one fewer planner run per trial
+    for s in records:
+        if s.decision.stop:  # the first configuration not yet used
+            used = [index_from_config(r.config, (3,)) for r in records if r.spec.trial == s.spec.trial]
+            assert int(s.decision.next_index) == min(set(range(3)) - set(used) or {0})
+    # the same trials when every step plans (a traced run plans on every step)
+    _PLANNED.clear()
+    traced = run_trials(rec, StrictRig(db), specs, key=jr.PRNGKey(3), batch=1, trace=True)
+    jax.effects_barrier()
+    assert len(_PLANNED) == steps
+    assert all(r.object_probs for r in traced)  # (what a trace adds; nothing else may differ)
+    untraced = [dataclasses.replace(r, object_probs=()) for r in traced]
+    assert sorted(results, key=lambda r: r.trial) == sorted(untraced, key=lambda r: r.trial)
