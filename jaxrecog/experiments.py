@@ -147,6 +147,9 @@ class Settings:
             the full 32 x 7 table; 8 = (4, 1) positions, a database of 160
             images that renders and trains in seconds (tests, smoke runs).
             The database and model files of each stride are cached apart.
+        min_views: never stop on P_th before this many image sets
+            (:class:`~jaxrecog.recognizer.Recognizer`; a departure from the
+            thesis, which stops at the first step that reaches P_th; default 1).
         exclude_visited_positions: never send a camera back to a position it
             already used (:class:`~jaxrecog.recognizer.Recognizer`; a departure
             from the thesis, off by default).
@@ -206,6 +209,7 @@ class Settings:
     capture_noise: tuple[float, float, int] = CAPTURE_NOISE
     transition: str = "uniform"
     stride: int = 1
+    min_views: int = 1
     exclude_visited_positions: bool = False
     shared_view: bool = False
     motion_cost: float = 0.0
@@ -234,6 +238,8 @@ class Settings:
         object.__setattr__(self, "motion_cost", check_weight(self.motion_cost))
         if isinstance(self.devices, bool) or not isinstance(self.devices, int) or self.devices < 1:
             raise ValueError(f"devices must be an integer >= 1, got {self.devices!r}")
+        if isinstance(self.min_views, bool) or not isinstance(self.min_views, int) or not 1 <= self.min_views <= self.max_steps:
+            raise ValueError(f"min_views must be an integer in [1, max_steps = {self.max_steps}], got {self.min_views!r}")
         if self.trials_per_object < 1:
             raise ValueError("trials_per_object must be >= 1")
         if isinstance(self.stride, bool) or not isinstance(self.stride, int) or self.stride < 1:
@@ -408,6 +414,8 @@ def _run_id(settings: Settings, model_path: Path | str) -> str:
     for k in ("exclude_visited_positions", "shared_view", "motion_cost", *_OFF_GRID_FIELDS):
         if not fields[k]:
             del fields[k]
+    if fields["min_views"] == 1:
+        del fields["min_views"]
     defaults = _training_defaults()
     for k in _TRAINING_FIELDS:
         if getattr(settings, k) == defaults[k]:
@@ -574,7 +582,8 @@ def make_recognizer(model, planner_name: str, settings: Settings, travel=None):
     planner = make_planner(planner_name, model, key=jr.PRNGKey(settings.seed), samples=settings.samples,
                            min_per_stratum=settings.min_per_stratum)
     motion = None if travel is None else MotionCost(travel, settings.motion_cost)
-    return Recognizer(model, planner, p_threshold=settings.p_threshold, max_steps=settings.max_steps, transition=settings.transition,
+    return Recognizer(model, planner, p_threshold=settings.p_threshold, max_steps=settings.max_steps,
+                      min_views=settings.min_views, transition=settings.transition,
                       exclude_visited_positions=settings.exclude_visited_positions, motion=motion,
                       shared_view=settings.shared_view)
 

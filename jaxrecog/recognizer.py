@@ -150,6 +150,12 @@ class Recognizer(eqx.Module):
         planner: any :class:`~jaxrecog.planners.Planner`.
         p_threshold: stop when the best (object, pose) reaches it (P_th).
         max_steps: stop after this many image sets (thesis: 7).
+        min_views: never stop on the threshold before this many image sets
+            (default 1, the thesis's rule: stop at the first step that reaches
+            P_th).  2 asks every decision to be confirmed by a second image
+            set from another configuration: *a departure from the thesis*,
+            against one-view decisions that an unmodelled capture (an
+            occluder read as a look-alike's sticker) drives to p ~ 1.
         transition: ``"uniform"`` (thesis, eq. 3.9) or ``"sticky"``.
         rho: stay probability of the sticky transition.
         revisit: allow choosing a configuration already used (always true
@@ -179,6 +185,7 @@ class Recognizer(eqx.Module):
     planner: Planner
     p_threshold: float = eqx.field(static=True, default=0.95)
     max_steps: int = eqx.field(static=True, default=7)
+    min_views: int = eqx.field(static=True, default=1)
     transition: str = eqx.field(static=True, default="uniform")
     rho: float = eqx.field(static=True, default=0.9)
     revisit: bool = eqx.field(static=True, default=False)
@@ -187,6 +194,8 @@ class Recognizer(eqx.Module):
     shared_view: bool = eqx.field(static=True, default=False)
 
     def __check_init__(self):
+        if isinstance(self.min_views, bool) or not isinstance(self.min_views, int) or not 1 <= self.min_views <= self.max_steps:
+            raise ValueError(f"min_views must be an integer in [1, max_steps = {self.max_steps}], got {self.min_views!r}")
         if self.motion is not None and tuple(self.motion.positions) != tuple(self.positions):
             raise ValueError(f"motion cost tables have positions {self.motion.positions}, the model {tuple(self.positions)}")
         if self.shared_view:
@@ -270,7 +279,7 @@ class Recognizer(eqx.Module):
         prob = pc[best]
         steps = state.steps + 1
         reached = prob >= self.p_threshold
-        stop = reached | (steps >= self.max_steps)
+        stop = (reached & (steps >= self.min_views)) | (steps >= self.max_steps)
 
         here = index_from_config(state.config, positions)
         visited = state.visited.at[here].set(True)

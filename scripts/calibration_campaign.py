@@ -29,7 +29,7 @@ from pathlib import Path
 import jax.random as jr
 
 from jaxrecog.calibration import calibrate_model
-from jaxrecog.cli._options import (given_likelihood_options, gray_range, likelihood_choice, likelihood_options,
+from jaxrecog.cli._options import (given_likelihood_options, gray_range, likelihood_choice, likelihood_options, positive,
                                    render_jitter_options, render_jitter_values)
 from jaxrecog.calibration_plots import reliability_plot
 from jaxrecog.campaign import run_campaign
@@ -70,6 +70,8 @@ def main(argv=None) -> int:
     ap.add_argument("--occluded-fraction", type=float, default=0.5,
                     help="occluded cases: share of calib views with a board in front of that view")
     ap.add_argument("--exclude-visited", action="store_true", help="never send a camera back to a position it used")
+    ap.add_argument("--min-views", type=positive, default=1, metavar="N",
+                    help="never stop on the threshold before N image sets (Recognizer(min_views=N); the thesis: 1)")
     ap.add_argument("--occluder-gray", type=gray_range, default=(0.0, 0.0), metavar="LO,HI",
                     help="DB2 training occluders with a gray level uniform in [LO, HI] (default black, the thesis's)")
     ap.add_argument("--shared-view", action="store_true",
@@ -84,7 +86,7 @@ def main(argv=None) -> int:
     settings = Settings(workdir=args.workdir, trials_per_object=args.trials, seed=args.seed, samples=args.samples,
                         batch=args.batch, n_components=args.n_components, samples_per_image=args.samples_per_image,
                         likelihood=likelihood, likelihood_options=options, exclude_visited_positions=args.exclude_visited,
-                        shared_view=args.shared_view, occluder_gray=args.occluder_gray, **render_jitter_values(args))
+                        min_views=args.min_views, shared_view=args.shared_view, occluder_gray=args.occluder_gray, **render_jitter_values(args))
     settings = case_settings(case, settings)  # the case's off-grid amounts (jitter cases)
     t0 = time.perf_counter()
     prepared = prepare(settings, progress=True, databases=(case.database,))
@@ -129,7 +131,7 @@ def main(argv=None) -> int:
         models = {k: restrict_cameras(m, case.cameras) for k, m in models.items()}
 
     results, metrics = {}, {}
-    tag = (f"-{model_path.stem.removeprefix('model-')}{'-xv' if args.exclude_visited else ''}{'-sv' if args.shared_view else ''}"
+    tag = (f"-{model_path.stem.removeprefix('model-')}{'-xv' if args.exclude_visited else ''}{'-sv' if args.shared_view else ''}{f'-mv{args.min_views}' if args.min_views > 1 else ''}"
            f"-{'perlevel' if args.per_level else 'perpos'}-sd{args.prior_sd:g}-min{min_factor or 0:g}"
            f"-y{args.yaw:g}-e{args.eye_offset:g}-l{args.light:g}-c{args.calib_per_view}"
            f"{f'-front{args.occluded_fraction:g}' if case.occluded else ''}")

@@ -631,6 +631,14 @@ def test_experiment_view_choice_and_devices_flags(fake_experiments, tmp_path, ca
     assert not s.shared_view
     assert cli.main(["--quiet", "experiment", "i", "--out", str(out), "--planners", "mi", "--shared-view"]) == 0
     assert fake_experiments["run_case"][1].shared_view
+    assert fake_experiments["run_case"][1].min_views == 1
+    assert cli.main(["--quiet", "experiment", "i", "--out", str(out), "--planners", "mi", "--min-views", "2"]) == 0
+    assert fake_experiments["run_case"][1].min_views == 2
+    capsys.readouterr()
+    assert cli.main(["experiment", "i", "--out", str(out), "--min-views", "0"]) == 2
+    assert "--min-views" in capsys.readouterr().err
+    assert cli.main(["experiment", "i", "--out", str(out), "--min-views", "8"]) == 2
+    assert "min_views must be an integer in [1, max_steps = 7]" in capsys.readouterr().err
     capsys.readouterr()
     assert cli.main(["experiment", "i", "--out", str(out), "--motion-cost", "-1"]) == 2
     assert "motion cost" in capsys.readouterr().err
@@ -650,6 +658,12 @@ def test_recognize_view_choice_flags(tiny, capsys):
     # a replayed database has no geometry: no travel times to weigh
     assert cli.main(["recognize", str(tiny["model"]), "--rig", rig, "--samples", "64", "--motion-cost", "1"]) == 2
     assert "geometry" in capsys.readouterr().err
+    assert cli.main(["--quiet", "recognize", str(tiny["model"]), "--rig", rig, "--samples", "64", "--start", "0,0",
+                     "--min-views", "2"]) == 0
+    assert "result: object" in capsys.readouterr().out
+    assert cli.main(["recognize", str(tiny["model"]), "--rig", rig, "--samples", "64", "--min-views", "3",
+                     "--max-steps", "2"]) == 2
+    assert "--min-views 3 is above --max-steps 2" in capsys.readouterr().err
     # --shared-view needs a view-mixture model: one clear line, no traceback
     assert cli.main(["recognize", str(tiny["model"]), "--rig", rig, "--samples", "64", "--shared-view"]) != 0
     err = capsys.readouterr().err

@@ -37,6 +37,11 @@ def test_default_settings_keep_model_names_cache_keys_and_run_ids(tmp_path):
     model.write_bytes(b"model")
     assert ex._run_id(s, model) == "233947c420"
     assert ex._run_id(ex.Settings(workdir="/x", stride=8, motion_cost=0.5), model) == "46afd2476c"
+    # min_views (added later): 1 keeps the digest, another value gets its own trials
+    assert ex._run_id(ex.Settings(workdir=tmp_path, min_views=1), model) == "233947c420"
+    assert ex._run_id(ex.Settings(workdir=tmp_path, min_views=2), model) != "233947c420"
+    with pytest.raises(ValueError, match="min_views"):
+        ex.Settings(workdir=tmp_path, min_views=8)
     # the default family under another of its names is the default
     for same in (ex.Settings(workdir=tmp_path, likelihood="diag"), ex.Settings(workdir=tmp_path, likelihood_options={})):
         assert same == s and ex.model_path(same, "DB2") == ex.model_path(s, "DB2")

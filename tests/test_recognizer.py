@@ -139,6 +139,28 @@ def test_stop_rule_threshold_and_step_limit(getkey):
     assert bool(dec.stop) and not bool(dec.reached)
 
 
+def test_min_views_confirms_a_decision_before_stopping(getkey):
+    """``min_views=2``: the threshold reached at step 1 does not stop; step 2
+    stops once it is reached again; the step limit still stops; out-of-range
+    values are one-line errors."""
+    model, images = separated_model(llr=5.0)
+    rec = Recognizer(model, RandomPlanner(3), min_views=2)
+    state = rec.init(config=(1,))
+    state, dec = rec.step(state, images[1, 1][None], getkey())
+    assert bool(dec.reached) and not bool(dec.stop)  # p = 0.9933 >= 0.95, one view only
+    state, dec = rec.step(state, images[int(dec.next_config[0]), 1][None], getkey())
+    assert int(state.steps) == 2 and bool(dec.reached) and bool(dec.stop)
+    # min_views = max_steps: the limit stops whatever the belief
+    rec = Recognizer(model, RandomPlanner(3), min_views=2, max_steps=2, p_threshold=0.9999999)
+    state = rec.init(config=(1,))
+    for want in (False, True):
+        state, dec = rec.step(state, images[int(state.config[0]), 1][None], getkey())
+        assert bool(dec.stop) == want and not bool(dec.reached)
+    for bad in (0, 8, True):
+        with pytest.raises(ValueError, match="min_views must be an integer in"):
+            Recognizer(model, RandomPlanner(3), min_views=bad)
+
+
 def test_the_recognizer_reads_the_planners_revisits_attribute(getkey):
     """Not a branch on the planner's class: any planner with ``revisits``
     keeps its argmax even when visited, any other is moved off it."""

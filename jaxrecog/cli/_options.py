@@ -99,8 +99,8 @@ def motion_weight(text: str) -> float:
 
 def choice_options(p: argparse.ArgumentParser, *, unset: bool = False) -> None:
     """How the next configuration is chosen beyond the planner's scores
-    (``experiment`` and ``recognize``): ``--exclude-visited``,
-    ``--shared-view`` and ``--motion-cost``.  All depart from the thesis and are off by default.
+    and when to stop (``experiment`` and ``recognize``): ``--exclude-visited``,
+    ``--shared-view``, ``--motion-cost`` and ``--min-views``.  All depart from the thesis and are off by default.
     ``unset``: leave them ``None`` when not given (``experiment``, where an
     experiment TOML may set them)."""
     g = p.add_argument_group("view choice (departures from the thesis, off by default)")
@@ -115,6 +115,10 @@ def choice_options(p: argparse.ArgumentParser, *, unset: bool = False) -> None:
                    help="score(a) - LAMBDA * seconds to move the rig to a: LAMBDA >= 0 in score units per second "
                         "(nats/s for the MI planners); travel times from the rig's geometry and axis speeds "
                         "(a rig file's [motion] table; 0 = off)")
+    g.add_argument("--min-views", type=positive, metavar="N", default=None if unset else 1,
+                   help="never stop on the probability threshold before N image sets: a decision is confirmed "
+                        "by N - 1 more views (the thesis stops at the first step that reaches it: 1; at most "
+                        "the step limit)")
 
 
 def global_options(parser: argparse.ArgumentParser, suppress: bool) -> None:

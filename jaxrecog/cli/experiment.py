@@ -159,7 +159,7 @@ def run(args) -> int:
     over = {"trials_per_object": args.trials, "samples": args.samples,
             "min_per_stratum": args.min_per_stratum, "batch": args.batch, "seed": args.seed,
             "stride": args.stride, "devices": args.devices, "exclude_visited_positions": args.exclude_visited,
-            "shared_view": args.shared_view, "motion_cost": args.motion_cost}
+            "shared_view": args.shared_view, "motion_cost": args.motion_cost, "min_views": args.min_views}
     values.update({k: v for k, v in over.items() if v is not None})
     values.update(_training_values(args, values))
     if args.quick:

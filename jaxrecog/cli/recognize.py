@@ -149,8 +149,10 @@ def run(args) -> int:
         if travel is None and args.motion_cost > 0:
             raise UsageError(f"--motion-cost needs the rig's geometry (travel times); --rig {args.rig} has none")
         motion = None if travel is None else MotionCost(travel, args.motion_cost)
+        if args.min_views > args.max_steps:
+            raise UsageError(f"--min-views {args.min_views} is above --max-steps {args.max_steps}")
         rec = Recognizer(model, planner, p_threshold=args.threshold, max_steps=args.max_steps,
-                         exclude_visited_positions=args.exclude_visited, motion=motion,
+                         min_views=args.min_views, exclude_visited_positions=args.exclude_visited, motion=motion,
                          shared_view=args.shared_view)
         state = rec.init(key=None if args.start is not None else k_init, config=args.start)
         probs, rows, dec, res = _trial(args, model, rig, rec, state, k_run)
