@@ -238,8 +238,9 @@ class Settings:
         object.__setattr__(self, "motion_cost", check_weight(self.motion_cost))
         if isinstance(self.devices, bool) or not isinstance(self.devices, int) or self.devices < 1:
             raise ValueError(f"devices must be an integer >= 1, got {self.devices!r}")
-        if isinstance(self.min_views, bool) or not isinstance(self.min_views, int) or not 1 <= self.min_views <= self.max_steps:
-            raise ValueError(f"min_views must be an integer in [1, max_steps = {self.max_steps}], got {self.min_views!r}")
+        from .recognizer import check_min_views
+
+        check_min_views(self.min_views, self.max_steps)
         if self.trials_per_object < 1:
             raise ValueError("trials_per_object must be >= 1")
         if isinstance(self.stride, bool) or not isinstance(self.stride, int) or self.stride < 1:

@@ -39,7 +39,8 @@ from .hardware.rig import config_from_index, index_from_config
 from .motion import MotionCost
 from .planners import Planner
 
-__all__ = ["Recognizer", "RecognizerState", "Decision", "StepTrace", "excluded_by_positions", "restrict_cameras", "image_features"]
+__all__ = ["Recognizer", "RecognizerState", "Decision", "StepTrace", "excluded_by_positions", "restrict_cameras", "image_features",
+           "check_min_views"]
 
 
 class RecognizerState(NamedTuple):
@@ -141,6 +142,13 @@ def excluded_by_positions(seen: Sequence[Bool[Array, " _V"]], positions: tuple[i
     return out.reshape(-1)
 
 
+def check_min_views(min_views: int, max_steps: int) -> int:
+    """``min_views`` as given, or a ``ValueError``: an integer in ``[1, max_steps]``."""
+    if isinstance(min_views, bool) or not isinstance(min_views, int) or not 1 <= min_views <= max_steps:
+        raise ValueError(f"min_views must be an integer in [1, max_steps = {max_steps}], got {min_views!r}")
+    return min_views
+
+
 class Recognizer(eqx.Module):
     """Sensor model + planner + settings.  ``init`` / ``step`` (see module doc).
 
@@ -194,8 +202,7 @@ class Recognizer(eqx.Module):
     shared_view: bool = eqx.field(static=True, default=False)
 
     def __check_init__(self):
-        if isinstance(self.min_views, bool) or not isinstance(self.min_views, int) or not 1 <= self.min_views <= self.max_steps:
-            raise ValueError(f"min_views must be an integer in [1, max_steps = {self.max_steps}], got {self.min_views!r}")
+        check_min_views(self.min_views, self.max_steps)
         if self.motion is not None and tuple(self.motion.positions) != tuple(self.positions):
             raise ValueError(f"motion cost tables have positions {self.motion.positions}, the model {tuple(self.positions)}")
         if self.shared_view:
