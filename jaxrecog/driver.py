@@ -108,8 +108,8 @@ def _slot_step(recognizer: Recognizer, trace: bool, state: RecognizerState, fres
     state = jax.tree.map(lambda a, b: jnp.where(fresh, a, b), start, state)
     k = jr.fold_in(jr.fold_in(key, trial), step)
     # a trial's stopping step needs no next configuration: skip its planner
-    # (the trace shows every step's scores, so a traced step still plans)
-    return recognizer.step(state, images, k, trace=trace, plan_on_stop=trace)
+    # (Recognizer.step still plans when tracing: the trace shows every step's scores)
+    return recognizer.step(state, images, k, trace=trace, plan_on_stop=False)
 
 
 def _map_slots(recognizer: Recognizer, states, fresh, configs, images, key, trials, steps, vectorize: bool, trace: bool):

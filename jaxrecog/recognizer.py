@@ -261,8 +261,8 @@ class Recognizer(eqx.Module):
 
         ``trace=True`` (static: one compile per value) adds the
         :class:`StepTrace` (scores, marginals, posterior) to the decision.
-        ``plan_on_stop=False`` (static) skips the planner on a step that stops
-        (a ``lax.cond``: under ``jit`` or ``lax.map`` only the taken branch
+        ``plan_on_stop=False`` (static) skips the planner on a step that stops,
+        unless ``trace`` asks for the scores (a ``lax.cond``: under ``jit`` or ``lax.map`` only the taken branch
         runs; under ``vmap`` both do).  The campaigns' driver uses it: every
         trial's last step is one of its ~2 steps, and the planner is most of
         a step's time.  The belief, the decision and every non-stopping step

@@ -127,6 +127,8 @@ def _trial(args, model, rig, rec, state, k_run):
 
 
 def run(args) -> int:
+    if args.min_views > args.max_steps:  # before the model, the rig and the planner's tables
+        raise UsageError(f"--min-views {args.min_views} is above --max-steps {args.max_steps}")
     model = load_model(args.model)
     positions = model_positions(model)
     if args.object >= model.n_objects or args.pose >= model.n_poses:
@@ -149,8 +151,6 @@ def run(args) -> int:
         if travel is None and args.motion_cost > 0:
             raise UsageError(f"--motion-cost needs the rig's geometry (travel times); --rig {args.rig} has none")
         motion = None if travel is None else MotionCost(travel, args.motion_cost)
-        if args.min_views > args.max_steps:
-            raise UsageError(f"--min-views {args.min_views} is above --max-steps {args.max_steps}")
         rec = Recognizer(model, planner, p_threshold=args.threshold, max_steps=args.max_steps,
                          min_views=args.min_views, exclude_visited_positions=args.exclude_visited, motion=motion,
                          shared_view=args.shared_view)
