@@ -27,6 +27,7 @@ from .render_db import contact_sheet, lookalike_distances, render_database
 from .scene import Intrinsics, Lighting, ObjectSpec, Part, Scene, default_objects
 from .synthetic import Noise, SyntheticRig
 from .dataset_rig import DatasetRig
+from .rig_pool import CaptureJob, LocalRigs, ProcessRigs, RigPool, SceneSpec
 
 __all__ = [
     "Capture",
@@ -61,7 +62,12 @@ __all__ = [
     "register_pan_tilt",
     "rig_from_config",
     "Board",
+    "CaptureJob",
     "DatasetRig",
+    "LocalRigs",
+    "ProcessRigs",
+    "RigPool",
+    "SceneSpec",
     "Intrinsics",
     "Lighting",
     "Noise",

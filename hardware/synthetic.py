@@ -154,6 +154,10 @@ class SyntheticRig(SeededCaptures):
         off_grid: per-capture eye and light jitter (:class:`OffGrid`; the
             rig does not use its ``yaw_deg``: a trial's yaw offset comes
             through :meth:`reset`); ``None`` = on the training grid.
+        clean_counts: the cache of unoccluded object pixel counts per
+            (object, pose, yaw, eye), the denominator of the occluded
+            fraction; pass one dict to rigs built alike (same objects, table
+            and intrinsics) and they share it.  Default: the rig's own.
 
     Attributes:
         fov: ``fov[i][v]``, vertical field of view (degrees) of camera ``i`` at position ``v``.
@@ -171,6 +175,7 @@ class SyntheticRig(SeededCaptures):
         noise: Noise = Noise(),
         seed: int = 0,
         off_grid: OffGrid | None = None,
+        clean_counts: dict | None = None,
     ):
         self.table = default_table() if table is None else table
         if self.table.n_cameras < 1 or min(self.table.positions) < 1:
@@ -188,7 +193,7 @@ class SyntheticRig(SeededCaptures):
         self._state: tuple[int, int] | None = None
         self._layout: OccluderLayout | None = None
         self._config: tuple[int, ...] | None = None
-        self._clean_pixels: dict[tuple, int] = {}
+        self._clean_pixels: dict[tuple, int] = {} if clean_counts is None else clean_counts
 
     # -- Rig protocol
     @property

@@ -16,6 +16,7 @@ import numpy as np
 
 from .driver import TrialSpec, batched_step, run_trials
 from .hardware.rig import Rig
+from .hardware.rig_pool import RigPool
 from .recognizer import Recognizer
 from .results import TrialResult, TrialStore
 
@@ -64,7 +65,7 @@ def plan_trials(
 
 def run_campaign(
     recognizer: Recognizer,
-    rig: Rig | Sequence[Rig],
+    rig: Rig | Sequence[Rig] | RigPool,
     specs: Sequence[TrialSpec],
     *,
     key,
@@ -83,7 +84,9 @@ def run_campaign(
         recognizer: the recognizer (its model fixes the cameras).
         rig: a :class:`~jaxrecog.hardware.Rig` with the same positions, or
             several identical ones (one per lockstep slot: each trial's scene
-            is then set up once; see :func:`jaxrecog.driver.run_trials`).
+            is then set up once; see :func:`jaxrecog.driver.run_trials`), or
+            a :class:`~jaxrecog.hardware.rig_pool.RigPool` (e.g. rendering in
+            worker processes: :func:`jaxrecog.experiments.capture_pool`).
         specs: from :func:`plan_trials`.
         key: PRNG key; trial ``t`` step ``n`` uses ``fold_in(fold_in(key, t), n)``.
         batch: trials run in lockstep (fixed, so the step compiles once).

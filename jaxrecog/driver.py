@@ -3,13 +3,14 @@
 One loop serves the campaigns (:func:`jaxrecog.campaign.run_campaign`), the
 ``jaxrecog recognize`` command, the demo's trace and the Gymnasium
 environment.  It talks to rigs only through the :class:`~jaxrecog.hardware.Rig`
-protocol.
+protocol, by way of a rig pool (:mod:`jaxrecog.hardware.rig_pool`) that takes
+one step's captures at once, in this process or in worker processes.
 
 Trials run in ``batch`` lockstep *slots*; the steps of all slots are one
 jitted call (:func:`batched_step`).  A slot that finishes its trial takes the
 next one at once (the restart happens inside the jitted step, from a
 ``fresh`` mask), so the batch stays full instead of idling until its slowest
-trial is done.  Slot ``b`` captures with ``rigs[b % len(rigs)]``; a rig is
+trial is done.  Slot ``b`` captures with rig ``b % n_rigs`` of the pool; a rig is
 ``reset`` only when it must show another trial's scene, so with one rig per
 slot every trial is reset exactly once.
 
@@ -59,6 +60,7 @@ from jaxtyping import ArrayLike, Bool, Int, PRNGKeyArray, Shaped
 
 from .hardware.motion import path_travel_s
 from .hardware.rig import Capture, Rig
+from .hardware.rig_pool import CaptureJob, RigPool, SceneSpec, as_rig_pool
 from .recognizer import Decision, Recognizer, RecognizerState
 from .results import TrialResult
 
@@ -236,7 +238,7 @@ class _Slot:
 
 def run_trials(
     recognizer: Recognizer,
-    rigs: Rig | Sequence[Rig],
+    rigs: Rig | Sequence[Rig] | RigPool,
     specs: Iterable[TrialSpec],
     *,
     key: PRNGKeyArray,
@@ -252,8 +254,10 @@ def run_trials(
 
     Args:
         recognizer: the recognizer (its model fixes the cameras and positions).
-        rigs: one :class:`~jaxrecog.hardware.Rig`, or several identical ones
-            (slot ``b`` uses ``rigs[b % len(rigs)]``; one per slot means one
+        rigs: one :class:`~jaxrecog.hardware.Rig`, several identical ones,
+            or a :class:`~jaxrecog.hardware.rig_pool.RigPool` (e.g. rendering
+            in worker processes; the results are the same)
+            (slot ``b`` uses rig ``b % n_rigs``; one per slot means one
             ``reset`` per trial).
         specs: the trials (see :func:`jaxrecog.campaign.plan_trials`).
         key: PRNG key; trial ``t`` step ``n`` uses ``fold_in(fold_in(key, t), n)``.
@@ -267,13 +271,10 @@ def run_trials(
             :func:`trial_mesh`); ``batch`` is rounded up to a multiple of
             their number.  Default: one device.
     """
-    rigs = [rigs] if isinstance(rigs, Rig) else list(rigs)
-    if not rigs:
-        raise ValueError("run_trials needs at least one rig")
+    pool = as_rig_pool(rigs)
     positions = tuple(recognizer.positions)
-    for r in rigs:
-        if tuple(r.positions) != positions:
-            raise ValueError(f"rig positions {tuple(r.positions)} differ from the model's {positions}")
+    if tuple(pool.positions) != positions:
+        raise ValueError(f"rig positions {tuple(pool.positions)} differ from the model's {positions}")
     if batch < 1:
         raise ValueError(f"batch must be >= 1, got {batch}")
     mesh = trial_mesh(devices)
@@ -286,12 +287,12 @@ def run_trials(
         raise ValueError("trial ids in `specs` must be unique")
     queue.reverse()  # pop() takes the next trial
     n_cams = len(positions)
-    h, w = rigs[0].image_shape
+    h, w = pool.image_shape
     step = batched_step(recognizer, trace=trace, mesh=mesh)
     times = None if recognizer.motion is None else [np.asarray(t) for t in recognizer.motion.times]
     states = _initial_states(recognizer, batch)
     slots: list[_Slot | None] = [None] * batch
-    showing: list[int | None] = [None] * len(rigs)  # the trial each rig's scene is set up for
+    showing: list[int | None] = [None] * pool.n_rigs  # the trial each rig's scene is set up for
     images = np.zeros((batch, n_cams, h, w), np.uint8)
     configs = np.zeros((batch, n_cams), np.int32)
     fresh = np.ones(batch, bool)
@@ -306,25 +307,23 @@ def run_trials(
                 fresh[b] = True
         if all(sl is None for sl in slots):
             return results
-        captures: dict[int, Capture] = {}
+        jobs, active = [], []
         for b, sl in enumerate(slots):
             if sl is None:
                 continue
-            r = b % len(rigs)
-            rig = rigs[r]
+            r = b % pool.n_rigs
+            scene = None
             if showing[r] != sl.spec.trial:
-                if sl.spec.yaw_offset is None:
-                    rig.reset(sl.spec.object, sl.spec.pose, sl.spec.occluders)
-                else:
-                    rig.reset(sl.spec.object, sl.spec.pose, sl.spec.occluders, yaw_offset_deg=sl.spec.yaw_offset)
+                scene = SceneSpec(sl.spec.object, sl.spec.pose, sl.spec.occluders, sl.spec.yaw_offset)
                 showing[r] = sl.spec.trial
-            rig.reseed((seed, sl.spec.trial, sl.step))
-            rig.move(sl.config)
-            captures[b] = cap = rig.capture()
-            images[b] = cap.images
+            jobs.append(CaptureJob(r, scene, (seed, sl.spec.trial, sl.step), sl.config))
+            active.append(b)
             configs[b] = sl.config
             trials[b] = sl.spec.trial
             steps[b] = sl.step
+        captures: dict[int, Capture] = dict(zip(active, pool.capture_batch(jobs)))
+        for b, cap in captures.items():
+            images[b] = cap.images
         states, dec = step(states, fresh, configs, images, key, trials, steps)
         dec = jax.device_get(dec)
         fresh[:] = False

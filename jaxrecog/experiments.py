@@ -73,7 +73,7 @@ from .thesis import ThesisTable, published
 __all__ = [
     "CAPTURE_NOISE", "Case", "CASES", "JITTER", "case_settings", "off_grid", "DATASET_PLANNERS", "Settings", "Prepared", "CaseReport", "prepare", "make_rig",
     "model_path",
-    "rig_pool", "rig_table",
+    "capture_pool", "rig_pool", "rig_table",
     "results_dir", "run_case", "run_dataset", "run_trace",
 ]
 
@@ -167,6 +167,10 @@ class Settings:
         devices: shard each lockstep batch over this many devices
             (:func:`jaxrecog.driver.trial_mesh`; the batch is rounded up to a
             multiple); the results are the same as on one device.
+        render_workers: render the synthetic rig's captures in this many
+            worker processes (:func:`capture_pool`); 0 = in this process (the
+            default).  The results are the same; on a rendered rig the
+            captures are most of a campaign's time.
         off_grid_deg, off_grid_eye, off_grid_light: off-grid captures
             (:class:`~jaxrecog.hardware.synthetic.OffGrid`): the bound of each
             trial's object yaw offset (degrees), the per-capture eye offset and
@@ -214,6 +218,7 @@ class Settings:
     shared_view: bool = False
     motion_cost: float = 0.0
     devices: int = 1
+    render_workers: int = 0
     off_grid_deg: float | None = None
     off_grid_eye: float | None = None
     off_grid_light: float | None = None
@@ -238,6 +243,9 @@ class Settings:
         object.__setattr__(self, "motion_cost", check_weight(self.motion_cost))
         if isinstance(self.devices, bool) or not isinstance(self.devices, int) or self.devices < 1:
             raise ValueError(f"devices must be an integer >= 1, got {self.devices!r}")
+        rw = self.render_workers
+        if isinstance(rw, bool) or not isinstance(rw, int) or rw < 0:
+            raise ValueError(f"render_workers must be an integer >= 0, got {rw!r}")
         from .recognizer import check_min_views
 
         check_min_views(self.min_views, self.max_steps)
@@ -410,7 +418,7 @@ def _run_id(settings: Settings, model_path: Path | str) -> str:
     never mixes trials run under other settings or another model."""
     import hashlib
 
-    fields = {k: v for k, v in dataclasses.asdict(settings).items() if k not in ("workdir", "batch", "devices")}
+    fields = {k: v for k, v in dataclasses.asdict(settings).items() if k not in ("workdir", "batch", "devices", "render_workers")}
     # added later: off keeps the digests of earlier runs
     for k in ("exclude_visited_positions", "shared_view", "motion_cost", *_OFF_GRID_FIELDS):
         if not fields[k]:
@@ -512,9 +520,11 @@ def prepare(settings: Settings, *, progress: bool = False, databases: Sequence[s
     return Prepared(db_dir, models)
 
 
-def make_rig(settings: Settings, cameras: tuple[int, ...] | None = None, *, seed: int = 0):
+def make_rig(settings: Settings, cameras: tuple[int, ...] | None = None, *, seed: int = 0,
+             clean_counts: dict | None = None):
     """The synthetic rig with the thesis table (every ``settings.stride``-th
-    position; or a subset of its cameras)."""
+    position; or a subset of its cameras).  ``clean_counts``: a dict shared
+    by identical rigs (:class:`~jaxrecog.hardware.SyntheticRig`)."""
     from .hardware import Noise, SyntheticRig
     from .hardware.positions import CameraTable
 
@@ -523,7 +533,7 @@ def make_rig(settings: Settings, cameras: tuple[int, ...] | None = None, *, seed
         table = CameraTable(table.workspace, tuple(table.views[i] for i in cameras))
     b, p, s = settings.capture_noise
     return SyntheticRig(table, noise=Noise(brightness=b, pixel=p, max_shift=int(s)), seed=seed,
-                        off_grid=off_grid(settings))
+                        off_grid=off_grid(settings), clean_counts=clean_counts)
 
 
 def rig_pool(settings: Settings, cameras: tuple[int, ...] | None = None, *, seed: int = 0) -> list:
@@ -531,8 +541,26 @@ def rig_pool(settings: Settings, cameras: tuple[int, ...] | None = None, *, seed
     trial driver, so each trial's scene (object, pose, boards) is set up once
     instead of at every step (a reset with boards costs ~5 ms; a rig ~50 ms
     to build).  Captures are reseeded per (trial, step), so the results do not
-    depend on the pool."""
-    return [make_rig(settings, cameras, seed=seed) for _ in range(max(1, settings.batch))]
+    depend on the pool.  The rigs share one cache of unoccluded pixel counts
+    (the denominator of the occluded fraction: one render fewer per occluded
+    capture of a scene and view any rig has seen)."""
+    shared: dict = {}
+    return [make_rig(settings, cameras, seed=seed, clean_counts=shared) for _ in range(max(1, settings.batch))]
+
+
+def capture_pool(settings: Settings, cameras: tuple[int, ...] | None = None, *, seed: int = 0):
+    """:func:`rig_pool`'s rigs as a :class:`~jaxrecog.hardware.rig_pool.RigPool`
+    for the trial driver: in this process (``settings.render_workers == 0``)
+    or spread over that many worker processes, which render side by side
+    (the results are the same).  Close it when done (it is a context manager)."""
+    import functools
+
+    from .hardware.rig_pool import LocalRigs, ProcessRigs
+
+    if settings.render_workers:
+        factory = functools.partial(make_rig, settings, cameras, seed=seed, clean_counts={})
+        return ProcessRigs(factory, max(1, settings.batch), settings.render_workers)
+    return LocalRigs(rig_pool(settings, cameras, seed=seed))
 
 
 # the campaigns' board ranges (OCCLUDER_SIZE / OCCLUDER_OFFSET) live with the boards
@@ -661,7 +689,7 @@ class CaseReport:
 def _campaign(
     case: Case,
     model,
-    rig,  # one Rig or one per lockstep slot
+    rig,  # one Rig, one per lockstep slot, or a RigPool
     specs: Sequence[TrialSpec],
     settings: Settings,
     planners: Sequence[str],
@@ -669,13 +697,15 @@ def _campaign(
     *,
     progress: bool,
     on_result: Callable[[str, TrialResult], None] | None,
+    probe,
 ) -> CaseReport:
     """Each planner on the same trials (``specs``) on ``rig``; finished trials
-    go to ``workdir/trials/<store_name(planner)>.jsonl`` (resumable)."""
+    go to ``workdir/trials/<store_name(planner)>.jsonl`` (resumable).
+    ``probe``: a rig of the same table, whose geometry gives the travel times."""
     from .motion import rig_travel_times
 
     rows, results, seconds = {}, {}, {}
-    travel = rig_travel_times(rig[0] if isinstance(rig, (list, tuple)) else rig)
+    travel = rig_travel_times(probe)
     for planner in planners:
         rec = make_recognizer(model, planner, settings, travel)
         store = TrialStore(settings.workdir / "trials" / f"{store_name(planner)}.jsonl")
@@ -711,11 +741,13 @@ def run_case(
     settings = case_settings(case, settings)
     prepared = prepared or prepare(settings, progress=progress, databases=(case.database,))
     model = case_model(prepared, case)
-    rigs = rig_pool(settings, case.cameras, seed=settings.seed)
-    specs = case_trials(case, settings, rigs[0], model.n_objects, model.n_poses)
+    probe = make_rig(settings, case.cameras, seed=settings.seed)  # the table and geometry, here
+    specs = case_trials(case, settings, probe, model.n_objects, model.n_poses)
     run_id = _run_id(settings, prepared.models[case.database])
-    return _campaign(case, model, rigs, specs, settings, list(planners or case.planners),
-                     lambda planner: f"case-{name}-{planner}-{run_id}", progress=progress, on_result=on_result)
+    with capture_pool(settings, case.cameras, seed=settings.seed) as rigs:
+        return _campaign(case, model, rigs, specs, settings, list(planners or case.planners),
+                         lambda planner: f"case-{name}-{planner}-{run_id}", progress=progress,
+                         on_result=on_result, probe=probe)
 
 
 #: Planners of :func:`run_dataset` when none are given: the default planner
@@ -787,7 +819,8 @@ def run_dataset(
     run_id = _run_id(settings, model_path)
     db_id = db.manifest_sha256[:10]
     return _campaign(case, model, rig, specs, settings, planners,
-                     lambda planner: f"dataset-{planner}-{run_id}-{db_id}", progress=progress, on_result=on_result)
+                     lambda planner: f"dataset-{planner}-{run_id}-{db_id}", progress=progress, on_result=on_result,
+                     probe=rig)
 
 
 def run_trace(settings: Settings, *, object: int = 5, planner: str = "mi", case: str = "iii", trial: int = 0, prepared: Prepared | None = None) -> TrialResult:

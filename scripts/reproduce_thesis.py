@@ -35,13 +35,19 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 
 from jaxrecog.cli._options import (capture_options, capture_params, given_likelihood_options, likelihood_choice,
-                                   likelihood_options, render_jitter_options, render_jitter_values)
+                                   likelihood_options, render_jitter_options, render_jitter_values,
+                                   render_workers_option)
 from jaxrecog.metrics import campaign_metrics
 from jaxrecog.experiments import CASES, Settings, prepare, results_dir, run_case, run_trace
+
+#: Worker processes that render the campaigns' captures (``--render-workers``):
+#: one per core, at most 4; none on one core (a worker there only adds its start).
+DEFAULT_RENDER_WORKERS = min(os.cpu_count() or 1, 4) if (os.cpu_count() or 1) > 1 else 0
 
 #: The turntable cases (issue 18 item 4), run apart from CASES: name -> occluded test views.
 TURNTABLE_CASES = {"turntable": False, "turntable-occluded": True}
@@ -79,6 +85,7 @@ def main(argv=None) -> int:
     p.add_argument("--stride", type=int, default=1,
                    help="keep every STRIDE-th position of each camera (default: 1, the thesis's 32 x 7 table)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
+    render_workers_option(p, default=DEFAULT_RENDER_WORKERS)
     g = p.add_argument_group("training (each choice has its own cached models; default: the thesis's)")
     likelihood_options(g)
     render_jitter_options(g)
@@ -95,6 +102,7 @@ def main(argv=None) -> int:
                                                 view_jitter=bool(args.view_jitter))
         settings = Settings(workdir=args.workdir, trials_per_object=args.trials, seed=args.seed, samples=args.samples,
                             batch=args.batch, stride=args.stride, likelihood=likelihood, likelihood_options=options,
+                            render_workers=args.render_workers,
                             **capture_params(args), **render_jitter_values(args))
     except (ValueError, argparse.ArgumentTypeError) as e:
         p.error(str(e))

@@ -648,6 +648,16 @@ def test_experiment_view_choice_and_devices_flags(fake_experiments, tmp_path, ca
     assert cli.main(["experiment", "i", "--out", str(out), "--devices", str(n + 3)]) == 2
     err = capsys.readouterr().err
     assert f"--devices {n + 3}" in err and f"{n} exist" in err
+    # --render-workers reaches the Settings (0 = this process, the default); a database is not rendered
+    assert fake_experiments["run_case"][1].render_workers == 0
+    assert cli.main(["--quiet", "experiment", "i", "--out", str(out), "--planners", "mi", "--render-workers", "3"]) == 0
+    assert fake_experiments["run_case"][1].render_workers == 3
+    capsys.readouterr()
+    assert cli.main(["experiment", "i", "--out", str(out), "--render-workers", "-1"]) == 2
+    assert "--render-workers" in capsys.readouterr().err
+    assert cli.main(["experiment", "--rig", f"dataset:{tmp_path}", "--model", str(tmp_path / "m.npz"),
+                     "--out", str(out), "--render-workers", "2"]) == 2
+    assert "a replayed database is not rendered" in capsys.readouterr().err
 
 
 def test_recognize_view_choice_flags(tiny, capsys):

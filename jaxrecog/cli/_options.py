@@ -9,7 +9,7 @@ from ..planners import DEFAULT_MIN_PER_STRATUM, planner_names
 __all__ = [
     "PLANNERS", "Formatter", "config_tuple", "int_at_least", "positive", "nonneg", "object_choice", "probability",
     "global_options", "table_options", "planner_size_options", "skip_invalid_option",
-    "motion_weight", "choice_options", "likelihood_options", "capture_options", "view_jitter_option",
+    "motion_weight", "choice_options", "render_workers_option", "likelihood_options", "capture_options", "view_jitter_option",
     "render_jitter_options", "render_jitter_values",
     "likelihood_choice", "given_likelihood_options", "default_likelihood", "capture_params", "nu_value",
     "sigma_range", "bounded",
@@ -119,6 +119,14 @@ def choice_options(p: argparse.ArgumentParser, *, unset: bool = False) -> None:
                    help="never stop on the probability threshold before N image sets: a decision is confirmed "
                         "by N - 1 more views (the thesis stops at the first step that reaches it: 1; at most "
                         "the step limit)")
+
+
+def render_workers_option(p: argparse.ArgumentParser, *, default: int | None) -> None:
+    """``--render-workers N`` (``experiment``, ``scripts/reproduce_thesis.py``)."""
+    p.add_argument("--render-workers", type=nonneg, metavar="N", default=default,
+                   help="render the synthetic rig's captures in N worker processes, side by side (the results "
+                        "are the same; rendering is most of a campaign's time; 0 = in this process; default "
+                        f"{default if default is not None else 0})")
 
 
 def global_options(parser: argparse.ArgumentParser, suppress: bool) -> None:

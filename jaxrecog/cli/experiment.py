@@ -15,7 +15,7 @@ from .._progress import enabled as progress_bars
 from ._common import UsageError
 from ._options import (PLANNERS, capture_options, capture_params, choice_options, default_likelihood,
                        given_likelihood_options, likelihood_options, positive, render_jitter_options,
-                       render_jitter_values)
+                       render_jitter_values, render_workers_option)
 from ._reports import QUICK, make_settings, trace_plot, write_report
 
 NAME = "experiment"
@@ -62,6 +62,7 @@ def add_arguments(p) -> None:
     p.add_argument("--devices", type=positive, metavar="N",
                    help="shard each lockstep batch over N devices (GPUs; the batch is rounded up to a multiple "
                         "of N; the results are the same as on one device; default 1)")
+    render_workers_option(p, default=None)
     choice_options(p, unset=True)
     g = p.add_argument_group("training of the case's models (thesis cases; each choice has its own cached models)")
     likelihood_options(g)
@@ -144,6 +145,8 @@ def run(args) -> int:
             raise UsageError("--trace works with the thesis cases (synthetic rig) only")
         if (args.stride or values.get("stride", 1)) != 1:
             raise UsageError("--stride selects positions of the synthetic rig; a database has its own positions")
+        if args.render_workers:
+            raise UsageError("--render-workers renders the synthetic rig; a replayed database is not rendered")
         if _training_values(args, {}):
             raise UsageError("--likelihood, --rank, --nu and the capture augmentation train a thesis case's models; "
                              "a database campaign uses the given --model")
@@ -158,7 +161,8 @@ def run(args) -> int:
     out = Path(args.out)
     over = {"trials_per_object": args.trials, "samples": args.samples,
             "min_per_stratum": args.min_per_stratum, "batch": args.batch, "seed": args.seed,
-            "stride": args.stride, "devices": args.devices, "exclude_visited_positions": args.exclude_visited,
+            "stride": args.stride, "devices": args.devices,
+            "render_workers": args.render_workers, "exclude_visited_positions": args.exclude_visited,
             "shared_view": args.shared_view, "motion_cost": args.motion_cost, "min_views": args.min_views}
     values.update({k: v for k, v in over.items() if v is not None})
     values.update(_training_values(args, values))
