@@ -159,6 +159,9 @@ def as_rig_pool(rigs: Rig | Sequence[Rig] | RigPool) -> RigPool:
 def _serve(conn, factory: Callable[[], Rig], mine: Sequence[int]) -> None:
     """A worker: build the rigs ``mine`` (pool indices), report their shape,
     then run each batch of jobs it is sent until it receives ``None``."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle: it closes the pool
     try:
         rigs = {r: factory() for r in mine}
         first = next(iter(rigs.values()))

@@ -35,6 +35,12 @@ same per-slot ``lax.map`` over its share (``jax.shard_map``), so a trial's
 result is the same as on one device.  The batch is rounded up to a multiple of
 N (extra lockstep slots, which take trials like the others).
 
+Pipelining: by default (``pipeline=True``) the slots are two groups, each
+stepped by its own call: while the device runs one group's step (dispatched
+asynchronously), the host captures the other group's images, so rendering
+and the recognizer overlap instead of taking turns.  A trial's result does
+not depend on its group (see Keys).
+
 Travel: where the recognizer has a :class:`~jaxrecog.motion.MotionCost`, each
 result's ``travel_s`` is the seconds its moves took under that motion model
 (the initial configuration is free); otherwise NaN.
@@ -236,6 +242,29 @@ class _Slot:
     probs: list = dataclasses.field(default_factory=list)
 
 
+@dataclasses.dataclass
+class _Group:
+    """Slots ``offset .. offset + n - 1`` of the lockstep batch and their
+    device state; ``pending`` is the group's dispatched, not yet downloaded step."""
+
+    offset: int
+    slots: list
+    states: Any
+    images: np.ndarray
+    configs: np.ndarray
+    fresh: np.ndarray
+    trials: np.ndarray
+    steps: np.ndarray
+    captures: dict = dataclasses.field(default_factory=dict)
+    pending: Any = None
+
+    @classmethod
+    def empty(cls, recognizer: Recognizer, start: int, stop: int, n_cams: int, h: int, w: int) -> "_Group":
+        n = stop - start
+        return cls(start, [None] * n, _initial_states(recognizer, n), np.zeros((n, n_cams, h, w), np.uint8),
+                   np.zeros((n, n_cams), np.int32), np.ones(n, bool), np.zeros(n, np.int32), np.zeros(n, np.int32))
+
+
 def run_trials(
     recognizer: Recognizer,
     rigs: Rig | Sequence[Rig] | RigPool,
@@ -248,6 +277,7 @@ def run_trials(
     on_step: Callable[[StepRecord], None] | None = None,
     on_result: Callable[[TrialResult], None] | None = None,
     devices: int | Sequence[jax.Device] | None = None,
+    pipeline: bool = True,
 ) -> list[TrialResult]:
     """Run every trial of ``specs`` to its stop and return the results in the
     order the trials finish.
@@ -270,6 +300,9 @@ def run_trials(
         devices: shard the batch over this many devices (or these devices;
             :func:`trial_mesh`); ``batch`` is rounded up to a multiple of
             their number.  Default: one device.
+        pipeline: step the batch as two halves in turn, so that the device
+            steps one half while the host captures the other's images (the
+            results are the same; off with one slot or several devices).
     """
     pool = as_rig_pool(rigs)
     positions = tuple(recognizer.positions)
@@ -288,56 +321,33 @@ def run_trials(
     queue.reverse()  # pop() takes the next trial
     n_cams = len(positions)
     h, w = pool.image_shape
+    # two groups of slots, stepped in turn, when the batch can be split: the
+    # device steps one group while the host captures the other's images
+    n_groups = 2 if (pipeline and mesh is None and batch >= 2) else 1
+    bounds = np.linspace(0, batch, n_groups + 1).astype(int)
+    groups = [_Group.empty(recognizer, int(a), int(b), n_cams, h, w) for a, b in zip(bounds[:-1], bounds[1:])]
     step = batched_step(recognizer, trace=trace, mesh=mesh)
     times = None if recognizer.motion is None else [np.asarray(t) for t in recognizer.motion.times]
-    states = _initial_states(recognizer, batch)
-    slots: list[_Slot | None] = [None] * batch
     showing: list[int | None] = [None] * pool.n_rigs  # the trial each rig's scene is set up for
-    images = np.zeros((batch, n_cams, h, w), np.uint8)
-    configs = np.zeros((batch, n_cams), np.int32)
-    fresh = np.ones(batch, bool)
-    trials = np.zeros(batch, np.int32)
-    steps = np.zeros(batch, np.int32)
     results: list[TrialResult] = []
-    while True:
-        for b in range(batch):
-            if slots[b] is None and queue:
-                s = queue.pop()
-                slots[b] = _Slot(s, tuple(int(v) for v in s.initial))
-                fresh[b] = True
-        if all(sl is None for sl in slots):
-            return results
-        jobs, active = [], []
-        for b, sl in enumerate(slots):
+
+    def finish(g: _Group) -> None:
+        """Download the group's pending step and move each of its trials on."""
+        dec = jax.device_get(g.pending)
+        g.pending = None
+        g.fresh[:] = False
+        for i, sl in enumerate(g.slots):
             if sl is None:
                 continue
-            r = b % pool.n_rigs
-            scene = None
-            if showing[r] != sl.spec.trial:
-                scene = SceneSpec(sl.spec.object, sl.spec.pose, sl.spec.occluders, sl.spec.yaw_offset)
-                showing[r] = sl.spec.trial
-            jobs.append(CaptureJob(r, scene, (seed, sl.spec.trial, sl.step), sl.config))
-            active.append(b)
-            configs[b] = sl.config
-            trials[b] = sl.spec.trial
-            steps[b] = sl.step
-        captures: dict[int, Capture] = dict(zip(active, pool.capture_batch(jobs)))
-        for b, cap in captures.items():
-            images[b] = cap.images
-        states, dec = step(states, fresh, configs, images, key, trials, steps)
-        dec = jax.device_get(dec)
-        fresh[:] = False
-        for b, sl in enumerate(slots):
-            if sl is None:
-                continue
-            mine = jax.tree.map(lambda x: x[b], dec)
+            mine = jax.tree.map(lambda x: x[i], dec)
+            cap = g.captures[i]
             sl.configs.append(sl.config)
-            sl.occluded.append(captures[b].occluded)
+            sl.occluded.append(cap.occluded)
             sl.invalid += int(not mine.valid)
             if trace:
                 sl.probs.append(tuple(float(p) for p in mine.trace.object_probs))
             if on_step is not None:
-                on_step(StepRecord(sl.spec, sl.step, sl.config, captures[b], mine))
+                on_step(StepRecord(sl.spec, sl.step, sl.config, cap, mine))
             sl.step += 1
             if bool(mine.stop):
                 res = TrialResult(
@@ -359,6 +369,44 @@ def run_trials(
                 results.append(res)
                 if on_result is not None:
                     on_result(res)
-                slots[b] = None
+                g.slots[i] = None
             else:
                 sl.config = tuple(int(v) for v in mine.next_config)
+
+    def start(g: _Group) -> None:
+        """Give the group's free slots new trials, capture its images and
+        dispatch its step (asynchronously: it runs while the host goes on)."""
+        for i in range(len(g.slots)):
+            if g.slots[i] is None and queue:
+                s = queue.pop()
+                g.slots[i] = _Slot(s, tuple(int(v) for v in s.initial))
+                g.fresh[i] = True
+        jobs, active = [], []
+        for i, sl in enumerate(g.slots):
+            if sl is None:
+                continue
+            r = (g.offset + i) % pool.n_rigs
+            scene = None
+            if showing[r] != sl.spec.trial:
+                scene = SceneSpec(sl.spec.object, sl.spec.pose, sl.spec.occluders, sl.spec.yaw_offset)
+                showing[r] = sl.spec.trial
+            jobs.append(CaptureJob(r, scene, (seed, sl.spec.trial, sl.step), sl.config))
+            active.append(i)
+            g.configs[i] = sl.config
+            g.trials[i] = sl.spec.trial
+            g.steps[i] = sl.step
+        if not jobs:
+            return
+        g.captures = dict(zip(active, pool.capture_batch(jobs)))
+        for i, cap in g.captures.items():
+            g.images[i] = cap.images
+        g.states, g.pending = step(g.states, g.fresh, g.configs, g.images, key, g.trials, g.steps)
+        # the host buffers are not touched again before finish(g) has the step's result
+
+    while True:
+        for g in groups:
+            if g.pending is not None:
+                finish(g)
+            start(g)
+        if all(g.pending is None for g in groups):
+            return results

@@ -131,11 +131,48 @@ def test_slots_refill_so_the_batch_stays_busy(moving_model, monkeypatch):
     monkeypatch.setattr(D, "batched_step", counting)
     rec = Recognizer(model, RandomPlanner(3), p_threshold=0.6, max_steps=3)
     specs = plan_trials(2, 3, (3,), 4, seed=3)
-    results = {r.trial: r for r in run_trials(rec, StrictRig(db), specs, key=jr.PRNGKey(2), batch=2)}
+    results = {r.trial: r for r in run_trials(rec, StrictRig(db), specs, key=jr.PRNGKey(2), batch=2, pipeline=False)}
     lengths = [results[s.trial].steps for s in specs]
     chunked = sum(max(lengths[i:i + 2]) for i in range(0, len(lengths), 2))
     assert len(set(lengths)) > 1, lengths  # unequal trials, or the test shows nothing
     assert len(rounds) == _refill_rounds(lengths, 2) < chunked
+
+
+def test_a_pipelined_batch_steps_its_halves_in_turn_and_gives_the_same_trials(moving_model, monkeypatch):
+    """pipeline=True (the default) steps slots 0..B/2-1 and B/2..B-1 as two
+    calls, each dispatched before the other half's images are captured; the
+    trials are the same as one call over the whole batch."""
+    import jaxrecog.driver as D
+
+    db, model = moving_model
+    calls = []
+    real = D.batched_step
+
+    def logging(*a, **k):
+        step = real(*a, **k)
+
+        def run(*args):
+            calls.append(len(args[1]))  # fresh[B]: the slots of this call
+            return step(*args)
+
+        return run
+
+    monkeypatch.setattr(D, "batched_step", logging)
+    rec = Recognizer(model, RandomPlanner(3), p_threshold=0.6, max_steps=3)
+    specs = plan_trials(2, 3, (3,), 5, seed=3)
+    rigs = [StrictRig(db) for _ in range(5)]
+    whole = run_trials(rec, rigs, specs, key=jr.PRNGKey(2), batch=5, seed=1, pipeline=False)
+    assert set(calls) == {5}
+    calls.clear()
+    halves = run_trials(rec, rigs, specs, key=jr.PRNGKey(2), batch=5, seed=1)
+    assert set(calls) == {2, 3}
+    assert calls[:2] == [2, 3]  # both halves started before either is downloaded
+
+    def signature(results):
+        return sorted((r.trial, r.predicted_object, r.predicted_pose, r.steps, r.configurations, r.occluded_fraction,
+                       r.exit_prob) for r in results)
+
+    assert signature(halves) == signature(whole) and len(whole) == len(specs)
 
 
 def test_an_unusable_image_is_counted_and_leaves_the_belief_alone(moving_model):
