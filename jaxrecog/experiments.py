@@ -188,7 +188,11 @@ class Settings:
         occluder_gray: ``(lo, hi)``: DB2's training occluders get a gray
             level drawn from ``U(lo, hi)`` (0..255) instead of black (the
             thesis's; ``(0, 0)``, the default).
-            Anything but the defaults of these seven fields gives the models
+        max_shift: training samples are shifted by up to this many pixels
+            in x and y (:class:`~jaxrecog.augment.AugmentParams`; default 3;
+            the thesis gives no number).  The synthetic rig's captures shift
+            by up to 2 (``capture_noise``).
+            Anything but the defaults of these eight fields gives the models
             their own file names and cache keys (:func:`prepare`).
         view_jitter, view_jitter_deg: render this many views *near* each
             training view (the object turned up to ±``view_jitter_deg``
@@ -231,6 +235,7 @@ class Settings:
     gain_amplitude: float = 0.0
     gain_cells: int = 3
     occluder_gray: tuple[float, float] | list[float] = (0.0, 0.0)
+    max_shift: int = 3
     view_jitter: int = 0
     view_jitter_deg: float = 10.0
 
@@ -307,7 +312,7 @@ class Settings:
         return AugmentParams(samples_per_image=self.samples_per_image, max_rotation=float(self.max_rotation),
                              max_scale=float(self.max_scale), blur_sigma=self.blur_sigma,
                              gain_amplitude=float(self.gain_amplitude), gain_cells=int(self.gain_cells),
-                             occluder_gray=self.occluder_gray)
+                             occluder_gray=self.occluder_gray, max_shift=int(self.max_shift))
 
 
 _OFF_GRID_FIELDS = ("off_grid_deg", "off_grid_eye", "off_grid_light")
@@ -346,8 +351,9 @@ def _progress_bar(total: int, desc: str, enabled: bool):
 #: Settings fields of the likelihood and the capture augmentation, and their
 #: defaults: models trained with these keep the file names and cache keys
 #: they had before the fields existed.
-_AUGMENT_FIELDS = ("max_rotation", "max_scale", "blur_sigma", "gain_amplitude", "gain_cells", "occluder_gray")
-_LATER_AUGMENT_FIELDS = ("occluder_gray",)
+_AUGMENT_FIELDS = ("max_rotation", "max_scale", "blur_sigma", "gain_amplitude", "gain_cells", "occluder_gray",
+                   "max_shift")
+_LATER_AUGMENT_FIELDS = ("occluder_gray", "max_shift")
 _TRAINING_FIELDS = ("likelihood", "likelihood_options", *_AUGMENT_FIELDS, "view_jitter", "view_jitter_deg")
 
 

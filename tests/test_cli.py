@@ -165,16 +165,17 @@ def test_train_capture_augmentation_in_the_model_file_and_inspect(tiny, tmp_path
     out = tmp_path / "cap.npz"
     p = run("-q", "train", tiny["db"], "--out", out, "--kind", "DB1", "--components", 3, "--samples", 4,
             "--rotation", 4, "--scale", 0.05, "--blur", "0.5,1.5", "--gain", 0.1, "--gain-cells", 4,
-            "--occluder-gray", "30,220")
+            "--occluder-gray", "30,220", "--max-shift", 2)
     assert p.returncode == 0, p.stderr
     from jaxrecog.modelfile import load_model_meta
 
     aug = load_model_meta(out)["training"]["augment"]
     assert aug["max_rotation"] == 4.0 and aug["max_scale"] == 0.05 and aug["gain_amplitude"] == 0.1
     assert list(aug["blur_sigma"]) == [0.5, 1.5] and aug["gain_cells"] == 4
-    assert list(aug["occluder_gray"]) == [30.0, 220.0]
+    assert list(aug["occluder_gray"]) == [30.0, 220.0] and aug["max_shift"] == 2
     p = run("inspect", out)
     assert p.returncode == 0, p.stderr
+    assert "max_shift 2;" in p.stdout, p.stdout
     assert ("capture rotation +-4 deg, scale +-0.05, blur sigma 0.5..1.5 px, gain +-0.1 (4x4 grid); "
             "occluders gray 30..220" in p.stdout), p.stdout
     p = run("inspect", tiny["model"])  # trained without: says so
@@ -188,7 +189,8 @@ def test_train_capture_augmentation_in_the_model_file_and_inspect(tiny, tmp_path
     assert list(aug["blur_sigma"]) == [0.0, 1.0] and aug["max_rotation"] == 2.0
     for bad, needle in ((["--rotation", "-1"], "--rotation"), (["--blur", "2,1"], "--blur"),
                         (["--scale", "1"], "--scale"), (["--gain-cells", "1"], "--gain-cells"),
-                        (["--occluder-gray", "200,100"], "--occluder-gray"), (["--occluder-gray", "0,300"], "--occluder-gray")):
+                        (["--occluder-gray", "200,100"], "--occluder-gray"), (["--occluder-gray", "0,300"], "--occluder-gray"),
+                        (["--max-shift", "-1"], "--max-shift")):
         p = run("train", tiny["db"], "--out", out, *bad)
         assert p.returncode == 2 and needle in p.stderr, p.stderr
 

@@ -281,6 +281,11 @@ def test_reproduce_thesis_flags_reach_settings(monkeypatch):
         "student-t", (("nu", "auto"),), 3.0, 0.03, (0.0, 1.0), 0.05)
     with pytest.raises(_Stop):
         mod.main(["--case", "i", "--workdir", "w"])
-    assert seen["settings"] == ex.Settings(workdir="w")
+    # the defaults but where the captures render (not part of any cache key or run id)
+    assert seen["settings"] == ex.Settings(workdir="w", render_workers=mod.DEFAULT_RENDER_WORKERS)
+    with pytest.raises(_Stop):
+        mod.main(["--case", "i", "--workdir", "w", "--render-workers", "0", "--max-shift", "2"])
+    assert seen["settings"] == ex.Settings(workdir="w", max_shift=2)
+    assert ex.model_path(seen["settings"], "DB2") != ex.model_path(ex.Settings(workdir="w"), "DB2")
     with pytest.raises(SystemExit):
         mod.main(["--case", "i", "--likelihood", "student-t", "--rank", "2"])

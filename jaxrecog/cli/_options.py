@@ -296,6 +296,10 @@ def capture_options(p: argparse.ArgumentParser, *, unset: bool = False) -> None:
     g.add_argument("--occluder-gray", type=gray_range, default=None if unset else "0,0", metavar="LO,HI",
                    help="DB2: each training occluder's gray level uniform in [LO, HI] (0..255) instead of black "
                         "(the thesis's; a real occluder is rarely black)")
+    g.add_argument("--max-shift", type=nonneg, default=None if unset else 3, metavar="PIXELS",
+                   help="training samples shifted by up to PIXELS pixels in x and y (default 3; match the largest "
+                        "shift of your captures: a wider range widens every class's variance; the synthetic "
+                        "rig's captures shift by up to 2)")
 
 
 def capture_params(args) -> dict:
@@ -306,8 +310,9 @@ def capture_params(args) -> dict:
     for opt, field in (("rotation", "max_rotation"), ("scale", "max_scale"), ("gain", "gain_amplitude")):
         if getattr(args, opt, None) is not None:
             out[field] = float(getattr(args, opt))
-    if getattr(args, "gain_cells", None) is not None:
-        out["gain_cells"] = int(args.gain_cells)
+    for opt in ("gain_cells", "max_shift"):
+        if getattr(args, opt, None) is not None:
+            out[opt] = int(getattr(args, opt))
     for opt, field, parse in (("blur", "blur_sigma", sigma_range), ("occluder_gray", "occluder_gray", gray_range)):
         value = getattr(args, opt, None)
         if value is not None:  # parsed on the command line; a number, string or list from a TOML file
