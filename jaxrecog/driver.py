@@ -53,6 +53,7 @@ does not depend on the batch, the slot or the trials beside it.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from typing import Any, Callable, Iterable, Sequence
 
@@ -131,26 +132,30 @@ def _map_slots(recognizer: Recognizer, states, fresh, configs, images, key, tria
     return jax.lax.map(one, xs)
 
 
-@eqx.filter_jit
-def _batched_step(recognizer: Recognizer, states: RecognizerState, fresh, configs, images, key, trials, steps,
-                  vectorize: bool, trace: bool, mesh: Mesh | None = None):
-    # module level, the recognizer an argument: jit's cache is keyed on its
+@functools.partial(jax.jit, static_argnames=("static", "vectorize", "trace", "mesh"))
+def _batched_step(params, static, fresh, configs, images, key, trials, steps, *,
+                  vectorize: bool, trace: bool, mesh: Mesh | None):
+    # module level, the recognizer and states an argument (their arrays
+    # ``params``, the rest ``static``, hashable): jit's cache is keyed on their
     # structure and static fields, so every campaign with the same (or an
-    # equal-shaped) recognizer reuses one compiled step
+    # equal-shaped) recognizer reuses one compiled step.  Plain jax.jit, not
+    # eqx.filter_jit: that one waits for the result, and the driver's pipeline
+    # needs the call to return while the device computes
+    recognizer, states = eqx.combine(params, static)
     if mesh is None:
         return _map_slots(recognizer, states, fresh, configs, images, key, trials, steps, vectorize, trace)
     # sharded: each device maps its own slots; the recognizer's arrays (model,
     # planner tables, λ) and the key are replicated
-    params, static = eqx.partition(recognizer, eqx.is_array)
+    rec_params, rec_static = eqx.partition(recognizer, eqx.is_array)
 
-    def local(params, key, states, fresh, configs, images, trials, steps):
-        rec = eqx.combine(params, static)
+    def local(rec_params, key, states, fresh, configs, images, trials, steps):
+        rec = eqx.combine(rec_params, rec_static)
         return _map_slots(rec, states, fresh, configs, images, key, trials, steps, vectorize, trace)
 
     shard, rep = PartitionSpec(TRIALS_AXIS), PartitionSpec()
     f = jax.shard_map(local, mesh=mesh, in_specs=(rep, rep, shard, shard, shard, shard, shard, shard),
                       out_specs=shard, check_vma=False)
-    return f(params, key, states, fresh, configs, images, trials, steps)
+    return f(rec_params, key, states, fresh, configs, images, trials, steps)
 
 
 def trial_mesh(devices: int | Sequence[jax.Device] | None) -> Mesh | None:
@@ -221,7 +226,9 @@ def batched_step(recognizer: Recognizer, *, vectorize: bool = False, trace: bool
             sh = NamedSharding(mesh, PartitionSpec(TRIALS_AXIS))
             states, fresh, configs, images, trials, steps = jax.device_put(
                 (states, fresh, configs, images, trials, steps), sh)
-        return _batched_step(recognizer, states, fresh, configs, images, key, trials, steps, vectorize, trace, mesh)
+        params, static = eqx.partition((recognizer, states), eqx.is_array)
+        return _batched_step(params, static, fresh, configs, images, key, trials, steps,
+                             vectorize=vectorize, trace=trace, mesh=mesh)
 
     return step
 
@@ -323,9 +330,11 @@ def run_trials(
     h, w = pool.image_shape
     # two groups of slots, stepped in turn, when the batch can be split: the
     # device steps one group while the host captures the other's images
+    # (of equal size, so one compiled step serves both: with an odd batch the
+    # second group's last slot never takes a trial)
     n_groups = 2 if (pipeline and mesh is None and batch >= 2) else 1
-    bounds = np.linspace(0, batch, n_groups + 1).astype(int)
-    groups = [_Group.empty(recognizer, int(a), int(b), n_cams, h, w) for a, b in zip(bounds[:-1], bounds[1:])]
+    size = -(-batch // n_groups)
+    groups = [_Group.empty(recognizer, g * size, (g + 1) * size, n_cams, h, w) for g in range(n_groups)]
     step = batched_step(recognizer, trace=trace, mesh=mesh)
     times = None if recognizer.motion is None else [np.asarray(t) for t in recognizer.motion.times]
     showing: list[int | None] = [None] * pool.n_rigs  # the trial each rig's scene is set up for
@@ -377,7 +386,7 @@ def run_trials(
         """Give the group's free slots new trials, capture its images and
         dispatch its step (asynchronously: it runs while the host goes on)."""
         for i in range(len(g.slots)):
-            if g.slots[i] is None and queue:
+            if g.slots[i] is None and queue and g.offset + i < batch:
                 s = queue.pop()
                 g.slots[i] = _Slot(s, tuple(int(v) for v in s.initial))
                 g.fresh[i] = True
