@@ -24,6 +24,7 @@ import dataclasses
 import multiprocessing as mp
 import traceback
 import weakref
+from multiprocessing.reduction import ForkingPickler
 from typing import Any, Callable, Protocol, Sequence, runtime_checkable
 
 from .rig import Capture, Rig, RigError
@@ -158,30 +159,36 @@ def as_rig_pool(rigs: Rig | Sequence[Rig] | RigPool) -> RigPool:
 
 def _serve(conn, factory: Callable[[], Rig], mine: Sequence[int]) -> None:
     """A worker: build the rigs ``mine`` (pool indices), report their shape,
-    then run each batch of jobs it is sent until it receives ``None``."""
+    then run each batch of jobs it is sent until it receives ``None`` or the
+    parent's end of the pipe closes."""
     import signal
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle: it closes the pool
+    rigs: dict = {}
     try:
-        rigs = {r: factory() for r in mine}
-        first = next(iter(rigs.values()))
-        conn.send(("ok", (tuple(first.positions), tuple(first.image_shape))))
-    except BaseException as err:  # noqa: BLE001 -- reported to the parent, which raises
-        conn.send(("error", _portable(err)))
-        return
-    while True:
         try:
-            jobs = conn.recv()
-        except EOFError:
-            break
-        if jobs is None:
-            break
-        try:
-            conn.send(("ok", [run_job(rigs[j.rig], j) for j in jobs]))
-        except BaseException as err:  # noqa: BLE001
+            rigs = {r: factory() for r in mine}
+            first = next(iter(rigs.values()))
+            conn.send(("ok", (tuple(first.positions), tuple(first.image_shape))))
+        except (OSError, EOFError):
+            raise
+        except BaseException as err:  # noqa: BLE001 -- reported to the parent, which raises
             conn.send(("error", _portable(err)))
-    for r in rigs.values():
-        r.close()
+            return
+        while True:
+            jobs = conn.recv()
+            if jobs is None:
+                break
+            try:
+                reply = ("ok", [run_job(rigs[j.rig], j) for j in jobs])
+            except BaseException as err:  # noqa: BLE001
+                reply = ("error", _portable(err))
+            conn.send(reply)
+    except (OSError, EOFError):
+        pass  # the parent is gone or closed the pool: stop quietly
+    finally:
+        for r in rigs.values():
+            r.close()
 
 
 def _portable(err: BaseException) -> tuple[BaseException | None, str]:
@@ -196,19 +203,25 @@ def _portable(err: BaseException) -> tuple[BaseException | None, str]:
         return None, text
 
 
-def _shutdown(conns, procs) -> None:
+def _shutdown(conns, procs, timeout: float = 5.0) -> None:
+    """Ask every worker to stop, close the pipes (a worker blocked on sending
+    a reply then fails and stops) and wait for all of them within one shared
+    ``timeout``; terminate the ones still running."""
+    import time
+
     for c in conns:
         try:
             c.send(None)
         except (OSError, ValueError):
             pass
+        c.close()
+    deadline = time.monotonic() + timeout
     for p in procs:
-        p.join(timeout=5)
+        p.join(timeout=max(0.0, deadline - time.monotonic()))
+    for p in procs:
         if p.is_alive():
             p.terminate()
-            p.join(timeout=5)
-    for c in conns:
-        c.close()
+            p.join(timeout=1.0)
 
 
 class ProcessRigs:
@@ -228,9 +241,15 @@ class ProcessRigs:
     ``if __name__ == "__main__":``.  Close the pool (``close()`` or ``with``)
     to stop them; they also stop when the pool is garbage-collected or the
     parent exits.  The workers start in the background; the first use
-    (:attr:`positions`, :meth:`capture_batch`) waits for them.  A worker that fails to build its rigs, or raises during a
-    capture, re-raises its exception here (a :class:`RigError` stays one); a
-    worker that dies is a :class:`RigError` naming it.
+    (:attr:`positions`, :meth:`capture_batch`) waits for them.
+
+    Errors: an exception a worker raises while building its rigs or running
+    a job (e.g. a :class:`RigError` for a bad configuration) is raised here
+    and the pool stays usable (every worker's answer to that batch has been
+    read); so does a job that cannot be pickled (every job is pickled before
+    any is sent).  Anything that interrupts a batch in flight -- a worker that
+    dies (a :class:`RigError` naming it), Ctrl-C -- closes the pool, so no
+    stale answer can be taken for a later batch's.
     """
 
     def __init__(self, factory: Callable[[], Rig], n_rigs: int, workers: int):
@@ -254,22 +273,6 @@ class ProcessRigs:
             self._procs.append(p)
         self._shape: tuple | None = None  # (positions, image_shape), from the workers' first answers
 
-    def _ready(self) -> tuple:
-        # the workers start in the background (spawn + imports, ~2 s); the
-        # first use waits for their answers, so a caller can build its model
-        # and compile meanwhile
-        if self._shape is None:
-            try:
-                shapes = [self._receive(w) for w in range(self.workers)]
-            except BaseException:
-                self.close()
-                raise
-            if len(set(shapes)) != 1:
-                self.close()
-                raise ValueError(f"the pool's rigs differ: {sorted(set(shapes))}")
-            self._shape = shapes[0]
-        return self._shape
-
     @property
     def n_rigs(self) -> int:
         return self._n_rigs
@@ -282,23 +285,48 @@ class ProcessRigs:
     def image_shape(self) -> tuple[int, int]:
         return self._ready()[1]
 
-    def _receive(self, w: int):
+    @property
+    def closed(self) -> bool:
+        return not self._finalizer.alive
+
+    def _check_open(self) -> None:
+        if self.closed:
+            raise RigError("the rig pool is closed")
+
+    def _ready(self) -> tuple:
+        # the workers start in the background (spawn + imports, ~2 s); the
+        # first use waits for their answers, so a caller can build its model
+        # and compile meanwhile
+        if self._shape is None:
+            self._check_open()
+            try:
+                answers = [self._recv(w) for w in range(self.workers)]
+            except BaseException:
+                self.close()
+                raise
+            failed = [(w, a[1]) for w, a in enumerate(answers) if a[0] != "ok"]
+            if failed:
+                self.close()
+                _raise_reported(*failed[0])
+            shapes = {a[1] for a in answers}
+            if len(shapes) != 1:
+                self.close()
+                raise ValueError(f"the pool's rigs differ: {sorted(shapes)}")
+            self._shape = answers[0][1]
+        return self._shape
+
+    def _recv(self, w: int) -> tuple:
+        """Worker ``w``'s next answer, ``(status, payload)``; a closed pipe
+        is a :class:`RigError` naming the worker."""
         try:
-            status, payload = self._conns[w].recv()
+            return self._conns[w].recv()
         except (EOFError, OSError) as err:
-            self.close()
-            code = self._procs[w].exitcode
-            raise RigError(f"rig worker {w} exited (exit code {code}) without answering") from err
-        if status == "ok":
-            return payload
-        err, text = payload
-        if err is not None:
-            raise err from RigError(f"in rig worker {w}:\n{text}")
-        raise RigError(f"rig worker {w} failed:\n{text}")
+            self._procs[w].join(timeout=1.0)
+            raise RigError(f"rig worker {w} exited (exit code {self._procs[w].exitcode}) "
+                           "without answering") from err
 
     def capture_batch(self, jobs: Sequence[CaptureJob]) -> list[Capture]:
-        if not self._finalizer.alive:
-            raise RigError("the rig pool is closed")
+        self._check_open()
         self._ready()
         jobs = list(jobs)
         _check_jobs(jobs, self._n_rigs)
@@ -306,22 +334,30 @@ class ProcessRigs:
         for i, j in enumerate(jobs):
             share[j.rig % self.workers].append(i)
         busy = [w for w in range(self.workers) if share[w]]
-        for w in busy:
-            try:
-                self._conns[w].send([jobs[i] for i in share[w]])
-            except (OSError, ValueError) as err:
-                self.close()
-                raise RigError(f"rig worker {w} is gone (exit code {self._procs[w].exitcode})") from err
+        # pickle every share before sending any: a job that cannot be sent
+        # fails here, with nothing in flight
+        payloads = {w: bytes(ForkingPickler.dumps([jobs[i] for i in share[w]])) for w in busy}
         out: list[Capture | None] = [None] * len(jobs)
-        failure = None
-        for w in busy:  # collect every answer, so no reply is left in a pipe
-            try:
-                for i, cap in zip(share[w], self._receive(w)):
-                    out[i] = cap
-            except BaseException as err:  # noqa: BLE001
-                failure = failure or err
-        if failure is not None:
-            raise failure
+        reported = None
+        try:
+            for w in busy:
+                try:
+                    self._conns[w].send_bytes(payloads[w])
+                except OSError as err:
+                    self._procs[w].join(timeout=1.0)
+                    raise RigError(f"rig worker {w} is gone (exit code {self._procs[w].exitcode})") from err
+            for w in busy:  # read every answer, so none is left in a pipe
+                status, payload = self._recv(w)
+                if status == "ok":
+                    for i, cap in zip(share[w], payload):
+                        out[i] = cap
+                elif reported is None:
+                    reported = (w, payload)
+        except BaseException:
+            self.close()  # a batch cut short: the pipes' contents are unknown
+            raise
+        if reported is not None:
+            _raise_reported(*reported)
         return out
 
     def close(self) -> None:
@@ -333,3 +369,12 @@ class ProcessRigs:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def _raise_reported(w: int, payload) -> None:
+    """Raise the exception worker ``w`` reported (its own type where it
+    survived pickling, else a :class:`RigError`), with its traceback text."""
+    err, text = payload
+    if err is not None:
+        raise err from RigError(f"in rig worker {w}:\n{text}")
+    raise RigError(f"rig worker {w} failed:\n{text}")

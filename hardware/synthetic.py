@@ -156,8 +156,9 @@ class SyntheticRig(SeededCaptures):
             through :meth:`reset`); ``None`` = on the training grid.
         clean_counts: the cache of unoccluded object pixel counts per
             (object, pose, yaw, eye), the denominator of the occluded
-            fraction; pass one dict to rigs built alike (same objects, table
-            and intrinsics) and they share it.  Default: the rig's own.
+            fraction; pass one dict to several rigs and they share what they
+            count (the key includes the objects, intrinsics and workspace, so
+            unlike rigs do not mix).  Default: the rig's own.
 
     Attributes:
         fov: ``fov[i][v]``, vertical field of view (degrees) of camera ``i`` at position ``v``.
@@ -194,6 +195,11 @@ class SyntheticRig(SeededCaptures):
         self._layout: OccluderLayout | None = None
         self._config: tuple[int, ...] | None = None
         self._clean_pixels: dict[tuple, int] = {} if clean_counts is None else clean_counts
+        # what else a clean count depends on, so that a dict shared by unlike rigs cannot mix them up
+        import hashlib
+
+        self._clean_sig = hashlib.sha1(repr((self.intrinsics, self.scene.objects, self.scene.n_poses,
+                                             tuple(self.table.workspace.object_xyz))).encode()).hexdigest()[:16]
 
     # -- Rig protocol
     @property
@@ -363,7 +369,7 @@ class SyntheticRig(SeededCaptures):
 
     def _clean_count(self, eye: Sequence[float], fov: float, cache: bool = True) -> int:
         # a jittered eye is never seen twice: count it without filling the cache
-        key = (self.scene._current, tuple(round(float(c), 9) for c in eye))
+        key = (self._clean_sig, self.scene._current, tuple(round(float(c), 9) for c in eye))
         count = self._clean_pixels.get(key) if cache else None
         if count is None:
             self.scene.show_occluders(False)

@@ -132,6 +132,27 @@ def _map_slots(recognizer: Recognizer, states, fresh, configs, images, key, tria
     return jax.lax.map(one, xs)
 
 
+class _Static:
+    """The non-array part of (recognizer, states) as a static jit argument:
+    hashed and compared by its tree structure and leaves (a leaf is equal to
+    itself even where ``==`` says otherwise, e.g. a NaN setting), so an equal
+    recognizer built afresh finds the compiled step."""
+
+    def __init__(self, tree):
+        self.tree = tree
+        self._leaves, self._treedef = jax.tree.flatten(tree)
+        self._hash = hash((self._treedef, tuple(self._leaves)))
+
+    def __hash__(self) -> int:
+        return self._hash
+
+    def __eq__(self, other) -> bool:
+        if not isinstance(other, _Static):
+            return NotImplemented
+        return (self._treedef == other._treedef and len(self._leaves) == len(other._leaves)
+                and all(a is b or bool(a == b) for a, b in zip(self._leaves, other._leaves)))
+
+
 @functools.partial(jax.jit, static_argnames=("static", "vectorize", "trace", "mesh"))
 def _batched_step(params, static, fresh, configs, images, key, trials, steps, *,
                   vectorize: bool, trace: bool, mesh: Mesh | None):
@@ -141,7 +162,7 @@ def _batched_step(params, static, fresh, configs, images, key, trials, steps, *,
     # equal-shaped) recognizer reuses one compiled step.  Plain jax.jit, not
     # eqx.filter_jit: that one waits for the result, and the driver's pipeline
     # needs the call to return while the device computes
-    recognizer, states = eqx.combine(params, static)
+    recognizer, states = eqx.combine(params, static.tree)
     if mesh is None:
         return _map_slots(recognizer, states, fresh, configs, images, key, trials, steps, vectorize, trace)
     # sharded: each device maps its own slots; the recognizer's arrays (model,
@@ -227,7 +248,7 @@ def batched_step(recognizer: Recognizer, *, vectorize: bool = False, trace: bool
             states, fresh, configs, images, trials, steps = jax.device_put(
                 (states, fresh, configs, images, trials, steps), sh)
         params, static = eqx.partition((recognizer, states), eqx.is_array)
-        return _batched_step(params, static, fresh, configs, images, key, trials, steps,
+        return _batched_step(params, _Static(static), fresh, configs, images, key, trials, steps,
                              vectorize=vectorize, trace=trace, mesh=mesh)
 
     return step

@@ -46,8 +46,10 @@ from jaxrecog.metrics import campaign_metrics
 from jaxrecog.experiments import CASES, Settings, prepare, results_dir, run_case, run_trace
 
 #: Worker processes that render the campaigns' captures (``--render-workers``):
-#: one per core, at most 4; none on one core (a worker there only adds its start).
-DEFAULT_RENDER_WORKERS = min(os.cpu_count() or 1, 4) if (os.cpu_count() or 1) > 1 else 0
+#: one per core this process may use, at most 4; none on one core (a worker
+#: there only adds its start).
+_CORES = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+DEFAULT_RENDER_WORKERS = min(_CORES, 4) if _CORES > 1 else 0
 
 #: The turntable cases (issue 18 item 4), run apart from CASES: name -> occluded test views.
 TURNTABLE_CASES = {"turntable": False, "turntable-occluded": True}

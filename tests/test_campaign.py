@@ -17,7 +17,7 @@ from jaxrecog.recognizer import Recognizer
 from jaxrecog.results import TrialStore
 
 
-@pytest.mark.parametrize("planner", ["random", "mi"])
+@pytest.mark.parametrize("planner", ["random", "mi", "mi-class-pairwise", "crlb"])
 def test_a_second_campaign_with_the_same_recognizer_compiles_nothing(moving_model, planner):
     db, model = moving_model
     rig = DatasetRig(db, split="test")

@@ -172,6 +172,12 @@ def test_a_pipelined_batch_steps_its_halves_in_turn_and_gives_the_same_trials(mo
                        r.exit_prob) for r in results)
 
     assert signature(halves) == signature(whole) and len(whole) == len(specs)
+    # two slots: halves of one (a one-trip loop XLA may compile apart) against one call of two
+    calls.clear()
+    pairs = run_trials(rec, rigs[:2], specs, key=jr.PRNGKey(2), batch=2, seed=1)
+    assert set(calls) == {1}
+    assert signature(pairs) == signature(run_trials(rec, rigs[:2], specs, key=jr.PRNGKey(2), batch=2, seed=1,
+                                                    pipeline=False)) == signature(whole)
 
 
 def test_an_unusable_image_is_counted_and_leaves_the_belief_alone(moving_model):

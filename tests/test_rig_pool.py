@@ -69,6 +69,15 @@ def test_shared_clean_counts_change_no_fraction():
             np.testing.assert_array_equal(a.images, b.images)
             assert a.occluded == b.occluded
     assert len(shared.rigs[0]._clean_pixels) > 0
+    # a dict shared by unlike rigs (another image size) keeps their counts apart
+    from jaxrecog.hardware import Intrinsics, SyntheticRig
+
+    small = SyntheticRig(shared.rigs[0].table, intrinsics=Intrinsics(height=60, width=80),
+                         clean_counts=shared.rigs[0]._clean_pixels)
+    alone_small = SyntheticRig(shared.rigs[0].table, intrinsics=Intrinsics(height=60, width=80))
+    job = _jobs(small, 2)[0][1]  # the boards' scene, from scratch
+    a, b = (LocalRigs([r]).capture_batch([CaptureJob(0, job.scene, job.seed, job.config)])[0] for r in (small, alone_small))
+    assert a.occluded == b.occluded and a.occluded[0] > 0
 
 
 def test_campaign_results_do_not_depend_on_the_pool(moving_model):
@@ -82,11 +91,15 @@ def test_campaign_results_do_not_depend_on_the_pool(moving_model):
         return sorted((r.trial, r.predicted_object, r.predicted_pose, r.steps, r.configurations, r.exit_prob)
                       for r in results)
 
-    local = run_trials(rec, [DatasetRig(db, seed=0) for _ in range(4)], specs, key=key, batch=4, seed=2)
+    local = run_trials(rec, [DatasetRig(db, seed=0) for _ in range(4)], specs, key=key, batch=4, seed=2,
+                       pipeline=False)
     with ProcessRigs(functools.partial(DatasetRig, db, seed=0), 4, 2) as pool:
         remote = run_trials(rec, pool, specs, key=key, batch=4, seed=2)
         again = run_trials(rec, pool, specs, key=key, batch=4, seed=2)  # a pool serves several campaigns
-    assert signature(remote) == signature(local) == signature(again)
+    # fewer rigs than slots (rigs shared by slots and reset between them), an odd batch
+    with ProcessRigs(functools.partial(DatasetRig, db, seed=0), 2, 2) as pool:
+        shared = run_trials(rec, pool, specs, key=key, batch=5, seed=2)
+    assert signature(remote) == signature(local) == signature(again) == signature(shared)
     assert len(local) == len(specs)
 
 
@@ -106,6 +119,44 @@ def test_worker_errors_are_raised_here_and_the_pool_survives_them(moving_model):
             pool.capture_batch([ok, CaptureJob(1, None, (0,), (0,))])
     with pytest.raises(RigError, match="closed"):
         pool.capture_batch([ok])
+
+
+def test_a_batch_cut_short_closes_the_pool_and_its_workers(moving_model):
+    """A job that cannot be pickled fails before anything is sent (the next
+    batch gets its own answers); a worker that dies closes the pool and stops
+    the other workers; a pool dropped without close() stops its workers."""
+    import gc
+
+    db, _ = moving_model
+    pool = ProcessRigs(functools.partial(DatasetRig, db, seed=0), 2, 2)
+    procs = list(pool._procs)
+    ok = CaptureJob(0, SceneSpec(0, 0), (0,), (1,))
+    assert pool.capture_batch([ok])[0].images.shape == (1, 24, 32)
+    first = pool.capture_batch([ok, CaptureJob(1, SceneSpec(1, 2), (0,), (2,))])
+    with pytest.raises(Exception, match="pickle"):
+        pool.capture_batch([ok, CaptureJob(1, SceneSpec(1, 0, occluders=lambda: None), (0,), (0,))])
+    again = pool.capture_batch([ok, CaptureJob(1, SceneSpec(1, 2), (0,), (2,))])
+    for a, b in zip(first, again):
+        np.testing.assert_array_equal(a.images, b.images)
+    procs[1].kill()
+    procs[1].join()
+    with pytest.raises(RigError, match="rig worker 1"):
+        pool.capture_batch([ok, CaptureJob(1, None, (0,), (0,))])
+    assert pool.closed and not any(p.is_alive() for p in procs)
+    with pytest.raises(RigError, match="closed"):
+        pool.capture_batch([ok])
+    # a pool dropped without close() stops its workers too
+    pool = ProcessRigs(functools.partial(DatasetRig, db, seed=0), 2, 2)
+    procs = list(pool._procs)
+    assert pool.positions == (3,)
+    del pool
+    gc.collect()
+    assert not any(p.is_alive() for p in procs)
+    # closed before its first use: says so
+    pool = ProcessRigs(functools.partial(DatasetRig, db, seed=0), 1, 1)
+    pool.close()
+    with pytest.raises(RigError, match="closed"):
+        pool.positions
 
 
 def _no_rig():

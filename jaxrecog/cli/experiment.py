@@ -145,8 +145,6 @@ def run(args) -> int:
             raise UsageError("--trace works with the thesis cases (synthetic rig) only")
         if (args.stride or values.get("stride", 1)) != 1:
             raise UsageError("--stride selects positions of the synthetic rig; a database has its own positions")
-        if args.render_workers:
-            raise UsageError("--render-workers renders the synthetic rig; a replayed database is not rendered")
         if _training_values(args, {}):
             raise UsageError("--likelihood, --rank, --nu and the capture augmentation train a thesis case's models; "
                              "a database campaign uses the given --model")
@@ -176,6 +174,8 @@ def run(args) -> int:
         settings = make_settings(values, args.case or "experiment")
     except ValueError as e:
         raise UsageError(str(e)) from None
+    if dataset and settings.render_workers:
+        raise UsageError("--render-workers renders the synthetic rig; a replayed database is not rendered")
     if dataset and settings.motion_cost > 0:
         raise UsageError("--motion-cost needs the rig's geometry (travel times); a replayed database has none")
     try:
