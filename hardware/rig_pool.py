@@ -361,7 +361,11 @@ class ProcessRigs:
         return out
 
     def close(self) -> None:
-        """Stop the workers (idempotent)."""
+        """Stop the workers (idempotent); workers that have not answered yet
+        (still starting) are terminated at once."""
+        if self._shape is None and self._finalizer.alive:
+            for p in self._procs:
+                p.terminate()
         self._finalizer()
 
     def __enter__(self) -> "ProcessRigs":

@@ -81,7 +81,11 @@ def test_shared_clean_counts_change_no_fraction():
 
 
 def test_campaign_results_do_not_depend_on_the_pool(moving_model):
-    """The driver through a process pool: the same trials as in this process."""
+    """The driver through a process pool: the same trials as in this process,
+    also with fewer rigs than slots (rigs shared by slots and reset between
+    them) and an odd batch; a pool dropped without close() stops its workers."""
+    import gc
+
     db, model = moving_model
     rec = Recognizer(model, RandomPlanner(3), p_threshold=0.999)
     specs = plan_trials(2, 3, (3,), 3, seed=1)
@@ -93,45 +97,31 @@ def test_campaign_results_do_not_depend_on_the_pool(moving_model):
 
     local = run_trials(rec, [DatasetRig(db, seed=0) for _ in range(4)], specs, key=key, batch=4, seed=2,
                        pipeline=False)
-    with ProcessRigs(functools.partial(DatasetRig, db, seed=0), 4, 2) as pool:
-        remote = run_trials(rec, pool, specs, key=key, batch=4, seed=2)
-        again = run_trials(rec, pool, specs, key=key, batch=4, seed=2)  # a pool serves several campaigns
-    # fewer rigs than slots (rigs shared by slots and reset between them), an odd batch
-    with ProcessRigs(functools.partial(DatasetRig, db, seed=0), 2, 2) as pool:
-        shared = run_trials(rec, pool, specs, key=key, batch=5, seed=2)
-    assert signature(remote) == signature(local) == signature(again) == signature(shared)
+    pool = ProcessRigs(functools.partial(DatasetRig, db, seed=0), 4, 2)
+    remote = run_trials(rec, pool, specs, key=key, batch=4, seed=2)
+    shared = run_trials(rec, pool, specs, key=key, batch=5, seed=2)  # a pool serves several campaigns
+    assert signature(remote) == signature(local) == signature(shared)
     assert len(local) == len(specs)
+    procs = list(pool._procs)
+    del pool
+    gc.collect()
+    assert not any(p.is_alive() for p in procs)
 
 
-def test_worker_errors_are_raised_here_and_the_pool_survives_them(moving_model):
-    db, _ = moving_model
-    with ProcessRigs(functools.partial(DatasetRig, db, seed=0), 2, 2) as pool:
-        ok = CaptureJob(0, SceneSpec(0, 0), (0,), (1,))
-        with pytest.raises(RigError, match=r"configuration \(7,\) is outside the positions \(3,\)"):
-            pool.capture_batch([ok, CaptureJob(1, SceneSpec(1, 0), (0,), (7,))])  # rig 1: position 7 of 3
-        again = pool.capture_batch([ok])  # the pool still works
-        assert again[0].images.shape == (1, 24, 32)
-        with pytest.raises(ValueError, match="rig 2: the pool has rigs 0..1"):
-            pool.capture_batch([CaptureJob(2, None, (0,), (0,))])
-        pool._procs[1].kill()
-        pool._procs[1].join()
-        with pytest.raises(RigError, match="rig worker 1"):
-            pool.capture_batch([ok, CaptureJob(1, None, (0,), (0,))])
-    with pytest.raises(RigError, match="closed"):
-        pool.capture_batch([ok])
-
-
-def test_a_batch_cut_short_closes_the_pool_and_its_workers(moving_model):
-    """A job that cannot be pickled fails before anything is sent (the next
+def test_worker_errors_are_raised_here_and_a_batch_cut_short_closes_the_pool(moving_model):
+    """A worker's exception is raised here and the pool survives it; so does a
+    job that cannot be pickled (it fails before anything is sent: the next
     batch gets its own answers); a worker that dies closes the pool and stops
-    the other workers; a pool dropped without close() stops its workers."""
-    import gc
-
+    the other workers."""
     db, _ = moving_model
     pool = ProcessRigs(functools.partial(DatasetRig, db, seed=0), 2, 2)
     procs = list(pool._procs)
     ok = CaptureJob(0, SceneSpec(0, 0), (0,), (1,))
-    assert pool.capture_batch([ok])[0].images.shape == (1, 24, 32)
+    with pytest.raises(RigError, match=r"configuration \(7,\) is outside the positions \(3,\)"):
+        pool.capture_batch([ok, CaptureJob(1, SceneSpec(1, 0), (0,), (7,))])  # rig 1: position 7 of 3
+    assert pool.capture_batch([ok])[0].images.shape == (1, 24, 32)  # the pool still works
+    with pytest.raises(ValueError, match="rig 2: the pool has rigs 0..1"):
+        pool.capture_batch([CaptureJob(2, None, (0,), (0,))])
     first = pool.capture_batch([ok, CaptureJob(1, SceneSpec(1, 2), (0,), (2,))])
     with pytest.raises(Exception, match="pickle"):
         pool.capture_batch([ok, CaptureJob(1, SceneSpec(1, 0, occluders=lambda: None), (0,), (0,))])
@@ -145,30 +135,23 @@ def test_a_batch_cut_short_closes_the_pool_and_its_workers(moving_model):
     assert pool.closed and not any(p.is_alive() for p in procs)
     with pytest.raises(RigError, match="closed"):
         pool.capture_batch([ok])
-    # a pool dropped without close() stops its workers too
-    pool = ProcessRigs(functools.partial(DatasetRig, db, seed=0), 2, 2)
-    procs = list(pool._procs)
-    assert pool.positions == (3,)
-    del pool
-    gc.collect()
-    assert not any(p.is_alive() for p in procs)
-    # closed before its first use: says so
-    pool = ProcessRigs(functools.partial(DatasetRig, db, seed=0), 1, 1)
-    pool.close()
-    with pytest.raises(RigError, match="closed"):
-        pool.positions
 
 
 def _no_rig():
     raise RigError("no camera on this bench")
 
 
-def test_a_factory_that_fails_is_raised_at_first_use():
+def test_a_factory_that_fails_is_raised_at_first_use(moving_model):
     pool = ProcessRigs(_no_rig, 2, 1)
     with pytest.raises(RigError, match="no camera on this bench"):
         pool.positions
     with pytest.raises(RigError, match="closed"):
         pool.capture_batch([])
+    # closed before its first use: says so
+    pool = ProcessRigs(functools.partial(DatasetRig, moving_model[0], seed=0), 1, 1)
+    pool.close()
+    with pytest.raises(RigError, match="closed"):
+        pool.positions
 
 
 def test_bad_pool_arguments(moving_model, unchecked):
@@ -192,5 +175,5 @@ def test_bad_pool_arguments(moving_model, unchecked):
 def test_capture_pool_follows_the_settings():
     with capture_pool(dataclass_replace(STRIDED, batch=3)) as pool:
         assert isinstance(pool, LocalRigs) and pool.n_rigs == 3
-    with capture_pool(dataclass_replace(STRIDED, batch=3, render_workers=5), (0,)) as pool:
-        assert isinstance(pool, ProcessRigs) and pool.workers == 3 and pool.positions == (4,)
+    with capture_pool(dataclass_replace(STRIDED, batch=2, render_workers=5), (0,)) as pool:
+        assert isinstance(pool, ProcessRigs) and pool.workers == 2 and pool.positions == (4,)
