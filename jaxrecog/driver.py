@@ -133,10 +133,10 @@ def _map_slots(recognizer: Recognizer, states, fresh, configs, images, key, tria
 
 
 class _Static:
-    """The non-array part of (recognizer, states) as a static jit argument:
-    hashed and compared by its tree structure and leaves (a leaf is equal to
-    itself even where ``==`` says otherwise, e.g. a NaN setting), so an equal
-    recognizer built afresh finds the compiled step."""
+    """The recognizer's non-array part as a static jit argument: hashed and
+    compared by its tree structure and leaves (a leaf is equal to itself even
+    where ``==`` says otherwise, e.g. a NaN setting), so an equal recognizer
+    built afresh finds the compiled step."""
 
     def __init__(self, tree):
         self.tree = tree
@@ -154,29 +154,28 @@ class _Static:
 
 
 @functools.partial(jax.jit, static_argnames=("static", "vectorize", "trace", "mesh"))
-def _batched_step(params, static, fresh, configs, images, key, trials, steps, *,
+def _batched_step(params, static: _Static, states: RecognizerState, fresh, configs, images, key, trials, steps, *,
                   vectorize: bool, trace: bool, mesh: Mesh | None):
-    # module level, the recognizer and states an argument (their arrays
-    # ``params``, the rest ``static``, hashable): jit's cache is keyed on their
-    # structure and static fields, so every campaign with the same (or an
-    # equal-shaped) recognizer reuses one compiled step.  Plain jax.jit, not
-    # eqx.filter_jit: that one waits for the result, and the driver's pipeline
-    # needs the call to return while the device computes
-    recognizer, states = eqx.combine(params, static.tree)
+    # module level, the recognizer an argument (its arrays ``params``, the
+    # rest ``static``, hashable): jit's cache is keyed on its structure and
+    # static fields, so every campaign with the same (or an equal-shaped)
+    # recognizer reuses one compiled step.  Plain jax.jit, not eqx.filter_jit:
+    # that one waits for the result, and the driver's pipeline needs the call
+    # to return while the device computes
     if mesh is None:
+        recognizer = eqx.combine(params, static.tree)
         return _map_slots(recognizer, states, fresh, configs, images, key, trials, steps, vectorize, trace)
     # sharded: each device maps its own slots; the recognizer's arrays (model,
     # planner tables, λ) and the key are replicated
-    rec_params, rec_static = eqx.partition(recognizer, eqx.is_array)
 
-    def local(rec_params, key, states, fresh, configs, images, trials, steps):
-        rec = eqx.combine(rec_params, rec_static)
+    def local(params, key, states, fresh, configs, images, trials, steps):
+        rec = eqx.combine(params, static.tree)
         return _map_slots(rec, states, fresh, configs, images, key, trials, steps, vectorize, trace)
 
     shard, rep = PartitionSpec(TRIALS_AXIS), PartitionSpec()
     f = jax.shard_map(local, mesh=mesh, in_specs=(rep, rep, shard, shard, shard, shard, shard, shard),
                       out_specs=shard, check_vma=False)
-    return f(rec_params, key, states, fresh, configs, images, trials, steps)
+    return f(params, key, states, fresh, configs, images, trials, steps)
 
 
 def trial_mesh(devices: int | Sequence[jax.Device] | None) -> Mesh | None:
@@ -233,10 +232,12 @@ def batched_step(recognizer: Recognizer, *, vectorize: bool = False, trace: bool
     vectorize, trace = bool(vectorize), bool(trace)
     if mesh is not None and len(mesh.devices.flat) == 1:
         mesh = None
+    # split the recognizer once, not at every call (and with a mesh, replicate
+    # the model and planner tables once)
+    params, static = eqx.partition(recognizer, eqx.is_array)
+    static = _Static(static)
     if mesh is not None:
-        # replicate the model and planner tables once, not at every call
-        params, static = eqx.partition(recognizer, eqx.is_array)
-        recognizer = eqx.combine(jax.device_put(params, NamedSharding(mesh, PartitionSpec())), static)
+        params = jax.device_put(params, NamedSharding(mesh, PartitionSpec()))
 
     def step(states, fresh: Bool[ArrayLike, " B"], configs: Int[ArrayLike, "B n"], images: Shaped[ArrayLike, "B n H W"],
              key: PRNGKeyArray, trials: Int[ArrayLike, " B"], steps: Int[ArrayLike, " B"]):
@@ -247,8 +248,7 @@ def batched_step(recognizer: Recognizer, *, vectorize: bool = False, trace: bool
             sh = NamedSharding(mesh, PartitionSpec(TRIALS_AXIS))
             states, fresh, configs, images, trials, steps = jax.device_put(
                 (states, fresh, configs, images, trials, steps), sh)
-        params, static = eqx.partition((recognizer, states), eqx.is_array)
-        return _batched_step(params, _Static(static), fresh, configs, images, key, trials, steps,
+        return _batched_step(params, static, states, fresh, configs, images, key, trials, steps,
                              vectorize=vectorize, trace=trace, mesh=mesh)
 
     return step
