@@ -19,6 +19,7 @@ without them)``.
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 from typing import Sequence
 
 import numpy as np
@@ -196,8 +197,6 @@ class SyntheticRig(SeededCaptures):
         self._config: tuple[int, ...] | None = None
         self._clean_pixels: dict[tuple, int] = {} if clean_counts is None else clean_counts
         # what else a clean count depends on, so that a dict shared by unlike rigs cannot mix them up
-        import hashlib
-
         self._clean_sig = hashlib.sha1(repr((self.intrinsics, self.scene.objects, self.scene.n_poses,
                                              tuple(self.table.workspace.object_xyz))).encode()).hexdigest()[:16]
 

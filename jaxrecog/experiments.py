@@ -246,18 +246,15 @@ class Settings:
         from .motion import check_weight
 
         object.__setattr__(self, "motion_cost", check_weight(self.motion_cost))
-        if isinstance(self.devices, bool) or not isinstance(self.devices, int) or self.devices < 1:
-            raise ValueError(f"devices must be an integer >= 1, got {self.devices!r}")
-        rw = self.render_workers
-        if isinstance(rw, bool) or not isinstance(rw, int) or rw < 0:
-            raise ValueError(f"render_workers must be an integer >= 0, got {rw!r}")
+        for k, lo in (("devices", 1), ("render_workers", 0), ("stride", 1)):
+            v = getattr(self, k)
+            if isinstance(v, bool) or not isinstance(v, int) or v < lo:
+                raise ValueError(f"{k} must be an integer >= {lo}, got {v!r}")
         from .recognizer import check_min_views
 
         check_min_views(self.min_views, self.max_steps)
         if self.trials_per_object < 1:
             raise ValueError("trials_per_object must be >= 1")
-        if isinstance(self.stride, bool) or not isinstance(self.stride, int) or self.stride < 1:
-            raise ValueError(f"stride must be an integer >= 1, got {self.stride!r}")
         for k in ("off_grid_deg", "off_grid_eye", "off_grid_light"):
             v = getattr(self, k)
             if v is None:
