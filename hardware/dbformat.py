@@ -10,14 +10,20 @@ for :func:`jaxrecog.load_database`, :func:`write_folder` writes an
 :class:`ImageDatabase`.
 
 Rules (:func:`check_rows`): indices are non-negative integers below
-:data:`MAX_INDEX`; a row may not repeat another row exactly; one
+:data:`MAX_INDEX` that form dense ranges (cameras ``0..n-1``, each camera's
+positions ``0..V-1``, objects ``0..M-1``, poses ``0..N-1``: a gap, e.g. one
+mistyped position 999999, names its row and is found before any array is
+sized by the counts); a row may not repeat another row exactly; one
 (camera, position, object, pose) has at most one ``train`` image.  One image
 file may serve several rows that differ in camera, position, object, pose or
 split: on a turntable one photo is the view of (pose p, position v) and of
 (pose p', position v').  Every problem is reported at once, each with its
-manifest row number (row 1 is the first line after the header); more than
-:data:`~.problems.SHOWN` also go, in full, to :data:`ERRORS_FILE` next to the
-manifest.
+manifest row number (row 1 is the first line after the header); the
+message shows the first :data:`~.problems.SHOWN` and the count, the
+exception's ``problems`` hold them all (``jaxrecog --debug`` prints them,
+``--problems-out FILE`` writes them).  Reading never writes into the folder.
+The manifest is checked first, in time and memory linear in its rows; image
+pixels are kept only when it is clean.
 """
 
 from __future__ import annotations
@@ -34,14 +40,13 @@ from typing import NamedTuple, Sequence
 
 import numpy as np
 
-from .problems import SHOWN, one_line, problem_message, write_problem_list
+from .problems import SHOWN, one_line, problem_message
 
 __all__ = [
     "COLUMNS",
     "SPLITS",
     "INT_COLUMNS",
     "MAX_INDEX",
-    "ERRORS_FILE",
     "DatabaseError",
     "NonGrayImageWarning",
     "ManifestRow",
@@ -61,12 +66,11 @@ COLUMNS = ("path", "camera", "position", "object", "pose", "split")
 SPLITS = ("train", "test", "calib", "jitter")  # jitter: extra views near a training view (train --view-jitter)
 INT_COLUMNS = ("camera", "position", "object", "pose")
 MAX_INDEX = 2**20  # indices must be below this (a typo like 1e9 is not a position)
-ERRORS_FILE = "manifest-errors.txt"
 
 
 class DatabaseError(ValueError):
-    """The image database is invalid; ``problems`` lists every problem found,
-    ``full_list`` is the file that holds them all (``None``: not written)."""
+    """The image database is invalid; ``problems`` lists every problem found
+    (``full_list``: a file that holds them all, ``None``: none was written)."""
 
     def __init__(self, where: str, problems: Sequence[str], full_list: str | os.PathLike | None = None):
         self.problems = list(problems)
@@ -164,6 +168,23 @@ class ImageDatabase:
             raise ValueError(f"camera {camera} not in database (cameras 0..{self.n_cameras - 1})")
         n_pos, n_cls = self.positions[camera], self.n_classes
         sel = np.flatnonzero((self.split == "train") & (self.camera == camera))
+        need = n_pos * n_cls
+        have = np.unique(self.position[sel] * n_cls + self.class_index[sel]).size
+        if have < need and need > _MAX_LISTED + sel.size:
+            # sparse views (dense indices, few of their combinations): name the
+            # first ones without sizing an array by the counts' product
+            present = set((self.position[sel] * n_cls + self.class_index[sel]).tolist())
+            first = []
+            for k in range(need):
+                if k not in present:
+                    first.append(k)
+                    if len(first) == _MAX_LISTED:
+                        break
+            probs = [f"camera {camera} position {k // n_cls}: no train image of object {k % n_cls // self.n_poses} "
+                     f"pose {k % self.n_poses}" for k in first]
+            probs.append(f"camera {camera}: {need - have - len(first)} more of its {n_pos} positions x {n_cls} "
+                         f"classes have no train image")
+            raise database_error(self._where(), probs)
         slots = np.full((n_pos, n_cls), -1, dtype=np.int64)
         slots[self.position[sel], self.class_index[sel]] = sel
         missing = np.argwhere(slots < 0)
@@ -173,7 +194,7 @@ class ImageDatabase:
                 f"pose {c % self.n_poses}"
                 for v, c in missing
             ]
-            raise database_error(self._where(), probs, folder=self.root)
+            raise database_error(self._where(), probs)
         return self.images[slots]
 
     def _where(self) -> str:
@@ -229,32 +250,63 @@ class ImageDatabase:
         )
 
 
-def database_error(where: str | os.PathLike, problems: Sequence[str], folder: str | os.PathLike | None = None) -> DatabaseError:
-    """A :class:`DatabaseError`; with more than :data:`~.problems.SHOWN`
-    problems and a writable ``folder``, the full list is written to
-    ``folder/`` :data:`ERRORS_FILE` first and the message names it."""
-    full = None
-    if folder is not None and len(problems) > SHOWN:
-        full = write_problem_list(Path(folder) / ERRORS_FILE, f"invalid image database {where}: "
-                                  f"{len(problems)} problems", problems)
-    return DatabaseError(str(where), problems, full_list=full)
+#: the most missing views :meth:`ImageDatabase.train_images` lists one by one
+#: when the views are sparse (their count is then said in one more line)
+_MAX_LISTED = 1000
+
+
+def database_error(where: str | os.PathLike, problems: Sequence[str]) -> DatabaseError:
+    """A :class:`DatabaseError` for ``problems`` found in ``where``.  Nothing is
+    written anywhere: the message shows the count and the first
+    :data:`~.problems.SHOWN`, the exception keeps the whole list (the command
+    line's ``--debug`` prints it, ``--problems-out FILE`` writes it)."""
+    return DatabaseError(str(where), problems)
+
+
+def _dense_problems(first_rows: dict[str, dict[int, int]]) -> list[str]:
+    """One problem per gap in the indices of each group: ``first_rows`` maps a
+    group name (``"object"``, ``"camera 0 position"``) to ``{index: first row
+    using it}``.  Sorting the distinct indices only: linear in the rows, never
+    in the largest index."""
+    problems = []
+    for name, first in first_rows.items():
+        expected = 0
+        for v in sorted(first):
+            if v != expected:
+                gap = f"{expected}" if v == expected + 1 else f"{expected}..{v - 1}"
+                problems.append(f"row {first[v]}: {name} {v} leaves a gap (no row has {name} {gap}; "
+                                f"indices count 0, 1, 2, ... without gaps)")
+            expected = v + 1
+    return problems
 
 
 def check_rows(rows: Sequence[tuple[int, ManifestRow]]) -> list[str]:
     """Value checks of parsed rows ``(row number, row)``: negative or too large
-    indices, unknown split, rows that repeat another exactly, two ``train``
-    images of one (camera, position, object, pose).  A path shared by rows
-    that differ otherwise (turntable views) is not a problem."""
+    indices, gaps in the dense ranges the indices form (cameras, each
+    camera's positions, objects, poses; one problem per gap, naming the first
+    row past it), unknown split, rows that repeat another exactly, two
+    ``train`` images of one (camera, position, object, pose).  A path shared
+    by rows that differ otherwise (turntable views) is not a problem.  Time
+    and memory are linear in the rows, whatever the indices' values."""
     problems: list[str] = []
     seen_row: dict[ManifestRow, int] = {}
     seen_train: dict[tuple, int] = {}
+    first: dict[str, dict[int, int]] = {"camera": {}, "object": {}, "pose": {}}
+    positions: dict[int, dict[int, int]] = {}
     for r, row in rows:
+        in_range = True
         for name in INT_COLUMNS:
             val = getattr(row, name)
             if val < 0:
                 problems.append(f"row {r}: {name} = {val} is negative")
+                in_range = False
             elif val >= MAX_INDEX:
                 problems.append(f"row {r}: {name} = {one_line(val, 40)} is too large (must be < {MAX_INDEX})")
+                in_range = False
+        if in_range:
+            for name in ("camera", "object", "pose"):
+                first[name].setdefault(getattr(row, name), r)
+            positions.setdefault(row.camera, {}).setdefault(row.position, r)
         if row.split not in SPLITS:
             problems.append(f"row {r}: split '{one_line(row.split, 60)}' is not one of {', '.join(SPLITS)}")
         if row in seen_row:
@@ -271,7 +323,8 @@ def check_rows(rows: Sequence[tuple[int, ManifestRow]]) -> list[str]:
                 )
             else:
                 seen_train[key] = r
-    return problems
+    first.update({f"camera {c} position": positions[c] for c in sorted(positions)})
+    return problems + _dense_problems(first)
 
 
 def shared_files(paths: Sequence[str]) -> int:
@@ -419,32 +472,54 @@ def read_folder(folder: str | os.PathLike) -> "ImageDatabase":
     raw = manifest.read_bytes()
     numbered, problems = parse_manifest(raw, str(root))
     problems += check_rows(numbered)
+    # the pixels are kept only for a clean manifest: a broken one is checked
+    # file by file (exists, decodes, its size) in the memory of one image
+    keep = not problems
 
-    cache: dict[str, tuple[np.ndarray | None, str | None, bool]] = {}
-    images: list[np.ndarray | None] = []
+    first_row: dict[str, int] = {}  # path -> the first row index (into `numbered`) reading it
+    shapes: list[tuple[int, ...] | None] = []
+    out: np.ndarray | None = None
     colour_rows: list[int] = []
-    for r, row in numbered:
-        if row.path not in cache:
-            cache[row.path] = read_gray(root / row.path, row.path)
-        img, problem, converted = cache[row.path]
+    file_problems: dict[int, str] = {}  # row index -> the problem of its file
+    colour_set: set[int] = set()  # row indices whose file was in colour
+    for i, (r, row) in enumerate(numbered):
+        j = first_row.setdefault(row.path, i)
+        if j != i:  # a file shared by several rows is read once
+            shapes.append(shapes[j])
+            if shapes[j] is None:
+                problems.append(f"row {r}: {file_problems[j]}")
+            elif j in colour_set:
+                colour_rows.append(r)
+            if out is not None and shapes[j] == out.shape[1:]:
+                out[i] = out[j]
+            continue
+        img, problem, converted = read_gray(root / row.path, row.path)
         if problem:
             problems.append(f"row {r}: {problem}")
+            file_problems[i] = problem
+            shapes.append(None)
+            continue
+        shapes.append(img.shape)
         if converted:
             colour_rows.append(r)
-        images.append(img)
+            colour_set.add(i)
+        if keep and out is None:
+            out = np.empty((len(numbered), *img.shape), np.uint8)
+        if out is not None and img.shape == out.shape[1:]:
+            out[i] = img
 
-    shapes = Counter(im.shape for im in images if im is not None)
-    if shapes:
-        ref = shapes.most_common(1)[0][0]
-        for (r, row), im in zip(numbered, images):
-            if im is not None and im.shape != ref:
+    counts = Counter(sh for sh in shapes if sh is not None)
+    if counts:
+        ref = counts.most_common(1)[0][0]
+        for (r, row), sh in zip(numbered, shapes):
+            if sh is not None and sh != ref:
                 problems.append(
-                    f"row {r}: image '{one_line(row.path, 120)}' is {im.shape[0]}x{im.shape[1]}, "
+                    f"row {r}: image '{one_line(row.path, 120)}' is {sh[0]}x{sh[1]}, "
                     f"the others are {ref[0]}x{ref[1]}"
                 )
     problems.sort(key=_row_key)
     if problems:
-        raise database_error(root, problems, folder=root)
+        raise database_error(root, problems)
     if colour_rows:
         shown = ", ".join(str(r) for r in colour_rows[:SHOWN]) + (" ..." if len(colour_rows) > SHOWN else "")
         warnings.warn(
@@ -453,8 +528,9 @@ def read_folder(folder: str | os.PathLike) -> "ImageDatabase":
             stacklevel=3,
         )
     rows = [row for _, row in numbered]
+    assert out is not None  # a clean manifest has rows, each with an image of one size
     return ImageDatabase(
-        images=np.stack(images).astype(np.uint8, copy=False),
+        images=out,
         camera=np.array([p.camera for p in rows], dtype=np.int64),
         position=np.array([p.position for p in rows], dtype=np.int64),
         object=np.array([p.object for p in rows], dtype=np.int64),

@@ -1,8 +1,10 @@
 """One rule for every error that lists problems: readable at any length.
 
 A message names the count, shows the first :data:`SHOWN` problems one per
-line and says where the full list is (a file, or ``--debug``, which prints
-the exception's ``problems``).  A single problem stays one line.  Every
+line and says how to see the full list (``--debug``, which prints the
+exception's ``problems``, or ``--problems-out FILE``, which writes them to a
+new file of the user's choosing: a command never writes a problem list into
+the folder it reads).  A single problem stays one line.  Every
 problem line is flattened to one line and capped at :data:`LINE_CAP`
 characters, so a stray newline or a 10 kB field in the input cannot blow up
 the message.
@@ -21,7 +23,7 @@ __all__ = ["SHOWN", "LINE_CAP", "DEBUG_HINT", "one_line", "problem_message", "wr
 
 SHOWN = 10
 LINE_CAP = 240
-DEBUG_HINT = "run with --debug to see all"
+DEBUG_HINT = "run with --debug to see all, or --problems-out FILE to write them to a file"
 
 
 def one_line(text: object, cap: int = LINE_CAP) -> str:
@@ -55,13 +57,19 @@ def problem_message(head: str, problems: Sequence[str], *, full_list: str | os.P
     return "\n  ".join(lines)
 
 
-def write_problem_list(path: str | os.PathLike, head: str, problems: Sequence[str]) -> Path | None:
-    """Write ``head`` and every problem, one per line, to ``path``; the path,
-    or ``None`` when it cannot be written (read-only folder, no such folder)."""
+def write_problem_list(path: str | os.PathLike, head: str, problems: Sequence[str]) -> Path:
+    """Write ``head`` and every problem, one per line, to the *new* file
+    ``path`` (created exclusively, never through a symbolic link: an existing
+    file or link is left alone); returns the path.
+
+    Raises:
+        FileExistsError: ``path`` exists (or is a link).
+        OSError: it cannot be created (no such folder, no permission).
+    """
     p = Path(path)
-    try:
-        p.write_text("\n".join([one_line(head, cap=4 * LINE_CAP), *(one_line(x, cap=4 * LINE_CAP) for x in problems)]) + "\n",
-                     encoding="utf-8")
-    except OSError:
-        return None
+    text = "\n".join([one_line(head, cap=4 * LINE_CAP), *(one_line(x, cap=4 * LINE_CAP) for x in problems)]) + "\n"
+    flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0)
+    fd = os.open(p, flags, 0o666)
+    with os.fdopen(fd, "w", encoding="utf-8") as f:
+        f.write(text)
     return p

@@ -4,8 +4,8 @@ The format (columns, rules, the in-memory :class:`ImageDatabase`, reading and
 writing) is defined once, in :mod:`jaxrecog.hardware.dbformat`, and
 re-exported here.  :func:`load_database` validates the whole folder and
 reports *every* problem at once, each with its manifest row number (row 1 is
-the first line after the header); a list longer than ten is also written to
-``manifest-errors.txt`` next to the manifest.  Any number of cameras,
+the first line after the header); nothing is written into the folder (the
+command line's ``--problems-out FILE`` writes a long list where the user says).  Any number of cameras,
 positions, objects and poses is accepted; class ``c = object * n_poses +
 pose``.  One image file may serve several rows (turntable views:
 :func:`notes` counts them).

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from builders import make_database
 
-from jaxrecog.database import DatabaseError, NonGrayImageWarning, load_database, write_database
+from jaxrecog.database import DatabaseError, ImageDatabase, NonGrayImageWarning, load_database, write_database
 
 
 @pytest.fixture
@@ -116,32 +116,80 @@ def _break_every_row(root):
     return len(rows) - 1
 
 
-def test_a_long_problem_list_shows_the_count_ten_lines_and_the_file_with_all(tmp_path):
+def test_a_long_problem_list_shows_the_count_and_ten_lines_and_writes_nothing(tmp_path):
     db = make_database(positions=(3, 2), n_objects=2, n_poses=2, image_shape=(12, 16), n_test=1)
     write_database(tmp_path, db)
     n = _break_every_row(tmp_path)
     assert n > 10
+    before = sorted(p.name for p in tmp_path.iterdir())
     with pytest.raises(DatabaseError) as e:
         load_database(tmp_path)
     lines = str(e.value).splitlines()
     assert lines[0] == f"invalid image database {tmp_path}: {n} problems"
     assert [l.strip() for l in lines[1:11]] == [f"row {r}: split 'validate' is not one of train, test, calib, jitter"
                                                 for r in range(1, 11)]
-    errors = tmp_path / "manifest-errors.txt"
-    assert lines[11].strip() == f"... {n - 10} more (full list in {errors})" and len(lines) == 12
-    assert e.value.full_list == errors and len(e.value.problems) == n
-    written = errors.read_text().splitlines()
-    assert written[0].endswith(f"{n} problems") and written[1:] == e.value.problems
+    assert lines[11].strip() == (f"... {n - 10} more (run with --debug to see all, or --problems-out FILE "
+                                 "to write them to a file)") and len(lines) == 12
+    assert e.value.full_list is None and len(e.value.problems) == n
+    assert sorted(p.name for p in tmp_path.iterdir()) == before  # reading wrote nothing into the folder
 
 
-def test_an_unwritable_folder_points_to_debug():
+def test_a_read_only_command_never_writes_through_a_link_in_the_database(tmp_path, capsys):
+    """Issue 32 finding 1: ``ln -s ~/victim.txt DB/manifest-errors.txt;
+    jaxrecog inspect DB`` overwrote victim.txt."""
+    from jaxrecog import cli
+
+    db_dir, victim = tmp_path / "db", tmp_path / "victim.txt"
+    db = make_database(positions=(3, 2), n_objects=2, n_poses=2, image_shape=(12, 16), n_test=1)
+    write_database(db_dir, db)
+    _break_every_row(db_dir)
+    victim.write_text("precious\n")
+    (db_dir / "manifest-errors.txt").symlink_to(victim)
+    before = sorted(p.name for p in db_dir.iterdir())
+    assert cli.main(["inspect", str(db_dir)]) == 1
+    assert victim.read_text() == "precious\n"
+    assert sorted(p.name for p in db_dir.iterdir()) == before
+    assert "--problems-out FILE" in capsys.readouterr().err.splitlines()[-1]
+
+
+def test_problems_out_writes_the_whole_list_to_a_new_file_only(tmp_path, capsys):
+    from jaxrecog import cli
+
+    db_dir = tmp_path / "db"
+    db = make_database(positions=(3, 2), n_objects=2, n_poses=2, image_shape=(12, 16), n_test=1)
+    write_database(db_dir, db)
+    n = _break_every_row(db_dir)
+    out = tmp_path / "problems.txt"
+    assert cli.main(["inspect", str(db_dir), "--problems-out", str(out)]) == 1
+    err = capsys.readouterr().err.splitlines()
+    assert err[-1] == f"jaxrecog: all {n} problems written to {out}"
+    written = out.read_text().splitlines()
+    assert written[0] == f"invalid image database {db_dir}: {n} problems" and len(written) == n + 1
+    assert written[1] == "row 1: split 'validate' is not one of train, test, calib, jitter"
+    # an existing file, or a link to one, is never overwritten
+    victim = tmp_path / "victim.txt"
+    victim.write_text("precious\n")
+    link = tmp_path / "link.txt"
+    link.symlink_to(victim)
+    for target in (out, victim, link):
+        before = target.read_text()
+        assert cli.main(["inspect", str(db_dir), "--problems-out", str(target)]) == 1
+        assert capsys.readouterr().err.splitlines()[-1] == (f"jaxrecog: --problems-out {target} exists; not "
+                                                             "overwritten (the list was not written)")
+        assert target.read_text() == before
+    assert cli.main(["inspect", str(db_dir), "--problems-out", str(tmp_path / "no" / "such.txt")]) == 1
+    assert "No such file or directory (the list was not written)" in capsys.readouterr().err.splitlines()[-1]
+
+
+def test_a_problem_list_message_is_the_same_with_or_without_a_folder():
     from jaxrecog.hardware.dbformat import database_error
 
-    err = database_error("db", [f"row {r}: bad" for r in range(1, 13)], folder="/nonexistent/folder")
+    err = database_error("db", [f"row {r}: bad" for r in range(1, 13)])
     assert err.full_list is None
-    assert str(err).splitlines()[-1].strip() == "... 2 more (run with --debug to see all)"
-    # ten or fewer problems: no file, nothing left out
-    few = database_error("db", ["row 1: bad", "row 2: worse"], folder="/nonexistent/folder")
+    assert str(err).splitlines()[-1].strip() == ("... 2 more (run with --debug to see all, or --problems-out FILE "
+                                                 "to write them to a file)")
+    # ten or fewer problems: nothing left out
+    few = database_error("db", ["row 1: bad", "row 2: worse"])
     assert str(few).splitlines() == ["invalid image database db: 2 problems", "  row 1: bad", "  row 2: worse"]
 
 
@@ -163,7 +211,7 @@ def test_the_cli_prints_ten_problems_one_per_line_and_debug_prints_all(tmp_path,
     err = capsys.readouterr().err.splitlines()
     assert err[0] == f"jaxrecog: error: invalid image database {tmp_path}: {n} problems"
     assert len(err) == 12 and err[1] == "  row 1: split 'validate' is not one of train, test, calib, jitter"
-    assert "manifest-errors.txt" in err[-1]
+    assert "--problems-out FILE" in err[-1]
     with pytest.raises(DatabaseError):
         cli.main(["inspect", str(tmp_path), "--debug"])
     err = capsys.readouterr().err.splitlines()
@@ -261,3 +309,66 @@ def test_the_renderer_and_the_loader_share_one_format(tmp_path):
 
     rig = DatasetRig.from_folder(tmp_path, split="train")
     assert rig.positions == (2,) and rig.image_shape == (8, 8)
+
+
+# ---- indices form dense ranges, checked before any array is sized (issue 32 finding 4) ---
+
+def test_one_mistyped_index_names_its_row_at_once(folder):
+    """Position 999999 in one row cost a minute and gigabytes (train), and a
+    large object index too gave 'MemoryError ... 16.0 TiB' with no row named."""
+    import resource
+    import time
+
+    root, _ = folder
+    rows = _rows(root)
+    rows[3][2] = "999999"       # row 3: position
+    rows[5][3] = "1000000"      # row 5: object (below MAX_INDEX = 2**20)
+    _write(root, rows)
+    rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    t0 = time.perf_counter()
+    with pytest.raises(DatabaseError) as e:
+        load_database(root)
+    assert time.perf_counter() - t0 < 2.0   # was a minute
+    assert resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - rss0 < 100_000  # KiB; was gigabytes
+    cam = rows[3][1]
+    assert e.value.problems == [
+        f"row 3: camera {cam} position 999999 leaves a gap (no row has camera {cam} position "
+        f"{2 if cam == '0' else 1}..999998; indices count 0, 1, 2, ... without gaps)",
+        "row 5: object 1000000 leaves a gap (no row has object 2..999999; indices count 0, 1, 2, ... without gaps)",
+    ]
+
+
+def test_a_missing_index_in_the_middle_is_one_problem_naming_the_first_row_past_it(folder):
+    root, _ = folder
+    rows = _rows(root)
+    # pose 1 -> 2 everywhere: poses 0 and 2, no pose 1
+    for r in rows[1:]:
+        if r[4] == "1":
+            r[4] = "2"
+    _write(root, rows)
+    first = next(i for i, r in enumerate(rows[1:], start=1) if r[4] == "2")
+    with pytest.raises(DatabaseError) as e:
+        load_database(root)
+    assert e.value.problems == [f"row {first}: pose 2 leaves a gap (no row has pose 1; indices count 0, 1, 2, "
+                                "... without gaps)"]
+
+
+def test_in_memory_databases_follow_the_same_rule():
+    img = np.zeros((2, 4, 4), np.uint8)
+    with pytest.raises(DatabaseError, match=r"row 2: camera 2 leaves a gap \(no row has camera 1;"):
+        ImageDatabase.from_arrays(img, [0, 2], [0, 0], [0, 0], [0, 0], ["train", "train"])
+
+
+def test_sparse_views_are_listed_without_sizing_their_product():
+    """Dense indices whose combinations are few (object i only in pose i): the
+    missing train views are named, the first 1000 and a count, without an
+    array of positions x objects x poses."""
+    n = 3000
+    idx = np.arange(n)
+    db = ImageDatabase.from_arrays(np.zeros((n, 2, 2), np.uint8), np.zeros(n, int), np.zeros(n, int), idx, idx,
+                                   ["train"] * n)
+    with pytest.raises(DatabaseError) as e:
+        db.train_images(0)
+    probs = e.value.problems
+    assert len(probs) == 1001 and probs[0] == "camera 0 position 0: no train image of object 0 pose 1"
+    assert probs[-1] == f"camera 0: {n * n - n - 1000} more of its 1 positions x {n * n} classes have no train image"

@@ -25,7 +25,7 @@ from typing import Any, Callable, Sequence
 
 from .. import __version__
 from .._config import ConfigFileError, load_settings, section
-from ..hardware.problems import problem_message
+from ..hardware.problems import problem_message, write_problem_list
 from .._progress import set_quiet
 from ._common import CLIError, UsageError
 from ._options import Formatter, global_options
@@ -136,4 +136,22 @@ def main(argv: Sequence[str] | None = None) -> int:
         if not isinstance(e, (CLIError, OSError, ValueError)) and type(e).__name__ not in msg:
             msg = f"{type(e).__name__}: {msg}"
         print(f"jaxrecog: error: {msg}", file=sys.stderr)
+        _write_problems(e, getattr(args, "problems_out", None))
         return 1
+
+
+def _write_problems(e: BaseException, path: str | None) -> None:
+    """``--problems-out FILE``: the failure's whole problem list into a new
+    file (exclusive create, no symbolic link followed), one line on stderr
+    saying where it went or why not."""
+    problems = getattr(e, "problems", None)
+    if not path or not problems:
+        return
+    try:
+        write_problem_list(path, str(e).splitlines()[0], problems)
+    except FileExistsError:
+        print(f"jaxrecog: --problems-out {path} exists; not overwritten (the list was not written)", file=sys.stderr)
+    except OSError as err:
+        print(f"jaxrecog: --problems-out {path}: {err.strerror or err} (the list was not written)", file=sys.stderr)
+    else:
+        print(f"jaxrecog: all {len(problems)} problems written to {path}", file=sys.stderr)

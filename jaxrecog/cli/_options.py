@@ -130,7 +130,7 @@ def render_workers_option(p: argparse.ArgumentParser, *, default: int | None) ->
 
 
 def global_options(parser: argparse.ArgumentParser, suppress: bool) -> None:
-    """``--quiet``, ``--debug``, ``--config`` on the main parser and (``suppress``:
+    """``--quiet``, ``--debug``, ``--config``, ``--problems-out`` on the main parser and (``suppress``:
     without overriding the main parser's values) on every subcommand."""
     d = argparse.SUPPRESS if suppress else None
     parser.add_argument("--quiet", "-q", action="store_true", default=d if suppress else False,
@@ -139,6 +139,9 @@ def global_options(parser: argparse.ArgumentParser, suppress: bool) -> None:
                         help="show the full traceback on errors")
     parser.add_argument("--config", metavar="FILE.TOML", default=d,
                         help="read option defaults from this TOML file ([global] and one table per subcommand)")
+    parser.add_argument("--problems-out", metavar="FILE", default=d,
+                        help="on an error that lists problems (an invalid database, settings file, model file), "
+                             "write all of them to this new file (never overwritten; the message shows the first 10)")
 
 
 def table_options(p: argparse.ArgumentParser) -> None:
