@@ -42,6 +42,9 @@ class DatasetRig(SeededCaptures):
             self._index.setdefault(k, []).append(int(r))
         self._positions = tuple(int(p) for p in database.positions)
         self._shape = tuple(int(s) for s in database.images.shape[1:3])
+        # the database's counts (all splits), for the one model-vs-rig check
+        self._n_objects = int(np.max(database.object)) + 1
+        self._n_poses = int(np.max(database.pose)) + 1
         self._scene: tuple[int, int] | None = None
         self._config: tuple[int, ...] | None = None
 
@@ -57,6 +60,16 @@ class DatasetRig(SeededCaptures):
     @property
     def image_shape(self) -> tuple[int, int]:
         return self._shape  # type: ignore[return-value]
+
+    @property
+    def n_objects(self) -> int:
+        """Objects of the database (largest index + 1)."""
+        return self._n_objects
+
+    @property
+    def n_poses(self) -> int:
+        """Poses per object of the database (largest index + 1)."""
+        return self._n_poses
 
     def reset(self, object: int, pose: int, occluders: object | None = None) -> None:
         if occluders is not None:

@@ -65,6 +65,7 @@ import optax
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from . import kernels as K
+from .counts import CountsMismatchError, check_counts
 from .database import ImageDatabase, load_database
 from .features import check_image
 from .sensor_model import CameraModel, SensorModel
@@ -196,11 +197,10 @@ def features_from_database(model: SensorModel, database: ImageDatabase | str | o
             f"database {db._where()}: no '{split}' rows to calibrate on (render a calib split, "
             f"or hold out part of the test split with holdout_calibration)"
         )
-    if db.n_poses != model.n_poses or db.n_objects != model.n_objects:
-        raise CalibrationError(
-            f"database {db._where()}: {db.n_objects} objects x {db.n_poses} poses, the model has "
-            f"{model.n_objects} x {model.n_poses}"
-        )
+    try:  # a calibration split may cover fewer positions (each row is checked below)
+        check_counts(model, db, other_name=f"database {db._where()}", only=("objects", "poses", "image"))
+    except CountsMismatchError as e:
+        raise CalibrationError(str(e)) from None
     cams = []
     for i, cam in enumerate(model.cameras):
         sel = rows[db.camera[rows] == i]

@@ -334,8 +334,9 @@ def run_trials(
     """
     pool = as_rig_pool(rigs)
     positions = tuple(recognizer.positions)
-    if tuple(pool.positions) != positions:
-        raise ValueError(f"rig positions {tuple(pool.positions)} differ from the model's {positions}")
+    from .counts import check_counts  # the one model-vs-rig check (positions, image size, ...)
+
+    check_counts(recognizer.model, pool, other_name="rig")
     if batch < 1:
         raise ValueError(f"batch must be >= 1, got {batch}")
     mesh = trial_mesh(devices)

@@ -763,13 +763,10 @@ def _check_database_fits(db, model, folder, model_path) -> None:
     serve every (camera, position, object, pose) the model's campaign visits."""
     import numpy as np
 
+    from .counts import check_counts
+
+    check_counts(model, db, model_name=str(model_path), other_name=f"database {folder}")
     positions = tuple(int(p) for p in model.positions)
-    if tuple(int(p) for p in db.positions) != positions:
-        raise ValueError(f"database {folder} has positions {tuple(int(p) for p in db.positions)} but model "
-                         f"{model_path} has {positions}")
-    if (int(db.n_objects), int(db.n_poses)) != (model.n_objects, model.n_poses):
-        raise ValueError(f"database {folder} has {db.n_objects} objects x {db.n_poses} poses but model "
-                         f"{model_path} has {model.n_objects} x {model.n_poses}")
     test = np.asarray(db.split) == "test"
     have = set(zip(*(np.asarray(getattr(db, f))[test].tolist() for f in ("camera", "position", "object", "pose"))))
     need = [(c, v, m, p) for c, n in enumerate(positions) for v in range(n)

@@ -203,7 +203,7 @@ def test_driver_rejects_a_rig_of_another_layout_and_duplicate_trials(moving_mode
     class Other(StrictRig):
         positions = property(lambda self: (4,))
 
-    with pytest.raises(ValueError, match=r"rig positions \(4,\) differ from the model's \(3,\)"):
+    with pytest.raises(ValueError, match=r"^rig does not match the model: positions \(4,\) per camera vs the model's \(3,\)$"):
         run_trials(rec, Other(db), [TrialSpec(0, 0, 0, (0,))], key=jr.PRNGKey(0))
     with pytest.raises(ValueError, match="unique"):
         run_trials(rec, StrictRig(db), [TrialSpec(0, 0, 0, (0,))] * 2, key=jr.PRNGKey(0))

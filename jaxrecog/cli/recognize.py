@@ -9,6 +9,7 @@ import numpy as np
 
 from .. import plots
 from ..driver import StepRecord, TrialSpec, run_trials
+from ..counts import CountsMismatchError, check_counts
 from ..experiments import CAPTURE_NOISE, occluder_factory  # the thesis-case boards (first views occluded)
 from ..hardware import Capture, DatasetRig, Noise, rig_from_config
 from ..modelfile import load_model
@@ -141,10 +142,12 @@ def run(args) -> int:
     k_plan, k_init, k_run = jr.split(key(args.seed), 3)
     rig = _make_rig(args, model)
     try:
-        if tuple(rig.positions) != positions:
-            raise CLIError(f"rig {args.rig} has positions {tuple(rig.positions)} but model {args.model} has "
-                           f"{positions} (for the synthetic rig use the --cameras/--stride the database "
-                           "was rendered with)")
+        try:  # cameras, positions, objects, poses, image size: every rig, before any step
+            check_counts(model, rig, model_name=args.model, other_name=f"rig {args.rig}")
+        except CountsMismatchError as e:
+            hint = (" (use the --cameras/--stride the model's database was rendered with)"
+                    if args.rig == "synthetic" else "")
+            raise CLIError(f"{e}{hint}") from None
         planner = make_planner(args.planner, model, key=k_plan, samples=args.samples,
                                min_per_stratum=args.min_per_stratum)
         travel = rig_travel_times(rig)

@@ -4,8 +4,9 @@ Everything :mod:`jaxrecog.envs` needs from the ``Rig`` protocol and from the
 recognizer's belief arithmetic lives in this file, so a change of either API
 is adapted here only:
 
-- :func:`check_layout`: the model and the rig agree on cameras, positions and
-  image shape;
+- :func:`check_layout`: the model and the rig agree on cameras, positions,
+  objects and poses (where the rig knows them) and image shape
+  (:func:`jaxrecog.counts.check_counts`, the one such check);
 - :func:`start` / :func:`capture`: a scene set up once per episode, then one
   image set per step with the true occluded fractions, exactly as the trial
   driver takes them (``reset`` the scene; ``reseed`` the capture noise,
@@ -27,6 +28,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int, Real
 
 from .. import kernels as K
+from ..counts import check_counts
 from ..driver import TrialSpec
 from ..recognizer import image_features
 
@@ -38,16 +40,10 @@ FEATURE_BOUND = 2.0
 
 
 def check_layout(model, rig) -> None:
-    """A clear ``ValueError`` when the rig cannot serve the model: number of
-    cameras, positions per camera, image shape."""
-    rig_pos, model_pos = tuple(int(p) for p in rig.positions), tuple(int(p) for p in model.positions)
-    if rig_pos != model_pos:
-        raise ValueError(f"model/rig layout mismatch: the rig has positions {rig_pos} per camera, "
-                         f"the model {model_pos}")
-    rig_shape, model_shape = tuple(int(s) for s in rig.image_shape), tuple(int(s) for s in model.image_shape)
-    if rig_shape != model_shape:
-        raise ValueError(f"model/rig layout mismatch: the rig captures {rig_shape} images, "
-                         f"the model expects {model_shape}")
+    """A clear one-line ``ValueError`` (:class:`~jaxrecog.counts.CountsMismatchError`)
+    when the rig cannot serve the model: cameras and positions per camera,
+    objects and poses (where the rig knows them), image shape."""
+    check_counts(model, rig, other_name=f"rig {type(rig).__name__}")
 
 
 def start(rig, scene: TrialSpec) -> None:

@@ -86,9 +86,10 @@ def bank_from_database(model, database, split: str = "test") -> FeatureBank:
     """Project every ``split`` image of an :class:`~jaxrecog.ImageDatabase`
     into its position's eigenspace (eq. 4.1-4.11); ``S`` is the smallest
     number of usable images of any (camera, position, class)."""
+    from ..counts import check_counts
+
     rows = np.flatnonzero(np.asarray(database.split) == split)
-    if tuple(int(p) for p in database.positions) != tuple(model.positions):
-        raise ValueError(f"database positions {tuple(database.positions)} differ from the model's {tuple(model.positions)}")
+    check_counts(model, database, other_name=f"database {getattr(database, 'root', None) or '<in memory>'}")
     cells: list[dict] = [{} for _ in model.cameras]
     for i, cam in enumerate(model.cameras):
         mine = rows[np.asarray(database.camera)[rows] == i]
