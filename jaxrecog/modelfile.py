@@ -25,7 +25,13 @@ rank larger than K), each failure one line naming the field.
 
 Saving writes a temporary file in the target folder, fsyncs it, then
 ``os.replace``s it over the target (and fsyncs the folder): a crash at any
-moment leaves either the old or the new file, never a broken one.  Loading
+moment leaves either the old or the new file, never a broken one.  The
+temporary file is ``.NAME.HOST-PID.RANDOM.tmp``: one left by a writer that
+was killed (SIGKILL, power loss) is removed by the next save of that name
+once its process is gone.  A new model file gets the mode of any newly
+created file (``0666`` less the umask); one written over an existing file
+keeps that file's mode.  :func:`check_writable` tells before a long training
+whether the file can be written at all.  Loading
 raises one :class:`ModelFileError` subclass per failure, each with a one-line
 message naming the file.
 """
@@ -35,7 +41,11 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import tempfile
+import re
+import secrets
+import socket
+import stat
+import time
 import warnings
 import zipfile
 import zlib
@@ -58,6 +68,7 @@ __all__ = [
     "ModelFileContentError",
     "ModelFileVersionWarning",
     "save_model",
+    "check_writable",
     "load_model",
     "load_model_meta",
 ]
@@ -154,8 +165,15 @@ def save_model(path: str | os.PathLike, model: SensorModel, *, training: dict | 
     }
     folder = path.parent if str(path.parent) else Path(".")
     folder.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=folder)
+    _remove_stale_temps(folder, path.name)
+    fd, tmp = _create_temp(folder, path.name)
     try:
+        try:  # written over an existing file: keep its mode (as open(path, "w") would)
+            st = os.stat(path)
+            if stat.S_ISREG(st.st_mode):
+                os.fchmod(fd, stat.S_IMODE(st.st_mode))
+        except FileNotFoundError:
+            pass
         with os.fdopen(fd, "wb") as f:
             np.savez(f, **payload)
             f.flush()
@@ -176,6 +194,89 @@ def save_model(path: str | os.PathLike, model: SensorModel, *, training: dict | 
     except OSError:
         pass
     return path
+
+
+def _host_tag() -> str:
+    return re.sub(r"[^A-Za-z0-9-]", "-", socket.gethostname())[:32] or "host"
+
+
+#: a temporary file of ours: ``.NAME.HOST-PID.RANDOM.tmp``
+_TEMP = re.compile(r"(?P<host>[A-Za-z0-9-]+)-(?P<pid>[0-9]+)\.[A-Za-z0-9_]+\.tmp")
+#: a temporary file of an older writer (``tempfile.mkstemp``, no PID): removed once this old
+_OLD_TEMP = re.compile(r"[A-Za-z0-9_]{8}\.tmp")
+_OLD_TEMP_AGE_S = 3600.0
+
+
+def _create_temp(folder: Path, name: str) -> tuple[int, str]:
+    """A new temporary file for ``name`` in ``folder``, created exclusively
+    (never through a link) with mode ``0666`` less the umask."""
+    flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0)
+    for _ in range(100):
+        tmp = folder / f".{name}.{_host_tag()}-{os.getpid()}.{secrets.token_hex(4)}.tmp"
+        try:
+            return os.open(tmp, flags, 0o666), str(tmp)
+        except FileExistsError:
+            continue
+    raise FileExistsError(f"cannot create a temporary file for {name} in {folder}")
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OverflowError):
+        return True
+    return True
+
+
+def _remove_stale_temps(folder: Path, name: str) -> None:
+    """Remove the temporary files of ``name`` left by a writer of this host
+    that is gone (killed mid-write), and those of older writers (no PID in
+    the name) after :data:`_OLD_TEMP_AGE_S`; a live writer's file stays."""
+    prefix = f".{name}."
+    try:
+        entries = [e for e in os.scandir(folder) if e.name.startswith(prefix) and e.name.endswith(".tmp")]
+    except OSError:
+        return
+    host = _host_tag()
+    for e in entries:
+        rest = e.name[len(prefix):]
+        m = _TEMP.fullmatch(rest)
+        try:
+            if m:
+                if m["host"] != host or _alive(int(m["pid"])):
+                    continue
+            elif not (_OLD_TEMP.fullmatch(rest) and time.time() - e.stat(follow_symlinks=False).st_mtime > _OLD_TEMP_AGE_S):
+                continue
+            if e.is_file(follow_symlinks=False):
+                os.unlink(e.path)
+        except OSError:
+            pass
+
+
+def check_writable(path: str | os.PathLike) -> None:
+    """Raise a one-line :class:`OSError` unless :func:`save_model` could write
+    ``path`` (its folder, or the nearest folder above that exists, takes a new
+    file: tried with a temporary file removed at once; ``path`` is not a
+    folder).  Nothing is left behind.  For a command to call before it spends
+    minutes training."""
+    path = Path(path)
+    if path.is_dir():
+        raise IsADirectoryError(f"cannot write model file {path}: it is a folder")
+    folder = path.parent if str(path.parent) else Path(".")
+    probe = folder
+    while not probe.exists() and probe != probe.parent:
+        probe = probe.parent
+    if not probe.is_dir():
+        raise NotADirectoryError(f"cannot write model file {path}: {probe} is not a folder")
+    try:
+        fd, tmp = _create_temp(probe, path.name)
+    except OSError as e:
+        raise type(e)(f"cannot write model file {path}: folder {probe} is not writable "
+                      f"({e.strerror or e})") from None
+    os.close(fd)
+    os.unlink(tmp)
 
 
 def _open(path: Path) -> dict[str, np.ndarray]:

@@ -166,3 +166,95 @@ def test_killed_writer_leaves_old_file(tmp_path, models):
     got = load_model(target)
     for x, y in zip(_leaves(models[0]), _leaves(got)):
         assert x.tobytes() == y.tobytes()
+
+
+# ---- litter, modes and an unwritable target (issue 32 findings 6 and 8) ----------------
+
+def test_the_next_save_removes_a_killed_writers_temp_and_keeps_a_live_ones(tmp_path, models):
+    """SIGKILL during a model write left a hidden 19 MB ``.m.npz.*.tmp`` for good."""
+    target = tmp_path / "model.npz"
+    save_model(target, models[0])
+    proc = subprocess.Popen([sys.executable, "-c", _WRITER, str(target)], stdout=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline().strip() == "writing"
+        temps = sorted(p for p in os.listdir(tmp_path) if p.endswith(".tmp"))
+        assert len(temps) == 1 and temps[0].startswith(".model.npz.") and f"-{proc.pid}." in temps[0]
+        save_model(target, models[1])             # the writer is alive: its file stays
+        assert sorted(p for p in os.listdir(tmp_path) if p.endswith(".tmp")) == temps
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=30)
+        proc.stdout.close()
+    other = tmp_path / ".other.npz.x-1.abcd.tmp"  # another model's temp is not ours to remove
+    other.write_bytes(b"x")
+    save_model(target, models[0])
+    assert sorted(p for p in os.listdir(tmp_path) if p.endswith(".tmp")) == [other.name]
+    got = load_model(target)
+    assert [x.tobytes() for x in _leaves(got)] == [x.tobytes() for x in _leaves(models[0])]
+
+
+def test_an_older_writers_temp_goes_once_it_is_an_hour_old(tmp_path, models):
+    target = tmp_path / "m.npz"
+    old, young = tmp_path / ".m.npz.a1b2c3d4.tmp", tmp_path / ".m.npz.e5f6g7h8.tmp"   # tempfile.mkstemp names
+    for p in (old, young):
+        p.write_bytes(b"x" * 100)
+    os.utime(old, (0, 0))
+    save_model(target, models[0])
+    assert not old.exists() and young.exists()
+
+
+@pytest.mark.parametrize("umask,mode", [(0o022, 0o644), (0o077, 0o600), (0o002, 0o664)])
+def test_a_new_model_file_has_the_mode_the_umask_gives(tmp_path, models, umask, mode):
+    """Model files were always 0600 whatever the umask."""
+    old = os.umask(umask)
+    try:
+        save_model(tmp_path / "m.npz", models[0])
+    finally:
+        os.umask(old)
+    assert (tmp_path / "m.npz").stat().st_mode & 0o777 == mode
+
+
+def test_a_model_written_over_an_existing_file_keeps_its_mode(tmp_path, models):
+    target = tmp_path / "m.npz"
+    save_model(target, models[0])
+    os.chmod(target, 0o640)
+    save_model(target, models[1])
+    assert target.stat().st_mode & 0o777 == 0o640
+
+
+def test_check_writable_says_so_before_training_and_leaves_nothing(tmp_path):
+    from jaxrecog.modelfile import check_writable
+
+    (tmp_path / "afile").write_text("x")
+    with pytest.raises(NotADirectoryError, match=r"^cannot write model file .*afile/m.npz: .*afile is not a folder$"):
+        check_writable(tmp_path / "afile" / "m.npz")
+    with pytest.raises(IsADirectoryError, match="it is a folder"):
+        check_writable(tmp_path)
+    check_writable(tmp_path / "new" / "deeper" / "m.npz")   # save_model makes the folders
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["afile"]
+    if os.geteuid() != 0:  # root writes anywhere
+        ro = tmp_path / "ro"
+        ro.mkdir()
+        ro.chmod(0o555)
+        try:
+            with pytest.raises(PermissionError, match=r"folder .*ro is not writable \(Permission denied\)"):
+                check_writable(ro / "m.npz")
+        finally:
+            ro.chmod(0o755)
+
+
+def test_train_refuses_an_unwritable_out_before_training(tmp_path, monkeypatch, capsys):
+    """An unwritable ``train --out`` was reported only after training."""
+    from jaxrecog import cli, write_database
+    from jaxrecog.cli import train as train_cmd
+
+    write_database(tmp_path / "db", make_database(positions=(2,), n_objects=2, n_poses=1, image_shape=(8, 10)))
+    (tmp_path / "afile").write_text("x")
+
+    def no_training(*a, **k):
+        raise AssertionError("trained before checking --out")
+
+    monkeypatch.setattr(train_cmd, "train_model", no_training)
+    assert cli.main(["train", str(tmp_path / "db"), "--out", str(tmp_path / "afile" / "m.npz")]) == 1
+    assert capsys.readouterr().err.splitlines() == [
+        f"jaxrecog: error: cannot write model file {tmp_path / 'afile' / 'm.npz'}: {tmp_path / 'afile'} is not a folder"]

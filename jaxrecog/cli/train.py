@@ -8,7 +8,7 @@ from ..augment import AugmentParams
 from ..calibration import calibrate_model
 from ..database import load_database
 from ..kernels import likelihood_class
-from ..modelfile import save_model
+from ..modelfile import check_writable, save_model
 from .._progress import bar
 from ..train import train_model
 from ._common import UsageError
@@ -58,6 +58,7 @@ def run(args) -> int:
         augment = AugmentParams(**capture_params(args))
     except (ValueError, argparse.ArgumentTypeError) as e:
         raise UsageError(f"capture augmentation: {e}") from None
+    check_writable(args.out)  # before minutes of training, not after (nothing is left behind)
     db = load_database(args.database)
     with bar(sum(db.positions), f"train {args.kind}", "pos") as b:
         model, info = train_model(db, kind=args.kind, n_components=comps, samples_per_image=args.samples,
