@@ -19,7 +19,9 @@ from .hardware_rig import HardwareRig, Reconnect, SimulatedHardwareRig, rig_from
 from .pan_tilt import PanTilt, PanTiltConnectionError, PanTiltError, register_pan_tilt
 from .ptu import PTU, PTUError, PTUErrorReply, PTUGarbageError, PTUHomingTimeout, PTULimitError, PTUTimeoutError
 from .ptu_sim import PTUSimulator
+from .datagram import SharedKey
 from .udp_link import ControllerLink, ControllerRejected, ControllerRestarted, LinkError, LinkTimeoutError
+from .udp_link import SessionClosed, SessionRefused
 
 # The synthetic rig renders with pybullet, imported only when a scene is built
 # (scene.require_pybullet), so this package imports without the `sim` extra.
@@ -56,6 +58,9 @@ __all__ = [
     "PanTiltError",
     "Reconnect",
     "RigConfig",
+    "SessionClosed",
+    "SessionRefused",
+    "SharedKey",
     "SimulatedHardwareRig",
     "VideoCamera",
     "load_config",

@@ -10,13 +10,24 @@ encoders: 10 um on the linear axes, 20,000 counts a turn on the turn-table,
 thesis §6.3).  Moves that take longer than ``moving_after_s`` are first
 acknowledged with ``MOVING``.
 
-Sessions.  A ``HELLO`` opens a session: the controller issues a new session
-id (answering a repeated HELLO -- same nonce -- with the same ``WELCOME``) and
-retires the one before.  Per session, a MOVE with the sequence number already
-executed is answered from a cache (idempotent), an older one is ignored (it
-must never move the rig backwards), and a newer one is a new move.  A MOVE of
-a retired session is ignored; one of a session this controller never issued
-is answered ``REJECTED(UNKNOWN_SESSION)`` and not executed.
+Sessions (protocol version 2, ``docs/protocol.md``).  A ``HELLO`` opens a
+session bound to the address (host, port) it came from: the controller issues
+a new session id (answering a repeated HELLO -- same nonce, same address --
+with the same ``WELCOME``) and retires the one before.  While a session is
+*live* -- a request of it arrived, or its move ran, less than
+``session_idle_s`` ago -- a HELLO from any other address is answered
+``REFUSED(SESSION_BUSY)`` and changes nothing; after that a new client may
+take over.  Requests of a session from any address but its own are ignored.
+Per session, a MOVE with the sequence number already executed is answered
+from a cache (idempotent), an older one is ignored (it must never move the
+rig backwards), and a newer one is a new move.  A MOVE (or PING) of a retired
+session, from its address, is answered ``REJECTED(SESSION_CLOSED)`` and not
+executed, so its client knows to open a new session; one of a session this
+controller never issued is answered ``REJECTED(UNKNOWN_SESSION)`` and not
+executed.  With ``key`` every datagram without the right HMAC tag (version-1
+ones included) is dropped unanswered (``unauthenticated``).  Replies go out
+in the protocol version of the request; a version-1 HELLO that is refused
+gets no answer (version 1 has no ``REFUSED``).
 
 Restarts.  :meth:`ControllerSimulator.restart` is a reboot: a new boot id, no
 sessions, no cache, nothing queued in or out (the axes keep their encoder
@@ -48,7 +59,10 @@ controller: ``corrupt`` (failed decoding, dropped), ``new`` (a new seq:
 executed or rejected), ``repeat`` (the seq just executed: answered from the
 cache), ``stale`` (an older seq: ignored), ``retired`` (a retired session:
 ignored), ``unknown_session`` (rejected, not executed), ``hello`` /
-``hello_repeat`` (sessions opened / WELCOMEs resent), ``restart``,
+``hello_repeat`` (sessions opened / WELCOMEs resent), ``hello_refused``
+(another address's session was live), ``takeover`` (a session opened from a
+new address after the last one went idle), ``wrong_address`` (a request of a
+session from another address: ignored), ``unauthenticated``, ``restart``,
 ``request_down`` (arrived while restarting: lost), ``duplicate_copy`` (the
 extra copy of a duplicated request, handled like any other).
 """
@@ -65,8 +79,8 @@ import socket
 import threading
 import time
 
-from .datagram import Datagram, DatagramError, Hello, InPosition, Move, Moving
-from .datagram import MsgType, Rejected, RejectCode, Welcome, decode, encode
+from .datagram import Datagram, DatagramAuthError, DatagramError, Hello, InPosition, Move, Moving
+from .datagram import MsgType, Refused, Rejected, RejectCode, SharedKey, Welcome, decode, encode
 from .kinematics import Workspace, WorkspaceError, camera1_position, camera2_position
 
 __all__ = ["LinkFaults", "ControllerSimulator", "ExecutedMove"]
@@ -120,6 +134,10 @@ class ControllerSimulator:
         linear_speed: gantry / track speed, m/s (simulated).
         turntable_speed: rad/s (simulated).
         moving_after_s: send ``MOVING`` first when a move takes longer (wall seconds).
+        key: a :class:`.datagram.SharedKey` (or its bytes): accept only datagrams
+            tagged with it, tag every reply.
+        session_idle_s: a session is live (HELLOs from other addresses refused)
+            until this many wall seconds passed without a request of it.
     """
 
     def __init__(
@@ -134,6 +152,8 @@ class ControllerSimulator:
         moving_after_s: float = 0.05,
         host: str = "127.0.0.1",
         port: int = 0,
+        key: SharedKey | bytes | None = None,
+        session_idle_s: float = 10.0,
     ):
         if not ipaddress.ip_address(host).is_loopback:
             raise ValueError(f"the controller simulator binds to a loopback address only, not {host!r}")
@@ -144,6 +164,10 @@ class ControllerSimulator:
         self.turntable_speed = float(turntable_speed)
         self.moving_after_s = float(moving_after_s)
         self.seed = int(seed)
+        self.key = SharedKey(bytes(key)) if isinstance(key, (bytes, bytearray)) else key
+        if not session_idle_s >= 0:
+            raise ValueError(f"session_idle_s = {session_idle_s!r} must be >= 0 seconds")
+        self.session_idle_s = float(session_idle_s)
         self._occurrences: dict[tuple[str, bytes], int] = {}
         self.stats: collections.Counter[str] = collections.Counter()
         # state: gantry (x, y), track y, turn-table angle -- start at the centre
@@ -157,8 +181,9 @@ class ControllerSimulator:
         self._draws: collections.Counter[str] = collections.Counter()
         self.boot = self._draw("boot")
         self._session: int | None = None
-        self._issued: set[int] = set()  # sessions issued since this boot (the current one and the retired)
-        self._welcome: tuple[int, Datagram] | None = None  # (nonce, WELCOME) of the last HELLO
+        self._issued: dict[int, tuple] = {}  # session -> its client's address, issued since this boot
+        self._welcome: tuple[int, tuple, Datagram] | None = None  # (nonce, address, WELCOME) of the last HELLO
+        self._active = 0.0  # wall time of the current session's last request
         self._restart_on: tuple[str, float] | None = None  # inject_restart()
         self._down_until = 0.0
         self._last_seq = 0
@@ -202,7 +227,7 @@ class ControllerSimulator:
     def _restart(self, down_s: float) -> None:
         self.boots += 1
         self.boot = self._draw("boot")
-        self._session, self._issued, self._welcome = None, set(), None
+        self._session, self._issued, self._welcome = None, {}, None
         self._last_seq, self._cache = 0, None
         self._queue.clear()
         self._inbox.clear()
@@ -271,8 +296,9 @@ class ControllerSimulator:
 
     # ------------------------------------------------------------ sending
     def _send(self, dg: Datagram, peer: tuple, not_before: float = 0.0) -> None:
-        """Queue a reply through the fault model."""
-        for when, data, _ in self._network("reply", encode(dg), not_before):
+        """Queue a reply through the fault model (in the version of the request being answered)."""
+        dg = dataclasses.replace(dg, version=self._version)
+        for when, data, _ in self._network("reply", encode(dg, self.key), not_before):
             self._counter += 1
             heapq.heappush(self._queue, (when, self._counter, data, peer))
 
@@ -319,7 +345,10 @@ class ControllerSimulator:
             self.stats["request_down"] += 1
             return
         try:
-            dg = decode(data)
+            dg = decode(data, self.key)
+        except DatagramAuthError:
+            self.stats["unauthenticated"] += 1
+            return  # no key, another key, or forged: not one of ours, no answer
         except DatagramError:
             self.stats["corrupt"] += 1
             return  # a corrupt request is indistinguishable from a lost one
@@ -327,28 +356,54 @@ class ControllerSimulator:
         if extra_copy:
             self.stats["duplicate_copy"] += 1
         with self._lock:
+            self._version = dg.version
             self._handle(dg, peer)
 
+    _version = 2
+
+    def _live(self) -> bool:
+        """A session is open and was used (or its move ran) less than ``session_idle_s`` ago."""
+        last = max(self._active, self._busy_until)
+        return self._session is not None and time.monotonic() - last < self.session_idle_s
+
+    def _session_reject(self, dg: Datagram, peer: tuple) -> bool:
+        """Deal with a request that is not of the current session from its own address.
+        True when it was handled (ignored or rejected) and must not go further."""
+        if dg.session == self._session:
+            if peer != self._issued[dg.session]:
+                self.stats["wrong_address"] += 1  # someone else using our client's session id: ignored
+                return True
+            self._active = time.monotonic()
+            return False
+        move = dg.payload if isinstance(dg.payload, Move) else Move(0.0, 0.0, 0.0, 0.0)
+        if dg.session in self._issued:
+            if peer != self._issued[dg.session]:
+                self.stats["wrong_address"] += 1
+                return True
+            self.stats["retired"] += 1  # its client must open a new session: tell it, do not run it
+            reason = "session closed: another client opened a session after this one went idle"
+            self._send(Datagram(MsgType.REJECTED, dg.session, dg.seq,
+                                Rejected(move, RejectCode.SESSION_CLOSED, reason)), peer)
+            return True
+        self.stats["unknown_session"] += 1  # issued before a restart, or never: do not run it
+        reason = "unknown session (the controller restarted, or no HELLO)"
+        self._send(Datagram(MsgType.REJECTED, dg.session, dg.seq,
+                            Rejected(move, RejectCode.UNKNOWN_SESSION, reason)), peer)
+        return True
+
     def _handle(self, dg: Datagram, peer: tuple) -> None:
+        if dg.type == MsgType.HELLO:
+            self._hello(dg, peer)
+            return
+        if dg.type not in (MsgType.PING, MsgType.MOVE):
+            return
+        if self._session_reject(dg, peer):
+            return
         if dg.type == MsgType.PING:
             self.stats["ping"] += 1
             self._send(Datagram(MsgType.PONG, dg.session, dg.seq), peer)
             return
-        if dg.type == MsgType.HELLO:
-            self._hello(dg, peer)
-            return
-        if dg.type != MsgType.MOVE:
-            return
         assert isinstance(dg.payload, Move)
-        if dg.session != self._session:
-            if dg.session in self._issued:
-                self.stats["retired"] += 1
-                return  # a straggler from an earlier client
-            self.stats["unknown_session"] += 1  # issued before a restart, or never: do not run it
-            reason = "unknown session (the controller restarted, or no HELLO)"
-            self._send(Datagram(MsgType.REJECTED, dg.session, dg.seq,
-                                Rejected(dg.payload, RejectCode.UNKNOWN_SESSION, reason)), peer)
-            return
         if dg.seq > self._last_seq and self._restart_on is not None:
             when, down_s = self._restart_on
             if when == "before_execute":
@@ -385,18 +440,31 @@ class ControllerSimulator:
     def _hello(self, dg: Datagram, peer: tuple) -> None:
         hello = dg.payload
         assert isinstance(hello, Hello)
-        if self._welcome is not None and self._welcome[0] == hello.nonce:
+        if self._welcome is not None and self._welcome[:2] == (hello.nonce, peer):
             self.stats["hello_repeat"] += 1  # a retransmitted HELLO: the same session, not another
-            self._send(self._welcome[1], peer)
+            self._send(self._welcome[2], peer)
             return
+        holder = self._issued.get(self._session) if self._session is not None else None
+        if holder is not None and holder != peer:
+            if self._live():
+                self.stats["hello_refused"] += 1  # the live session stays; nothing changes
+                if dg.version >= 2:
+                    reason = (f"another client's session is live; a new one is opened after "
+                              f"{self.session_idle_s:g} s without its requests")
+                    self._send(Datagram(MsgType.REFUSED, 0, 0, Refused(hello.nonce, RejectCode.SESSION_BUSY, reason)),
+                               peer)
+                return
+            self.stats["takeover"] += 1
         session = self._draw("session")
         while session in self._issued:
             session = self._draw("session")
-        self._issued.add(session)
+        self._issued[session] = peer
         self._session, self._last_seq, self._cache = session, 0, None  # the one before is retired
-        self._welcome = (hello.nonce, Datagram(MsgType.WELCOME, session, 0, Welcome(hello.nonce, self.boot)))
+        self._active = time.monotonic()
+        welcome = Datagram(MsgType.WELCOME, session, 0, Welcome(hello.nonce, self.boot))
+        self._welcome = (hello.nonce, peer, welcome)
         self.stats["hello"] += 1
-        self._send(self._welcome[1], peer)
+        self._send(welcome, peer)
 
     def _execute(self, dg: Datagram) -> Datagram:
         move = dg.payload

@@ -1,16 +1,23 @@
 """Versioned binary datagrams between the vision PC and the motion controller (thesis §6.6).
 
-Wire format (network byte order; full description in ``docs/protocol.md``)::
+Wire format (network byte order; full description in ``docs/protocol.md``),
+version 2::
 
     offset size field
     0      2    magic          b"JR"
-    2      1    version        1
+    2      1    version        2
     3      1    type           MsgType
-    4      4    session        u32, chosen at random by the client per link
+    4      4    session        u32, issued by the controller (WELCOME)
     8      4    seq            u32, one per move; retransmissions reuse it
     12     2    payload_len    u16
-    14     n    payload        depends on type
-    14+n   4    crc32          zlib.crc32 of bytes 0 .. 14+n-1
+    14     1    flags          bit 0: an HMAC-SHA256 tag follows the payload
+    15     n    payload        depends on type
+    15+n   t    tag            t = 32 with flag bit 0 (HMAC-SHA256 of bytes 0 .. 14+n
+                               under the shared key), else 0
+    15+n+t 4    crc32          zlib.crc32 of every byte before it
+
+Version 1 (still decoded, and encoded for a ``Datagram`` of version 1) has no
+flags byte and no tag: the payload starts at offset 14.
 
 Payloads (IEEE-754 doubles, radians and metres):
 
@@ -24,23 +31,38 @@ Payloads (IEEE-754 doubles, radians and metres):
 * ``WELCOME``     controller -> client: the nonce echoed (u32), the controller's
   boot id (u32); the header's session is the new session id the controller
   issued, seq 0
+* ``REFUSED``     controller -> client (version 2 only): the HELLO's nonce echoed
+  (u32), code (u16), UTF-8 reason -- no session was opened
+
+A :class:`SharedKey` given to :func:`encode` tags the datagram; given to
+:func:`decode`, only datagrams with the right tag decode
+(:class:`DatagramAuthError` otherwise, a version-1 datagram included).  The
+key never appears in a ``repr``, a message or a log line.
 
 :func:`decode` raises :class:`DatagramError` -- and nothing else -- for any
-input that is not a well-formed datagram of this version.
+input that is not a well-formed datagram of version 1 or 2.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import enum
+import hashlib
+import hmac
 import math
+import os
 import struct
 import zlib
 
 __all__ = [
     "MAGIC",
     "VERSION",
+    "VERSIONS",
     "MAX_DATAGRAM",
+    "FLAG_HMAC",
+    "TAG_SIZE",
+    "SharedKey",
+    "DatagramAuthError",
     "MsgType",
     "RejectCode",
     "Datagram",
@@ -51,15 +73,21 @@ __all__ = [
     "Rejected",
     "Hello",
     "Welcome",
+    "Refused",
     "encode",
     "decode",
 ]
 
 MAGIC = b"JR"
-VERSION = 1
+VERSION = 2  # what this end sends
+VERSIONS = (1, 2)  # what it decodes
 MAX_DATAGRAM = 512
+FLAG_HMAC = 0x01
+TAG_SIZE = 32  # HMAC-SHA256
 
-_HEADER = struct.Struct("!2sBBIIH")
+_HEADER_V1 = struct.Struct("!2sBBIIH")
+_HEADER_V2 = struct.Struct("!2sBBIIHB")  # + flags
+_HEADERS = {1: _HEADER_V1, 2: _HEADER_V2}
 _CRC = struct.Struct("!I")
 _MOVE = struct.Struct("!4d")
 _MOVING = struct.Struct("!4dd")
@@ -67,6 +95,7 @@ _INPOS = struct.Struct("!8d")
 _REJ = struct.Struct("!4dH")
 _HELLO = struct.Struct("!I")
 _WELCOME = struct.Struct("!II")
+_REFUSED = struct.Struct("!IH")
 _MAX_REASON = 200
 
 
@@ -79,6 +108,10 @@ class MsgType(enum.IntEnum):
     PONG = 6
     HELLO = 7
     WELCOME = 8
+    REFUSED = 9  # version 2
+
+
+_V1_TYPES = frozenset(t for t in MsgType if t != MsgType.REFUSED)
 
 
 class RejectCode(enum.IntEnum):
@@ -86,10 +119,64 @@ class RejectCode(enum.IntEnum):
     BAD_REQUEST = 2  # payload the controller cannot act on
     BUSY = 3  # a newer move superseded this one
     UNKNOWN_SESSION = 4  # a session this controller never issued (it restarted since): not executed
+    SESSION_CLOSED = 5  # the session was replaced by a newer HELLO: not executed; open a new one
+    SESSION_BUSY = 6  # REFUSED: another client's session is live; no session opened
 
 
 class DatagramError(ValueError):
     """Bytes that are not a valid datagram (corrupt, truncated, foreign, wrong version)."""
+
+
+class DatagramAuthError(DatagramError):
+    """A well-formed datagram whose HMAC tag is missing, unexpected or wrong."""
+
+
+class SharedKey:
+    """The shared secret of an authenticated link (HMAC-SHA256 over every datagram).
+
+    At least :attr:`MIN_BYTES` bytes.  ``repr`` and ``str`` hide it, so it can sit
+    in a configuration object that is printed or logged."""
+
+    MIN_BYTES = 16
+    __slots__ = ("_key",)
+
+    def __init__(self, key: bytes):
+        if not isinstance(key, (bytes, bytearray)):
+            raise TypeError(f"a shared key is bytes, not {type(key).__name__}")
+        if len(key) < self.MIN_BYTES:
+            raise ValueError(f"a shared key needs at least {self.MIN_BYTES} bytes, got {len(key)}")
+        self._key = bytes(key)
+
+    @classmethod
+    def from_file(cls, path: str | os.PathLike) -> "SharedKey":
+        """The bytes of a file, a trailing newline (LF or CR LF) dropped."""
+        with open(path, "rb") as f:
+            data = f.read(4097)
+        if len(data) > 4096:
+            raise ValueError("a shared key file holds at most 4096 bytes")
+        return cls(data.removesuffix(b"\n").removesuffix(b"\r"))
+
+    @classmethod
+    def from_env(cls, name: str) -> "SharedKey":
+        """The UTF-8 bytes of environment variable ``name``."""
+        value = os.environ.get(name)
+        if value is None:
+            raise ValueError("the environment variable is not set")
+        return cls(value.encode("utf-8", "surrogateescape"))
+
+    def tag(self, body: bytes) -> bytes:
+        return hmac.new(self._key, body, hashlib.sha256).digest()
+
+    def __repr__(self) -> str:
+        return "SharedKey(<hidden>)"
+
+    __str__ = __repr__
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, SharedKey) and hmac.compare_digest(self._key, other._key)
+
+    def __hash__(self) -> int:
+        return hash(hashlib.sha256(b"jaxrecog-key-id|" + self._key).digest())
 
 
 @dataclasses.dataclass(frozen=True)
@@ -145,7 +232,17 @@ class Welcome:
     boot: int
 
 
-Payload = Move | Moving | InPosition | Rejected | Hello | Welcome | None
+@dataclasses.dataclass(frozen=True)
+class Refused:
+    """The controller's answer to a HELLO it does not accept (version 2): the nonce
+    echoed, a :class:`RejectCode` and the reason; no session was opened."""
+
+    nonce: int
+    code: int
+    reason: str
+
+
+Payload = Move | Moving | InPosition | Rejected | Hello | Welcome | Refused | None
 
 _PAYLOAD_TYPE = {
     MsgType.MOVE: Move,
@@ -156,6 +253,7 @@ _PAYLOAD_TYPE = {
     MsgType.PONG: type(None),
     MsgType.HELLO: Hello,
     MsgType.WELCOME: Welcome,
+    MsgType.REFUSED: Refused,
 }
 
 
@@ -165,6 +263,7 @@ class Datagram:
     session: int
     seq: int
     payload: Payload = None
+    version: int = VERSION  # the protocol version it was (or is to be) sent in
 
 
 def _finite(values, what: str) -> None:
@@ -186,6 +285,11 @@ def _pack_payload(dg: Datagram) -> bytes:
         _u32(p.nonce, "WELCOME nonce")
         _u32(p.boot, "WELCOME boot")
         return _WELCOME.pack(p.nonce, p.boot)
+    if isinstance(p, Refused):
+        _u32(p.nonce, "REFUSED nonce")
+        if not 0 <= p.code <= 0xFFFF:
+            raise DatagramError(f"REFUSED code {p.code} does not fit in u16")
+        return _REFUSED.pack(p.nonce, p.code) + _reason(p.reason)
     if isinstance(p, Move):
         vals = p.astuple()
         _finite(vals, "MOVE")
@@ -202,8 +306,11 @@ def _pack_payload(dg: Datagram) -> bytes:
     _finite(p.move.astuple(), "REJECTED")
     if not 0 <= p.code <= 0xFFFF:
         raise DatagramError(f"REJECTED code {p.code} does not fit in u16")
-    reason = p.reason.encode("utf-8")[:_MAX_REASON].decode("utf-8", "ignore").encode("utf-8")
-    return _REJ.pack(*p.move.astuple(), p.code) + reason
+    return _REJ.pack(*p.move.astuple(), p.code) + _reason(p.reason)
+
+
+def _reason(text: str) -> bytes:
+    return text.encode("utf-8")[:_MAX_REASON].decode("utf-8", "ignore").encode("utf-8")
 
 
 def _u32(v: int, what: str) -> None:
@@ -211,13 +318,28 @@ def _u32(v: int, what: str) -> None:
         raise DatagramError(f"{what} {v} does not fit in u32")
 
 
-def encode(dg: Datagram) -> bytes:
-    """Datagram -> bytes (header, payload, CRC32)."""
+def encode(dg: Datagram, key: SharedKey | None = None) -> bytes:
+    """Datagram -> bytes (header, payload, [HMAC tag,] CRC32) in ``dg.version``.
+
+    With ``key`` the datagram carries an HMAC-SHA256 tag (version 2 only)."""
     for name in ("session", "seq"):
         _u32(getattr(dg, name), name)
+    if dg.version not in VERSIONS:
+        raise DatagramError(f"unsupported protocol version {dg.version} (this end speaks {VERSIONS})")
+    if dg.version == 1 and dg.type not in _V1_TYPES:
+        raise DatagramError(f"{dg.type.name} does not exist in protocol version 1")
     payload = _pack_payload(dg)
-    head = _HEADER.pack(MAGIC, VERSION, int(dg.type), dg.session, dg.seq, len(payload))
-    body = head + payload
+    if dg.version == 1:
+        if key is not None:
+            raise DatagramError("protocol version 1 carries no HMAC tag: an authenticated link needs version 2")
+        body = _HEADER_V1.pack(MAGIC, 1, int(dg.type), dg.session, dg.seq, len(payload)) + payload
+    else:
+        flags = FLAG_HMAC if key is not None else 0
+        body = _HEADER_V2.pack(MAGIC, 2, int(dg.type), dg.session, dg.seq, len(payload), flags) + payload
+        if key is not None:
+            body += key.tag(body)
+    if len(body) + _CRC.size > MAX_DATAGRAM:
+        raise DatagramError(f"datagram of {len(body) + _CRC.size} bytes exceeds {MAX_DATAGRAM}")
     return body + _CRC.pack(zlib.crc32(body))
 
 
@@ -236,6 +358,9 @@ def _unpack_payload(t: MsgType, raw: bytes) -> Payload:
         return Hello(*need(_HELLO))
     if t == MsgType.WELCOME:
         return Welcome(*need(_WELCOME))
+    if t == MsgType.REFUSED:
+        nonce, code = need(_REFUSED, exact=False)
+        return Refused(nonce, code, _unpack_reason(t, raw[_REFUSED.size:]))
     if t == MsgType.MOVE:
         v = need(_MOVE)
         _finite(v, t.name)
@@ -250,36 +375,63 @@ def _unpack_payload(t: MsgType, raw: bytes) -> Payload:
         return InPosition(Move(*v[:4]), *v[4:])
     v = need(_REJ, exact=False)
     _finite(v[:4], t.name)
+    return Rejected(Move(*v[:4]), v[4], _unpack_reason(t, raw[_REJ.size:]))
+
+
+def _unpack_reason(t: MsgType, raw: bytes) -> str:
     try:
-        reason = raw[_REJ.size:].decode("utf-8")
+        reason = raw.decode("utf-8")
     except UnicodeDecodeError as e:
-        raise DatagramError(f"REJECTED reason is not UTF-8: {e}") from None
-    if len(raw) - _REJ.size > _MAX_REASON:
-        raise DatagramError(f"REJECTED reason longer than {_MAX_REASON} bytes")
-    return Rejected(Move(*v[:4]), v[4], reason)
+        raise DatagramError(f"{t.name} reason is not UTF-8: {e}") from None
+    if len(raw) > _MAX_REASON:
+        raise DatagramError(f"{t.name} reason longer than {_MAX_REASON} bytes")
+    return reason
 
 
-def decode(data: bytes) -> Datagram:
-    """bytes -> Datagram; raises :class:`DatagramError` for anything malformed."""
+def decode(data: bytes, key: SharedKey | None = None) -> Datagram:
+    """bytes -> Datagram (version 1 or 2); raises :class:`DatagramError` for anything malformed.
+
+    With ``key`` only a version-2 datagram carrying the right HMAC tag decodes;
+    without, a tagged one does not (:class:`DatagramAuthError` for both)."""
     if not isinstance(data, (bytes, bytearray, memoryview)):
         raise DatagramError(f"expected bytes, got {type(data).__name__}")
     data = bytes(data)
     if len(data) > MAX_DATAGRAM:
         raise DatagramError(f"datagram of {len(data)} bytes exceeds {MAX_DATAGRAM}")
-    if len(data) < _HEADER.size + _CRC.size:
-        raise DatagramError(f"datagram of {len(data)} bytes is shorter than header + CRC ({_HEADER.size + _CRC.size})")
-    magic, version, mtype, session, seq, plen = _HEADER.unpack_from(data)
+    if len(data) < _HEADER_V1.size + _CRC.size:
+        raise DatagramError(f"datagram of {len(data)} bytes is shorter than header + CRC ({_HEADER_V1.size + _CRC.size})")
+    magic, version = data[:2], data[2]
     if magic != MAGIC:
         raise DatagramError(f"bad magic {magic!r} (expected {MAGIC!r})")
-    if version != VERSION:
-        raise DatagramError(f"unsupported protocol version {version} (this end speaks {VERSION})")
-    if len(data) != _HEADER.size + plen + _CRC.size:
-        raise DatagramError(f"length {len(data)} does not match payload_len {plen}")
+    if version not in VERSIONS:
+        raise DatagramError(f"unsupported protocol version {version} (this end speaks {', '.join(map(str, VERSIONS))})")
+    header = _HEADERS[version]
+    if len(data) < header.size + _CRC.size:
+        raise DatagramError(f"datagram of {len(data)} bytes is shorter than a version-{version} header + CRC "
+                            f"({header.size + _CRC.size})")
+    fields = header.unpack_from(data)
+    _, _, mtype, session, seq, plen = fields[:6]
+    flags = fields[6] if version == 2 else 0
+    if flags & ~FLAG_HMAC:
+        raise DatagramError(f"unknown flags 0x{flags:02x}")
+    tag_len = TAG_SIZE if flags & FLAG_HMAC else 0
+    if len(data) != header.size + plen + tag_len + _CRC.size:
+        raise DatagramError(f"length {len(data)} does not match payload_len {plen}" + (" + tag" if tag_len else ""))
     body, (crc,) = data[:-_CRC.size], _CRC.unpack_from(data, len(data) - _CRC.size)
     if zlib.crc32(body) != crc:
         raise DatagramError("CRC32 mismatch (corrupt datagram)")
+    signed = body[:len(body) - tag_len]
+    if key is not None:
+        if not tag_len:
+            raise DatagramAuthError("datagram without an HMAC tag: this end requires the shared key")
+        if not hmac.compare_digest(key.tag(signed), body[len(signed):]):
+            raise DatagramAuthError("HMAC tag mismatch (another key, or a forged datagram)")
+    elif tag_len:
+        raise DatagramAuthError("datagram with an HMAC tag: this end has no shared key to check it")
     try:
         t = MsgType(mtype)
     except ValueError:
         raise DatagramError(f"unknown message type {mtype}") from None
-    return Datagram(t, session, seq, _unpack_payload(t, body[_HEADER.size:]))
+    if version == 1 and t not in _V1_TYPES:
+        raise DatagramError(f"unknown message type {mtype} in protocol version 1")
+    return Datagram(t, session, seq, _unpack_payload(t, signed[header.size:]), version)

@@ -31,6 +31,22 @@ flight with :class:`ControllerRestarted`: the old controller may have run it
 before it went down, so resending it could run it twice -- a move is either
 confirmed (``IN_POSITION``) or failed, never run twice.  The caller may
 command it again.
+
+Sessions belong to an address (protocol version 2).  The controller binds a
+session to the address its HELLO came from and ignores requests of it from
+anywhere else; a HELLO from another address while a session is live is
+answered ``REFUSED(SESSION_BUSY)`` (:class:`SessionRefused`, not retried).  A
+session the controller replaced after it went idle is answered
+``REJECTED(SESSION_CLOSED)``: the link counts ``stats["session_closed"]``,
+opens a new session and fails the move in flight with :class:`SessionClosed`
+(not resent, as after a restart).
+
+Shared key.  With ``key`` (a :class:`.datagram.SharedKey`) every datagram the
+link sends carries an HMAC-SHA256 tag and every reply without the right tag
+is dropped and counted (``stats["unauthenticated"]``); a controller with the
+same key does the same, so nobody without the key can move the rig or take
+its session.  The key is never logged.  ``version=1`` talks to a controller
+that speaks only protocol version 1 (no sessions bound to addresses, no key).
 """
 
 from __future__ import annotations
@@ -44,8 +60,8 @@ import socket
 import time
 from typing import Callable
 
-from .datagram import Datagram, DatagramError, Hello, InPosition, Move, Moving
-from .datagram import MsgType, Rejected, RejectCode, Welcome, decode, encode
+from .datagram import VERSION, VERSIONS, Datagram, DatagramAuthError, DatagramError, Hello, InPosition, Move, Moving
+from .datagram import MsgType, Refused, Rejected, RejectCode, SharedKey, Welcome, decode, encode
 
 __all__ = [
     "ControllerLink",
@@ -53,6 +69,8 @@ __all__ = [
     "LinkTimeoutError",
     "ControllerRejected",
     "ControllerRestarted",
+    "SessionClosed",
+    "SessionRefused",
     "MoveResult",
 ]
 
@@ -87,6 +105,27 @@ class ControllerRestarted(LinkError):
         )
 
 
+class SessionClosed(LinkError):
+    """The controller replaced this link's session (another client's HELLO after it went
+    idle) while a move was in flight: the move was not resent; the link re-handshook."""
+
+    def __init__(self, move: Move, seq: int, note: str):
+        self.move, self.seq = move, seq
+        super().__init__(
+            f"motion controller closed this link's session (another client opened one after it went idle) "
+            f"while move seq {seq} {move.astuple()} was in flight; the move was not resent (it may or may not "
+            f"have run): command it again{note}"
+        )
+
+
+class SessionRefused(LinkError):
+    """The controller refused to open a session (another client's session is live)."""
+
+    def __init__(self, address: tuple[str, int], code: int, reason: str):
+        self.code, self.reason = code, reason
+        super().__init__(f"motion controller {address[0]}:{address[1]} refused a session (code {code}): {reason}")
+
+
 @dataclasses.dataclass(frozen=True)
 class MoveResult:
     """An accepted ``IN_POSITION``: what was asked and where the axes are (metres, radians)."""
@@ -108,6 +147,9 @@ class ControllerLink:
         timeout: seconds to wait for an answer before resending.
         retries: resends allowed per move (``retries + 1`` transmissions at most).
         max_motion_s: the most seconds ``MOVING`` replies may add to one move's wait.
+        key: a :class:`.datagram.SharedKey` (or its bytes): tag every datagram, accept
+            only tagged replies.
+        version: the protocol version to speak (2; 1 for a version-1 controller).
 
     Attributes:
         session: the session id the controller issued (``None`` before the first
@@ -123,13 +165,23 @@ class ControllerLink:
         timeout: float = 0.25,
         retries: int = 5,
         max_motion_s: float = 600.0,
+        key: SharedKey | bytes | None = None,
+        version: int = VERSION,
     ):
-        if timeout <= 0:
+        if not timeout > 0 or not math.isfinite(timeout):
             raise ValueError(f"timeout must be > 0 seconds, got {timeout}")
         if retries < 0:
             raise ValueError(f"retries must be >= 0, got {retries}")
-        if not max_motion_s > 0:
+        if not max_motion_s > 0 or not math.isfinite(max_motion_s):
             raise ValueError(f"max_motion_s must be > 0 seconds, got {max_motion_s}")
+        if version not in VERSIONS:
+            raise ValueError(f"protocol version must be one of {VERSIONS}, got {version!r}")
+        if isinstance(key, (bytes, bytearray)):
+            key = SharedKey(bytes(key))
+        if key is not None and version == 1:
+            raise ValueError("a shared key needs protocol version 2 (version 1 carries no HMAC tag)")
+        self.key: SharedKey | None = key
+        self.version = int(version)
         self.address = (str(address[0]), int(address[1]))
         self.timeout = float(timeout)
         self.retries = int(retries)
@@ -165,10 +217,20 @@ class ControllerLink:
     # ------------------------------------------------------------ receive
     def _decode(self, data: bytes) -> Datagram | None:
         try:
-            return decode(data)
+            dg = decode(data, self.key)
+        except DatagramAuthError:
+            self.stats["unauthenticated"] += 1
+            return None
         except DatagramError:
             self.stats["corrupt"] += 1
             return None
+        if dg.version != self.version:
+            self.stats["version"] += 1
+            return None
+        return dg
+
+    def _encode(self, dg: Datagram) -> bytes:
+        return encode(dataclasses.replace(dg, version=self.version), self.key)
 
     def _classify(self, data: bytes, seq: int, want: tuple[MsgType, ...], move: Move | None) -> Datagram | None:
         dg = self._decode(data)
@@ -194,7 +256,7 @@ class ControllerLink:
         dg = self._decode(data)
         if dg is None:
             return None
-        if dg.type != MsgType.WELCOME:
+        if dg.type not in (MsgType.WELCOME, MsgType.REFUSED):
             self.stats["unexpected_type"] += 1  # e.g. a late reply of the session before
         elif dg.seq != 0 or dg.payload.nonce != nonce:  # type: ignore[union-attr]
             self.stats["foreign"] += 1
@@ -205,8 +267,12 @@ class ControllerLink:
     def _handshake(self) -> None:
         """HELLO -> WELCOME: a new session issued by the controller; seq starts over."""
         nonce = random.getrandbits(32)
-        packet = encode(Datagram(MsgType.HELLO, 0, 0, Hello(nonce)))
+        packet = self._encode(Datagram(MsgType.HELLO, 0, 0, Hello(nonce)))
         dg, _, _ = self._exchange(packet, lambda data: self._classify_welcome(data, nonce), "WELCOME for HELLO")
+        if dg.type == MsgType.REFUSED:
+            assert isinstance(dg.payload, Refused)
+            self.stats["refused_session"] += 1
+            raise SessionRefused(self.address, dg.payload.code, dg.payload.reason)
         welcome = dg.payload
         assert isinstance(welcome, Welcome)
         if self.boot is not None and welcome.boot != self.boot:
@@ -221,7 +287,7 @@ class ControllerLink:
         session = self.open_session()
         self._seq = (self._seq + 1) & 0xFFFFFFFF or 1
         seq = self._seq
-        packet = encode(Datagram(mtype, session, seq, payload))
+        packet = self._encode(Datagram(mtype, session, seq, payload))
         accept = want + (MsgType.MOVING,) if mtype == MsgType.MOVE else want
         try:
             return self._exchange(packet, lambda data: self._classify(data, seq, accept, payload),
@@ -292,6 +358,8 @@ class ControllerLink:
             ValueError: a non-finite angle (nothing is sent).
             ControllerRejected: the controller refused the move.
             ControllerRestarted: the controller restarted while the move was in flight.
+            SessionClosed: the controller replaced the session while the move was in flight.
+            SessionRefused: the controller would not open a session (another client's is live).
             LinkTimeoutError: no valid answer after every retry (or the session
                 could not be opened).
         """
@@ -304,6 +372,8 @@ class ControllerLink:
             assert isinstance(dg.payload, Rejected)
             if dg.payload.code == RejectCode.UNKNOWN_SESSION:
                 raise self._restarted(move, dg.seq)
+            if dg.payload.code == RejectCode.SESSION_CLOSED:
+                raise self._closed(move, dg.seq)
             raise ControllerRejected(move, dg.payload.code, dg.payload.reason)
         p = dg.payload
         assert isinstance(p, InPosition)
@@ -326,15 +396,31 @@ class ControllerLink:
         log.warning("motion controller %s restarted (session %s unknown to it) while move seq %d was in flight; "
                     "opening a new session; the move is failed, not resent", self.address,
                     f"{old:08x}" if old is not None else None, seq)
-        note = ""
+        return ControllerRestarted(move, seq, self._rehandshake())
+
+    def _closed(self, move: Move, seq: int) -> SessionClosed:
+        """The controller replaced our session: re-handshake, report."""
+        self.stats["session_closed"] += 1
+        old, self.session = self.session, None
+        log.warning("motion controller %s closed session %s (another client opened one) while move seq %d was "
+                    "in flight; opening a new session; the move is failed, not resent", self.address,
+                    f"{old:08x}" if old is not None else None, seq)
+        return SessionClosed(move, seq, self._rehandshake())
+
+    def _rehandshake(self) -> str:
         try:
             self._handshake()
-            note = f" (new session {self.session:08x})"
+            return f" (new session {self.session:08x})"
         except LinkError as e:
-            note = f" (re-handshake failed: {e}; the next request retries it)"
-        return ControllerRestarted(move, seq, note)
+            return f" (re-handshake failed: {e}; the next request retries it)"
 
     def ping(self) -> float:
         """Round-trip time (seconds) of a PING/PONG exchange."""
-        _, _, elapsed = self._transact(MsgType.PING, None, (MsgType.PONG,))
+        dg, _, elapsed = self._transact(MsgType.PING, None, (MsgType.PONG, MsgType.REJECTED))
+        if dg.type == MsgType.REJECTED:  # our session is gone: a new one for the next request
+            assert isinstance(dg.payload, Rejected)
+            self.stats["controller_restart" if dg.payload.code == RejectCode.UNKNOWN_SESSION else "session_closed"] += 1
+            self.session = None
+            raise LinkError(f"motion controller {self.address} no longer knows this link's session "
+                            f"(code {dg.payload.code}: {dg.payload.reason}); the next request opens a new one")
         return elapsed

@@ -1,8 +1,13 @@
-"""The controller datagram codec: documented layout, round trips, corruption, fuzz."""
+"""The controller datagram codec: documented layout (versions 1 and 2), round trips,
+corruption, HMAC tags, fuzz."""
 
 from __future__ import annotations
 
+import hashlib
+import hmac
 import math
+import pathlib
+import re
 import struct
 import zlib
 
@@ -15,17 +20,22 @@ from jaxrecog.hardware.datagram import (
     MAX_DATAGRAM,
     VERSION,
     Datagram,
+    DatagramAuthError,
     DatagramError,
     Hello,
     InPosition,
     Move,
     Moving,
     MsgType,
+    Refused,
     Rejected,
+    SharedKey,
     Welcome,
     decode,
     encode,
 )
+
+KEY = SharedKey(b"jaxrecog example key")  # the key of the documented example
 
 finite = st.floats(allow_nan=False, allow_infinity=False)
 u32 = st.integers(0, 2**32 - 1)
@@ -39,31 +49,121 @@ payloads = {
     MsgType.PONG: st.none(),
     MsgType.HELLO: st.builds(Hello, u32),
     MsgType.WELCOME: st.builds(Welcome, u32, u32),
+    MsgType.REFUSED: st.builds(Refused, u32, st.integers(0, 65535), st.text(max_size=50)),
 }
 datagrams = st.sampled_from(list(MsgType)).flatmap(
-    lambda t: st.builds(Datagram, st.just(t), u32, u32, payloads[t])
+    lambda t: st.builds(Datagram, st.just(t), u32, u32, payloads[t],
+                        st.sampled_from([1, 2]) if t != MsgType.REFUSED else st.just(2))
 )
 
 
-def by_hand(mtype: int, session: int, seq: int, payload: bytes, version: int = VERSION, magic: bytes = MAGIC) -> bytes:
-    """The layout of docs/protocol.md, written out independently of the codec."""
+def by_hand(mtype: int, session: int, seq: int, payload: bytes, version: int = VERSION, magic: bytes = MAGIC,
+            flags: int | None = None, key: bytes | None = None) -> bytes:
+    """The layout of docs/protocol.md, written out independently of the codec: version 1
+    without, version 2 with the flags byte (and, with ``key``, the HMAC-SHA256 tag)."""
     body = magic + bytes([version, mtype]) + session.to_bytes(4, "big") + seq.to_bytes(4, "big")
-    body += len(payload).to_bytes(2, "big") + payload
+    body += len(payload).to_bytes(2, "big")
+    if version == 2:
+        body += bytes([(1 if key is not None else 0) if flags is None else flags])
+    body += payload
+    if key is not None:
+        body += hmac.new(key, body, hashlib.sha256).digest()
     return body + zlib.crc32(body).to_bytes(4, "big")
 
 
+def documented_examples() -> list[bytes]:
+    """The hex dumps of the Example section of docs/protocol.md, in order."""
+    text = pathlib.Path(__file__).parents[1].joinpath("docs", "protocol.md").read_text()
+    section = text[text.index("## Example"):]
+    dumps = re.findall(r"```\n(.*?)```", section, re.S)
+    out = []
+    for dump in dumps:
+        hexes = []
+        for line in dump.splitlines():
+            data = re.split(r" {3,}", line.strip())[0]  # a comment follows three or more spaces
+            assert re.fullmatch(r"[0-9a-f]{2}( {1,2}[0-9a-f]{2})*", data), line
+            hexes += data.split()
+        out.append(bytes.fromhex("".join(hexes)))
+    return out
+
+
 def test_move_layout_matches_the_documented_bytes():
+    """Both examples of docs/protocol.md: the same MOVE in version 1 and in version 2
+    with the documented key; the codec makes them and decodes them."""
     m = Move(0.1, 0.5, -0.3, math.pi)
-    raw = encode(Datagram(MsgType.MOVE, 0xDEADBEEF, 7, m))
-    assert raw == by_hand(1, 0xDEADBEEF, 7, struct.pack(">4d", 0.1, 0.5, -0.3, math.pi))
-    assert len(raw) == 14 + 32 + 4
+    angles = struct.pack(">4d", 0.1, 0.5, -0.3, math.pi)
+    v1 = encode(Datagram(MsgType.MOVE, 0xDEADBEEF, 7, m, version=1))
+    assert v1 == by_hand(1, 0xDEADBEEF, 7, angles, version=1)
+    assert len(v1) == 14 + 32 + 4
+    v2 = encode(Datagram(MsgType.MOVE, 0xDEADBEEF, 7, m), KEY)
+    assert v2 == by_hand(1, 0xDEADBEEF, 7, angles, version=2, key=b"jaxrecog example key")
+    assert len(v2) == 15 + 32 + 32 + 4
+    assert documented_examples() == [v1, v2]
+    assert decode(v1) == Datagram(MsgType.MOVE, 0xDEADBEEF, 7, m, version=1)
+    assert decode(v2, KEY) == Datagram(MsgType.MOVE, 0xDEADBEEF, 7, m, version=2)
+    plain = encode(Datagram(MsgType.MOVE, 0xDEADBEEF, 7, m))
+    assert plain == by_hand(1, 0xDEADBEEF, 7, angles, version=2) and len(plain) == 15 + 32 + 4
+
+
+def test_version_1_is_still_decoded_and_answered_in_kind():
+    """Every version-1 message decodes to a datagram that says version 1 and
+    re-encodes to the same bytes; REFUSED and HMAC tags do not exist there."""
+    for t in MsgType:
+        if t == MsgType.REFUSED:
+            continue
+        example = {MsgType.MOVE: Move(1, 2, 3, 4), MsgType.HELLO: Hello(5), MsgType.WELCOME: Welcome(5, 6),
+                   MsgType.REJECTED: Rejected(Move(1, 2, 3, 4), 4, "x"), MsgType.MOVING: Moving(Move(1, 2, 3, 4), 1.5),
+                   MsgType.IN_POSITION: InPosition(Move(1, 2, 3, 4), 5, 6, 7, 8)}.get(t)
+        dg = Datagram(t, 9, 10, example, version=1)
+        raw = encode(dg)
+        assert raw[2] == 1 and decode(raw) == dg and encode(decode(raw)) == raw
+    with pytest.raises(DatagramError, match="unknown message type 9 in protocol version 1"):
+        decode(by_hand(9, 0, 0, struct.pack(">IH", 1, 6), version=1))
+    with pytest.raises(DatagramError, match="does not exist in protocol version 1"):
+        encode(Datagram(MsgType.REFUSED, 0, 0, Refused(1, 6, "busy"), version=1))
+    with pytest.raises(DatagramError, match="version 1 carries no HMAC"):
+        encode(Datagram(MsgType.PING, 1, 1, version=1), KEY)
+    with pytest.raises(DatagramAuthError, match="without an HMAC tag"):  # a keyed end takes no version-1 datagram
+        decode(encode(Datagram(MsgType.PING, 1, 1, version=1)), KEY)
+
+
+def test_hmac_tag_is_required_checked_and_never_shown():
+    dg = Datagram(MsgType.MOVE, 3, 4, Move(0.1, 0.2, 0.3, 0.4))
+    tagged = encode(dg, KEY)
+    assert decode(tagged, KEY) == dg
+    with pytest.raises(DatagramAuthError, match="tag mismatch"):
+        decode(tagged, SharedKey(b"another key of 16+ bytes"))
+    with pytest.raises(DatagramAuthError, match="no shared key"):
+        decode(tagged)
+    with pytest.raises(DatagramAuthError, match="without an HMAC tag"):
+        decode(encode(dg), KEY)
+    # a forger who recomputes the CRC over changed angles still fails the tag
+    forged = bytearray(tagged[:-4])
+    forged[20] ^= 0x01
+    forged += zlib.crc32(bytes(forged)).to_bytes(4, "big")
+    with pytest.raises(DatagramAuthError, match="tag mismatch"):
+        decode(bytes(forged), KEY)
+    # the key is in no repr, str or message
+    secret = "jaxrecog example key"
+    assert secret not in repr(KEY) and secret not in str(KEY) and secret not in repr(dg)
+    with pytest.raises(ValueError, match="at least 16 bytes") as e:
+        SharedKey(b"short secret")
+    assert "short secret" not in str(e.value)
+    assert KEY == SharedKey(b"jaxrecog example key") and hash(KEY) == hash(SharedKey(b"jaxrecog example key"))
+
+
+def test_refused_layout():
+    raw = encode(Datagram(MsgType.REFUSED, 0, 0, Refused(0x01020304, 6, "busy")))
+    assert raw == by_hand(9, 0, 0, bytes([1, 2, 3, 4, 0, 6]) + b"busy", version=2)
+    assert decode(raw).payload == Refused(0x01020304, 6, "busy")
 
 
 def test_hello_and_welcome_layout():
     """HELLO carries the client's nonce; WELCOME the nonce and the controller's boot id,
     with the issued session in the header (docs/protocol.md)."""
-    hello = encode(Datagram(MsgType.HELLO, 0, 0, Hello(0x01020304)))
-    assert hello == by_hand(7, 0, 0, bytes([1, 2, 3, 4]))
+    hello = encode(Datagram(MsgType.HELLO, 0, 0, Hello(0x01020304), version=1))
+    assert hello == by_hand(7, 0, 0, bytes([1, 2, 3, 4]), version=1)
+    assert encode(Datagram(MsgType.HELLO, 0, 0, Hello(0x01020304))) == by_hand(7, 0, 0, bytes([1, 2, 3, 4]))
     welcome = encode(Datagram(MsgType.WELCOME, 0xCAFEF00D, 0, Welcome(0x01020304, 0xB0070001)))
     assert welcome == by_hand(8, 0xCAFEF00D, 0, bytes([1, 2, 3, 4, 0xB0, 0x07, 0x00, 0x01]))
     assert decode(welcome).payload == Welcome(0x01020304, 0xB0070001)
@@ -82,32 +182,39 @@ def test_in_position_layout():
 @settings(max_examples=200, deadline=None)
 @given(datagrams)
 def test_round_trip(dg):
-    raw = encode(dg)
-    assert len(raw) <= MAX_DATAGRAM
-    out = decode(raw)
-    if dg.type == MsgType.REJECTED:  # reasons are cut to 200 UTF-8 bytes
-        assert out.payload.reason == dg.payload.reason.encode()[:200].decode("utf-8", "ignore")
-        assert (out.payload.move, out.payload.code) == (dg.payload.move, dg.payload.code)
-    else:
-        assert out == dg
+    keys = [None, KEY] if dg.version == 2 else [None]
+    for key in keys:
+        raw = encode(dg, key)
+        assert len(raw) <= MAX_DATAGRAM
+        out = decode(raw, key)
+        if dg.type in (MsgType.REJECTED, MsgType.REFUSED):  # reasons are cut to 200 UTF-8 bytes
+            assert out.payload.reason == dg.payload.reason.encode()[:200].decode("utf-8", "ignore")
+            assert out.payload.code == dg.payload.code
+        else:
+            assert out == dg
 
 
-def test_every_single_bit_flip_is_detected():
-    raw = encode(Datagram(MsgType.IN_POSITION, 99, 12345, InPosition(Move(1, 2, 3, 4), 5, 6, 7, 8)))
+@pytest.mark.parametrize("version,key", [(1, None), (2, None), (2, KEY)], ids=["v1", "v2", "v2-hmac"])
+def test_every_single_bit_flip_is_detected(version, key):
+    raw = encode(Datagram(MsgType.IN_POSITION, 99, 12345, InPosition(Move(1, 2, 3, 4), 5, 6, 7, 8), version), key)
     for i in range(len(raw) * 8):
         bad = bytearray(raw)
         bad[i // 8] ^= 1 << (i % 8)
         with pytest.raises(DatagramError):
-            decode(bytes(bad))
+            decode(bytes(bad), key)
 
 
 @pytest.mark.parametrize(
     "raw,match",
     [
         (b"", "shorter"),
-        (by_hand(1, 1, 1, struct.pack(">4d", 0, 0, 0, 0), version=2), "version 2"),
+        (by_hand(1, 1, 1, struct.pack(">4d", 0, 0, 0, 0), version=3), "version 3"),
+        (by_hand(1, 1, 1, struct.pack(">4d", 0, 0, 0, 0), flags=0x02), "unknown flags"),
+        (by_hand(1, 1, 1, struct.pack(">4d", 0, 0, 0, 0), flags=0x01), "length"),  # flag set, no tag
+        (by_hand(1, 1, 1, struct.pack(">4d", 0, 0, 0, 0), version=1)[:15] + b"\x00" * 3, "payload_len"),
         (by_hand(1, 1, 1, struct.pack(">4d", 0, 0, 0, 0), magic=b"XX"), "magic"),
-        (by_hand(9, 1, 1, b""), "unknown message type"),
+        (by_hand(10, 1, 1, b""), "unknown message type"),
+        (by_hand(9, 0, 0, b"\x00\x00"), "REFUSED payload is 2 bytes"),
         (by_hand(1, 1, 1, struct.pack(">3d", 0, 0, 0)), "payload is 24 bytes"),
         (by_hand(5, 1, 1, b"x"), "no payload"),
         (by_hand(1, 1, 1, struct.pack(">4d", 0, math.nan, 0, 0)), "non-finite"),
@@ -143,10 +250,10 @@ def test_fuzz_decode_random_bytes(raw):
 
 
 @settings(max_examples=300, deadline=None)
-@given(st.integers(0, 255), u32, u32, st.binary(max_size=80))
-def test_fuzz_decode_valid_envelopes(mtype, session, seq, payload):
+@given(st.integers(0, 255), u32, u32, st.binary(max_size=80), st.sampled_from([1, 2]))
+def test_fuzz_decode_valid_envelopes(mtype, session, seq, payload, version):
     # a correct header and CRC around arbitrary payload bytes reaches the payload parsers
-    raw = by_hand(mtype, session, seq, payload)
+    raw = by_hand(mtype, session, seq, payload, version=version)
     try:
         dg = decode(raw)
     except DatagramError:

@@ -1,0 +1,199 @@
+"""Protocol version 2 sessions: bound to the client's address, refused to strangers while
+live, taken over only after an idle timeout (the displaced client is told and
+re-handshakes), an optional shared key (HMAC-SHA256), version 1 still spoken.
+
+Issue 32, finding 2: one HELLO from any address used to open a new session and
+retire the client's; the stranger's MOVE ran and the client then only timed out."""
+
+from __future__ import annotations
+
+import math
+import socket
+import time
+
+import pytest
+
+from jaxrecog.hardware.controller_sim import ControllerSimulator
+from jaxrecog.hardware.datagram import (
+    Datagram,
+    DatagramError,
+    Hello,
+    Move,
+    MsgType,
+    RejectCode,
+    SharedKey,
+    decode,
+    encode,
+)
+from jaxrecog.hardware.positions import default_table
+from jaxrecog.hardware.udp_link import ControllerLink, LinkError, LinkTimeoutError, SessionClosed, SessionRefused
+
+TABLE = default_table()
+KEY = SharedKey(b"a shared key of the rig, 32 byte")
+
+
+def move_of(i: int) -> Move:
+    v1, v2 = TABLE.views[0][(i * 7) % 32], TABLE.views[1][(i * 3) % 7]
+    return Move(v1.pan, v1.tilt, v2.pan, (i % 4) * math.pi / 2)
+
+
+class Stranger:
+    """Another socket on 127.0.0.1: sends what it likes, collects what comes back."""
+
+    def __init__(self, address):
+        self.address = address
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", 0))
+
+    def send(self, dg: Datagram, key: SharedKey | None = None) -> None:
+        self.sock.sendto(encode(dg, key), self.address)
+
+    def replies(self, wait_s: float = 0.15, key: SharedKey | None = None) -> list[Datagram]:
+        out, end = [], time.monotonic() + wait_s
+        while (left := end - time.monotonic()) > 0:
+            self.sock.settimeout(left)
+            try:
+                data = self.sock.recv(2048)
+            except socket.timeout:
+                break
+            try:
+                out.append(decode(data, key))
+            except DatagramError:
+                out.append(None)
+        return out
+
+    def close(self) -> None:
+        self.sock.close()
+
+
+def test_datagrams_from_a_second_socket_move_nothing_and_the_client_is_unaffected():
+    with ControllerSimulator(time_scale=0.001, session_idle_s=30.0) as sim, \
+            ControllerLink(sim.address, timeout=0.1, retries=3) as link:
+        link.move(*move_of(0).astuple())
+        session = link.session
+        evil = Stranger(sim.address)
+        try:
+            # a HELLO of its own is refused: the client's session is live
+            evil.send(Datagram(MsgType.HELLO, 0, 0, Hello(1234)))
+            (refused,) = evil.replies()
+            assert refused.type == MsgType.REFUSED and refused.payload.nonce == 1234
+            assert refused.payload.code == RejectCode.SESSION_BUSY and "another client" in refused.payload.reason
+            # the client's own session id and the next seqs, sniffed: ignored, unanswered
+            for seq in (link._seq + 1, link._seq + 50):
+                evil.send(Datagram(MsgType.MOVE, session, seq, move_of(7)))
+            evil.send(Datagram(MsgType.PING, session, link._seq + 51))
+            assert evil.replies() == []
+            # a made-up session: rejected, not run
+            evil.send(Datagram(MsgType.MOVE, session ^ 0xFFFF, 1, move_of(7)))
+            (rej,) = evil.replies()
+            assert rej.type == MsgType.REJECTED and rej.payload.code == RejectCode.UNKNOWN_SESSION
+        finally:
+            evil.close()
+        for i in (1, 2, 3):  # the client goes on as if nothing happened
+            res = link.move(*move_of(i).astuple())
+            assert res.seq == i + 1
+        assert link.session == session and link.stats["handshake"] == 1
+        assert link.stats["session_closed"] == link.stats["controller_restart"] == 0
+        assert link.ping() >= 0
+    assert [e.move for e in sim.executed] == [move_of(i) for i in range(4)]  # the stranger's move never ran
+    assert sim.stats["hello_refused"] == 1 and sim.stats["wrong_address"] == 3 and sim.stats["takeover"] == 0
+
+
+def test_after_the_idle_timeout_another_client_takes_over_and_the_first_is_told(caplog):
+    idle = 0.3
+    with ControllerSimulator(time_scale=0.001, session_idle_s=idle) as sim, \
+            ControllerLink(sim.address, timeout=0.05, retries=3) as a, \
+            ControllerLink(sim.address, timeout=0.05, retries=3) as b:
+        a.move(*move_of(0).astuple())
+        with pytest.raises(SessionRefused, match=r"refused a session \(code 6\): another client's session is live"):
+            b.move(*move_of(1).astuple())  # a's session is live: b is refused, nothing moved
+        time.sleep(idle + 0.1)
+        b.move(*move_of(2).astuple())  # a went idle: b takes over
+        # a is told its session is gone; it re-handshakes (refused now: b is live) and does not resend
+        with pytest.raises(SessionClosed, match=r"closed this link's session .* not resent .*\(re-handshake failed: "
+                                                r".*refused a session"):
+            a.move(*move_of(3).astuple())
+        assert a.stats["session_closed"] == 1 and a.session is None and "closed session" in caplog.text
+        time.sleep(idle + 0.1)
+        res = a.move(*move_of(4).astuple())  # b idle: a opens a new session and moves
+        assert res.seq == 1 and a.stats["handshake"] == 2
+        with pytest.raises(SessionClosed):
+            b.move(*move_of(5).astuple())
+    assert [e.move for e in sim.executed] == [move_of(0), move_of(2), move_of(4)]
+    assert sim.stats["takeover"] == 2 and sim.stats["retired"] == 2
+
+
+def test_a_ping_of_a_closed_session_says_so_and_the_next_request_opens_a_new_one():
+    with ControllerSimulator(time_scale=0.001, session_idle_s=0.0) as sim, \
+            ControllerLink(sim.address, timeout=0.05, retries=3) as a, \
+            ControllerLink(sim.address, timeout=0.05, retries=3) as b:
+        a.ping()
+        b.ping()  # idle timeout 0: b takes over at once
+        with pytest.raises(LinkError, match="no longer knows this link's session .*code 5"):
+            a.ping()
+        assert a.session is None
+        a.move(*move_of(0).astuple())
+        assert a.stats["handshake"] == 2
+
+
+@pytest.mark.parametrize("who", ["no key", "another key", "version 1"])
+def test_with_a_shared_key_nobody_without_it_gets_an_answer_or_the_session(who):
+    """Idle timeout 0, so without the key a HELLO would take the session at once."""
+    other = {"no key": None, "another key": SharedKey(b"not the rig's key, but long")}.get(who)
+    with ControllerSimulator(time_scale=0.001, key=KEY, session_idle_s=0.0) as sim, \
+            ControllerLink(sim.address, timeout=0.1, retries=3, key=KEY) as link:
+        link.move(*move_of(0).astuple())
+        session = link.session
+        evil = Stranger(sim.address)
+        try:
+            v = 1 if who == "version 1" else 2
+            evil.send(Datagram(MsgType.HELLO, 0, 0, Hello(99), version=v), other)
+            evil.send(Datagram(MsgType.MOVE, session, link._seq + 1, move_of(5), version=v), other)
+            evil.send(Datagram(MsgType.MOVE, 12345, 1, move_of(5), version=v), other)
+            assert evil.replies() == []
+        finally:
+            evil.close()
+        assert sim.stats["unauthenticated"] == 3 and sim.stats["hello"] == 1
+        assert link.move(*move_of(1).astuple()).seq == 2 and link.session == session
+    assert [e.move for e in sim.executed] == [move_of(0), move_of(1)]
+
+
+@pytest.mark.parametrize("key", [None, SharedKey(b"not the rig's key, but long")], ids=["no key", "another key"])
+def test_a_client_without_the_key_times_out_and_moves_nothing(key):
+    with ControllerSimulator(time_scale=0.001, key=KEY) as sim, \
+            ControllerLink(sim.address, timeout=0.03, retries=1, key=key) as link:
+        with pytest.raises(LinkTimeoutError, match="no valid WELCOME"):
+            link.move(*move_of(0).astuple())
+    assert sim.executed == [] and sim.stats["unauthenticated"] == 2
+
+
+def test_the_key_is_never_in_a_message_or_a_repr():
+    secret = b"a shared key of the rig, 32 byte"
+    with ControllerSimulator(time_scale=0.001, key=secret) as sim, \
+            ControllerLink(sim.address, timeout=0.03, retries=0, key=secret) as link:
+        link.move(*move_of(0).astuple())
+        texts = [repr(link.key), repr(sim.key), str(link.__dict__), str(sim.__dict__)]
+    with ControllerLink(sim.address, timeout=0.02, retries=0, key=secret) as link:
+        with pytest.raises(LinkTimeoutError) as e:
+            link.move(*move_of(0).astuple())  # (the simulator is closed)
+        texts.append(str(e.value))
+    assert not any(secret.decode() in t for t in texts)
+
+
+def test_a_version_1_client_is_answered_in_version_1():
+    with ControllerSimulator(time_scale=0.001, session_idle_s=30.0) as sim:
+        with ControllerLink(sim.address, timeout=0.1, retries=3, version=1) as old:
+            res = old.move(*move_of(0).astuple())
+            assert res.seq == 1 and old.stats["version"] == 0 and old.ping() >= 0
+            raw = Stranger(sim.address)
+            try:
+                raw.send(Datagram(MsgType.HELLO, 0, 0, Hello(5), version=1))
+                assert raw.replies() == []  # refused (old's session is live), and version 1 has no REFUSED
+                raw.send(Datagram(MsgType.MOVE, 777, 1, move_of(1), version=1))
+                (rej,) = raw.replies()
+                assert rej.version == 1 and rej.type == MsgType.REJECTED
+            finally:
+                raw.close()
+    assert [e.move for e in sim.executed] == [move_of(0)]
+    with pytest.raises(ValueError, match="needs protocol version 2"):
+        ControllerLink(("127.0.0.1", 9), key=KEY, version=1)
