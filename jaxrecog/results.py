@@ -9,7 +9,7 @@ import json
 import math
 import os
 from pathlib import Path
-from typing import Iterable, Sequence
+from typing import Any, Iterable, Sequence
 
 __all__ = ["TrialResult", "TrialStore", "ObjectRow", "summarize", "table_markdown", "table_json"]
 
@@ -53,15 +53,67 @@ class TrialResult:
         return json.dumps(d, separators=(",", ":"))
 
     @classmethod
-    def from_dict(cls, d: dict) -> "TrialResult":
+    def from_dict(cls, d: Any) -> "TrialResult":
+        """A record read back (:meth:`to_json`'s fields); every field is
+        checked for its type, so a damaged record fails here, naming the field,
+        instead of in the table after every remaining trial has run.
+
+        Raises:
+            ValueError: not a JSON object, a required field missing, or a
+                field of the wrong type or range.
+        """
+        if not isinstance(d, dict):
+            raise ValueError(f"a JSON object expected, got {type(d).__name__}")
         fields = {f.name for f in dataclasses.fields(cls)}
         kw = {k: v for k, v in d.items() if k in fields}
+        missing = [f.name for f in dataclasses.fields(cls)
+                   if f.default is dataclasses.MISSING and f.name not in kw]
+        if missing:
+            raise ValueError(f"missing field(s) {', '.join(missing)}")
         if kw.get("travel_s", 0.0) is None:
             del kw["travel_s"]
+        for k, v in kw.items():
+            problem = _field_problem(k, v)
+            if problem:
+                raise ValueError(f"{k} = {_short(v)} {problem}")
         for k in ("occluded_fraction", "configurations", "object_probs"):
             if k in kw:
                 kw[k] = tuple(tuple(x) for x in kw[k])
         return cls(**kw)
+
+
+def _short(v) -> str:
+    text = json.dumps(v) if not isinstance(v, float) else repr(v)
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+def _is_int(v) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _is_number(v) -> bool:
+    return (isinstance(v, (int, float)) and not isinstance(v, bool)) and math.isfinite(v)
+
+
+def _field_problem(name: str, v) -> str | None:
+    """Why ``v`` cannot be field ``name`` of a :class:`TrialResult` (``None``: it can)."""
+    if name in ("trial", "object", "pose", "predicted_object", "predicted_pose", "steps", "invalid_steps"):
+        return None if _is_int(v) and v >= 0 else "is not a non-negative integer"
+    if name == "exit_prob":
+        # float32 beliefs may round a sure answer a few ulp above 1
+        return None if _is_number(v) and 0.0 <= v <= 1.0 + 1e-4 else "is not a probability (a number in 0..1)"
+    if name == "stopped":
+        return None if isinstance(v, bool) else "is not true or false"
+    if name in ("travel_s", "yaw_offset"):
+        return None if v is None or _is_number(v) else "is not a finite number (or null)"
+    if name in ("occluded_fraction", "object_probs", "configurations"):
+        def number(x) -> bool:  # NaN as the store writes it
+            return isinstance(x, (int, float)) and not isinstance(x, bool)
+
+        check = _is_int if name == "configurations" else number
+        ok = isinstance(v, list) and all(isinstance(row, list) and all(check(x) for x in row) for row in v)
+        return None if ok else f"is not a list of lists of {'integers' if check is _is_int else 'numbers'}"
+    return None
 
 
 class TrialStore:
@@ -89,8 +141,9 @@ class TrialStore:
                 break  # a torn final write: dropped below
             try:
                 rec = TrialResult.from_dict(json.loads(raw))
-            except (ValueError, TypeError) as e:
-                raise ValueError(f"{self.path}: line {number} is not a trial record ({e}); move the file away to start afresh") from None
+            except (ValueError, TypeError, RecursionError) as e:
+                raise ValueError(f"{self.path}: line {number} is not a trial record ({e}); move the file away "
+                                 "to start afresh") from None
             out[rec.trial] = rec
             good_bytes += len(raw)
         if good_bytes != self.path.stat().st_size:

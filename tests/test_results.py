@@ -66,3 +66,61 @@ def test_store_refuses_a_corrupt_middle_line(tmp_path):
     with pytest.raises(ValueError, match="line 2"):
         store.load()
     assert store.path.read_bytes() == before  # nothing truncated
+
+
+@pytest.mark.parametrize("field,value,why", [
+    ("exit_prob", "high", "exit_prob = \"high\" is not a probability (a number in 0..1)"),
+    ("exit_prob", 7, "exit_prob = 7 is not a probability (a number in 0..1)"),
+    ("steps", 2.5, "steps = 2.5 is not a non-negative integer"),
+    ("stopped", "yes", "stopped = \"yes\" is not true or false"),
+    ("configurations", [[0, "a"]], "configurations = [[0, \"a\"]] is not a list of lists of integers"),
+    ("predicted_pose", None, "predicted_pose = null is not a non-negative integer"),
+])
+def test_a_damaged_record_is_refused_on_load_naming_file_line_and_field(tmp_path, field, value, why):
+    """``"exit_prob": "high"`` ran every remaining trial, then failed with a bare TypeError."""
+    store = TrialStore(tmp_path / "t.jsonl")
+    store.append(_trial(0, 0))
+    rec = json.loads(_trial(1, 1).to_json())
+    rec[field] = value
+    with open(store.path, "a") as f:
+        f.write(json.dumps(rec) + "\n")
+    with pytest.raises(ValueError) as e:
+        store.load()
+    assert str(e.value) == (f"{store.path}: line 2 is not a trial record ({why}); move the file away to start "
+                            "afresh")
+
+
+def test_a_record_that_is_not_an_object_or_lacks_a_field_is_refused(tmp_path):
+    store = TrialStore(tmp_path / "t.jsonl")
+    store.path.write_text("[1, 2]\n")
+    with pytest.raises(ValueError, match=r"line 1 is not a trial record \(a JSON object expected, got list\)"):
+        store.load()
+    rec = json.loads(_trial(0, 0).to_json())
+    del rec["exit_prob"], rec["steps"]
+    store.path.write_text(json.dumps(rec) + "\n")
+    with pytest.raises(ValueError, match=r"line 1 is not a trial record \(missing field\(s\) exit_prob, steps\)"):
+        store.load()
+    # a record as the store writes it (and one of an older store: no travel_s) loads
+    ok = json.loads(_trial(0, 0).to_json())
+    del ok["travel_s"]
+    store.path.write_text(_trial(1, 1).to_json() + "\n" + json.dumps(ok) + "\n")
+    assert sorted(store.load()) == [0, 1]
+
+
+def test_a_campaign_with_a_damaged_store_fails_before_running_a_trial(tmp_path, unchecked):
+    from jaxrecog.campaign import run_campaign
+
+    store = TrialStore(tmp_path / "t.jsonl")
+    rec = json.loads(_trial(0, 0).to_json())
+    rec["exit_prob"] = "high"
+    store.path.write_text(json.dumps(rec) + "\n")
+
+    class NoRig:
+        def __getattr__(self, name):
+            raise AssertionError(f"the rig was used ({name}) before the store was read")
+
+    class NoRecognizer(NoRig):
+        pass
+
+    with unchecked(), pytest.raises(ValueError, match="line 1 is not a trial record"):
+        run_campaign(NoRecognizer(), NoRig(), [], key=None, store=store)
