@@ -79,6 +79,7 @@ def train_model(
     var_floor: float = 1e-6,
     batch_size: int = 256,
     view_jitter: bool = False,
+    interpolate: int = 0,
     return_info: bool = False,
 ) -> SensorModel | tuple[SensorModel, TrainingInfo]:
     """Train the sensor model of a database (thesis ch. 4, §7.1).
@@ -127,6 +128,14 @@ def train_model(
             component per rendered view; the jitter images used and the views that
             have any).  A database without ``jitter`` rows is a
             ``ValueError``.
+        interpolate: ``n > 0`` adds ``2 n`` components per view to a
+            ``view_components`` family: the training image blended with each
+            neighbouring position's training image of the same class
+            (:func:`interpolated_views`), ``n`` points per side out to
+            halfway: the appearance manifold between training views
+            (Murase & Nayar's parametric eigenspace, piecewise linear).
+            Needs no new images; combines with ``view_jitter``.  The info
+            records ``params["interpolate"]`` (``n`` and the neighbours found).
         return_info: also return a :class:`TrainingInfo`.
 
     Returns:
@@ -152,11 +161,22 @@ def train_model(
     db = database if isinstance(database, ImageDatabase) else load_database(database)
     H, W = db.image_shape
     C = db.n_classes
-    if family.view_components and not view_jitter:
+    n_interp = int(interpolate)
+    if n_interp < 0:
+        raise ValueError(f"interpolate must be >= 0, got {interpolate}")
+    if n_interp and not family.view_components:
+        raise ValueError(f"interpolate: the interpolated views are mixture components; likelihood "
+                         f"{family.name or family.kind!r} has none (use view-mixture or view-mixture-lowrank)")
+    if family.view_components and not (view_jitter or n_interp):
         raise ValueError(f"likelihood {family.name or family.kind!r} takes one component per rendered view: "
                          f"train with view jitter (view_jitter=True, `jaxrecog train --view-jitter`) on a "
-                         f"database with 'jitter' rows")
-    jitter = _jitter_images(db) if view_jitter else None
+                         f"database with 'jitter' rows, or with interpolated views (interpolate=N)")
+    jitter = real_jitter = _jitter_images(db) if view_jitter else None
+    neighbours = None
+    if n_interp:
+        neighbours = [view_neighbours(db.train_images(i)) for i in range(db.n_cameras)]
+        jitter = _merge_views(jitter, {(i, v): x for i in range(db.n_cameras) for v, x in
+                                       enumerate(interpolated_views(db.train_images(i), neighbours[i], n_interp))})
     if family.view_components:
         missing = [(i, v) for i in range(db.n_cameras) for v in range(db.positions[i]) if (i, v) not in jitter]
         if missing:
@@ -216,11 +236,15 @@ def train_model(
             "n_objects": db.n_objects,
             "n_poses": db.n_poses,
             "image_shape": [H, W],
-            **({} if jitter is None else {"view_jitter": {
+            **({} if neighbours is None else {"interpolate": {
+                "points_per_side": n_interp,
+                "neighbours": [[list(map(int, nb)) for nb in cam] for cam in neighbours],
+            }}),
+            **({} if not view_jitter else {"view_jitter": {
                 "mode": "components" if family.view_components else "added",
-                "images": int(sum(len(x[1]) for x in jitter.values())),
-                "views": int(sum(len(np.unique(x[1])) for x in jitter.values())),
-                "positions": len(jitter),
+                "images": int(sum(len(x[1]) for x in real_jitter.values())),
+                "views": int(sum(len(np.unique(x[1])) for x in real_jitter.values())),
+                "positions": len(real_jitter),
             }}),
         },
         manifest_sha256=db.manifest_sha256,
@@ -243,6 +267,78 @@ def _jitter_images(db: ImageDatabase) -> dict[tuple[int, int], tuple[np.ndarray,
         sel = rows[(db.camera[rows] == i) & (db.position[rows] == v)]
         out[i, v] = (db.images[sel], cls[sel].astype(np.int64))
     return out
+
+
+def view_neighbours(train: np.ndarray) -> list[tuple[int, int]]:
+    """The neighbouring positions of each position of one camera, for
+    interpolation: ``[(left, right)] * V`` (a position index, or ``-1`` where
+    there is none).
+
+    Candidates are the index neighbours ``v - 1`` and ``v + 1`` (the last and
+    the first position too: a turntable is a ring).  With ``S[v, v']`` the
+    mean over classes of the cosine between a class's training images at
+    ``v`` and ``v'``, a candidate pair counts as neighbouring views when it is
+    at least as similar as the median other position of each of the two:
+    along a path of views the object changes less between neighbours than
+    between most other pairs.  (Not "the nearest": many objects look alike
+    from opposite sides, so the view 180° away is often nearer than the
+    next one on a 30° grid.)  Positions not ordered along a path find no
+    neighbours, and their interpolated slots repeat the training view.
+
+    Args:
+        train: ``uint8 [V, C, H, W]`` the camera's training images.
+    """
+    V, C = train.shape[:2]
+    if V < 2:
+        return [(-1, -1)] * V
+    x = train.reshape(V, C, -1).astype(np.float64)
+    x /= np.maximum(np.linalg.norm(x, axis=2, keepdims=True), 1e-12)
+    S = np.einsum("vcd,wcd->vw", x, x) / C                         # mean cosine of a class's two views
+    typical = np.array([np.median(np.delete(S[v], v)) for v in range(V)])
+
+    def adjacent(a: int, b: int) -> bool:
+        return bool(a != b and S[a, b] >= max(typical[a], typical[b]))
+
+    right = [adjacent(v, (v + 1) % V) and (v + 1 < V or V > 2) for v in range(V)]
+    return [((v - 1) % V if right[(v - 1) % V] else -1, (v + 1) % V if right[v] else -1) for v in range(V)]
+
+
+def interpolated_views(train: np.ndarray, neighbours: list[tuple[int, int]], n: int) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Blended images between each training view and its neighbours, as
+    jitter images: per position ``v``, ``(uint8 [C * 2n, H, W], class int [C * 2n])``.
+
+    For class ``c`` and side ``s`` (left, right) with neighbour ``v_s`` the
+    images are ``round((1 - t_j) x[v, c] + t_j x[v_s, c])``, ``t_j = j / (2 n)``,
+    ``j = 1..n``: the straight segment from the training view to halfway to
+    the next (a view at ``t`` of the way is modelled by the component at
+    ``t``; the eigenspace projection of a blend is the blend of the
+    projections, before the norm of eq. 4.3).  A side without a neighbour
+    repeats the other side (or the training view itself), so every position
+    has ``2 n`` of them per class and the mixture one ``M``.
+    """
+    V, C = train.shape[:2]
+    ts = np.arange(1, n + 1) / (2.0 * n)
+    out = []
+    for v in range(V):
+        left, right = neighbours[v]
+        sides = [s for s in (left, right) if s >= 0] or [v]
+        sides = (sides * 2)[:2]
+        imgs, cls = [], []
+        for c in range(C):
+            for s in sides:
+                for t in ts:
+                    imgs.append(np.rint((1.0 - t) * train[v, c] + t * train[s, c].astype(np.float64)))
+                    cls.append(c)
+        out.append((np.clip(np.stack(imgs), 0, 255).astype(np.uint8), np.asarray(cls, np.int64)))
+    return out
+
+
+def _merge_views(a, b):
+    """Jitter images by (camera, position) from two sources, ``a`` (may be ``None``) first."""
+    if a is None:
+        return b
+    return {key: tuple(np.concatenate([a[key][j], b[key][j]]) for j in range(2)) if key in a else b[key]
+            for key in sorted(set(a) | set(b))}
 
 
 def _stack_likelihoods(liks: list[Likelihood]) -> Likelihood:
