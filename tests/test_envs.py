@@ -210,11 +210,49 @@ def test_a_model_rig_layout_mismatch_is_named(moving, two_cameras):
     with pytest.raises(ValueError, match="a model .* is required"):
         ActiveRecognitionEnv(None, DatasetRig(db))
     env = ActiveRecognitionEnv(model, DatasetRig(db), settings=SMALL)
-    with pytest.raises(ValueError, match="unknown reset options"):
+    with pytest.raises(ValueError, match=r"^unknown reset option\(s\) 'trail'; known: 'trial', 'capture_seed'$"):
         env.reset(options={"trail": 1})
     with pytest.raises(ValueError, match=r"initial configuration \(5, 0\) outside"):
         env.reset(options={"trial": plan_trials(3, 2, (3, 3), 1)[0].__class__(0, 0, 0, (5, 0))})
     assert env.reset(seed=1)[0] in env.observation_space
+
+
+def test_bad_reset_option_types_are_named_and_change_nothing(moving, unchecked):
+    """Bad ``reset(options=...)`` types gave IndexError / 'dictionary update
+    sequence' messages (issue 32 finding 6)."""
+    from jaxrecog.driver import TrialSpec
+
+    env = make(moving)
+    obs, info = env.reset(seed=2)
+    with unchecked():  # what a caller without the run-time type checker builds
+        cases = _bad_reset_options(TrialSpec)
+    for options, kind, match in cases:
+        with unchecked(), pytest.raises(kind, match=match):
+            env.reset(options=options)
+        # nothing changed: the episode goes on where it was
+        assert env.views == 1 and env._info()["object"] == info["object"]
+    out = env.step({"action": 1, "prediction": np.full(6, 1 / 6, np.float32)})
+    assert out[4]["views"] == 2
+    obs, info = env.reset(options={"trial": TrialSpec(0, 1, 1, (2,)), "capture_seed": np.int64(4)})
+    assert (info["object"], info["pose"], env.configuration) == (1, 1, (2,))
+
+
+def _bad_reset_options(TrialSpec):
+    return [
+        (["trial"], TypeError, r"^reset\(options=\.\.\.\) must be a dict with keys 'trial' and/or 'capture_seed' \(or None\), got list$"),
+        ("trial", TypeError, r"must be a dict .* got str$"),
+        ({1: 2, "x": 3}, ValueError, r"^unknown reset option\(s\) 'x', 1; known"),
+        ({"trial": (0, 0, 0, (1,))}, TypeError, r"^options\['trial'\] must be a jaxrecog.campaign.TrialSpec, got tuple$"),
+        ({"trial": TrialSpec(0, 0, 0, 1)}, TypeError, r"^options\['trial'\].initial must be a tuple of integers .* got 1$"),
+        ({"trial": TrialSpec(0, 0, 0, ("1",))}, TypeError, r"^options\['trial'\].initial must be a tuple of integers"),
+        ({"trial": TrialSpec(0, "0", 0, (1,))}, TypeError, r"^options\['trial'\].object must be an integer, got '0'$"),
+        ({"trial": TrialSpec(0, 0, 1.5, (1,))}, TypeError, r"^options\['trial'\].pose must be an integer, got 1.5$"),
+        ({"trial": TrialSpec(0, 0, 0, (1,), yaw_offset="x")}, TypeError, r"yaw_offset must be a finite number"),
+        ({"trial": TrialSpec(0, 0, 0, (1,)), "capture_seed": "abc"}, TypeError,
+         r"^options\['capture_seed'\] must be an integer, got 'abc'$"),
+        ({"trial": TrialSpec(0, 0, 0, (1,)), "capture_seed": 1.5}, TypeError, r"capture_seed'\] must be an integer"),
+        ({"capture_seed": 3}, ValueError, r"give it with options\['trial'\]$"),
+    ]
 
 
 def test_import_jaxrecog_works_without_gymnasium():

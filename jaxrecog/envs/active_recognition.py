@@ -70,6 +70,38 @@ def _scores(planner, predicted: K.Belief, key):
     return planner.scores(predicted, key)
 
 
+def _is_int(v) -> bool:
+    return isinstance(v, (int, np.integer)) and not isinstance(v, (bool, np.bool_))
+
+
+_RESET_OPTIONS = ("trial", "capture_seed")
+
+
+def _reset_options(options) -> dict[str, Any]:
+    """``reset(options=...)`` checked: ``None`` or a dict with the keys of
+    :data:`_RESET_OPTIONS` only, ``trial`` a :class:`TrialSpec`,
+    ``capture_seed`` an integer; a one-line ``TypeError``/``ValueError``
+    naming the option otherwise."""
+    if options is None:
+        return {}
+    if not isinstance(options, dict):
+        raise TypeError(f"reset(options=...) must be a dict with keys 'trial' and/or 'capture_seed' (or None), "
+                        f"got {type(options).__name__}")
+    unknown = [k for k in options if k not in _RESET_OPTIONS]
+    if unknown:
+        raise ValueError(f"unknown reset option(s) {', '.join(sorted(map(repr, unknown)))}; "
+                         f"known: 'trial', 'capture_seed'")
+    if "trial" in options and not isinstance(options["trial"], TrialSpec):
+        raise TypeError(f"options['trial'] must be a jaxrecog.campaign.TrialSpec, got {type(options['trial']).__name__}")
+    if "capture_seed" in options:
+        if not _is_int(options["capture_seed"]):
+            raise TypeError(f"options['capture_seed'] must be an integer, got {options['capture_seed']!r}")
+        if "trial" not in options:
+            raise ValueError("options['capture_seed'] replays a campaign trial's capture noise: give it with "
+                             "options['trial']")
+    return dict(options)
+
+
 def _choice(name: str, value: str, allowed: Sequence[str]) -> str:
     if value not in allowed:
         raise ValueError(f"{name} must be one of {', '.join(map(repr, allowed))}, got {value!r}")
@@ -212,17 +244,13 @@ class ActiveRecognitionEnv(gym.Env):
         :func:`~jaxrecog.campaign.run_campaign` run with ``seed=s`` (the
         driver's ``(seed, trial, step)``).
         Otherwise the scene is drawn from the env's generator."""
+        options = _reset_options(options)  # before anything changes: a bad option loses nothing
+        if "trial" in options:
+            self._check_scene(options["trial"])
         super().reset(seed=seed)
-        options = dict(options or {})
-        unknown = set(options) - {"trial", "capture_seed"}
-        if unknown:
-            raise ValueError(f"unknown reset options {sorted(unknown)}; known: 'trial', 'capture_seed'")
         self._done = True  # stays so until the first image set is in
         if "trial" in options:
             scene = options["trial"]
-            if not isinstance(scene, TrialSpec):
-                raise ValueError(f"options['trial'] must be a jaxrecog.campaign.TrialSpec, got {type(scene).__name__}")
-            self._check_scene(scene)
             noise = (int(options.get("capture_seed", self.settings.seed)), scene.trial)
         else:
             rng = self.np_random
@@ -239,6 +267,15 @@ class ActiveRecognitionEnv(gym.Env):
         return self._obs(), self._info()
 
     def _check_scene(self, s: TrialSpec) -> None:
+        for name in ("trial", "object", "pose"):
+            if not _is_int(getattr(s, name)):
+                raise TypeError(f"options['trial'].{name} must be an integer, got {getattr(s, name)!r}")
+        if not isinstance(s.initial, (tuple, list, np.ndarray)) or not all(_is_int(v) for v in s.initial):
+            raise TypeError(f"options['trial'].initial must be a tuple of integers (one position per camera), "
+                            f"got {s.initial!r}")
+        if s.yaw_offset is not None and not (isinstance(s.yaw_offset, (int, float, np.floating, np.integer))
+                                             and not isinstance(s.yaw_offset, bool) and math.isfinite(s.yaw_offset)):
+            raise TypeError(f"options['trial'].yaw_offset must be a finite number of degrees or None, got {s.yaw_offset!r}")
         if not (0 <= s.object < self.model.n_objects and 0 <= s.pose < self.model.n_poses):
             raise ValueError(f"trial {s.trial}: object {s.object} / pose {s.pose} outside the model's "
                              f"{self.model.n_objects} x {self.model.n_poses}")
