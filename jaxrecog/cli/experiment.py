@@ -9,6 +9,7 @@ from typing import Any
 
 from .. import experiments as ex  # as a module: tests stub its prepare / run_case / run_dataset
 from .._config import ConfigFileError, read_toml
+from .._lock import folder_lock
 from ..driver import trial_mesh
 from ..planners import DEFAULT_MIN_PER_STRATUM
 from .._progress import enabled as progress_bars
@@ -182,19 +183,21 @@ def run(args) -> int:
         trial_mesh(settings.devices)  # too many devices: one clear line before anything renders or trains
     except ValueError as e:
         raise UsageError(f"--devices {settings.devices}: {e}") from None
-    t0 = time.perf_counter()
-    if dataset:
-        report = ex.run_dataset(folder, model, settings, planners=planners, progress=progress_bars())
-        print(report.markdown())
-        written = write_report(report, "dataset", out, title=f"Database {Path(folder).name}")
-        print(f"campaign on {folder} in {time.perf_counter() - t0:.0f} s; wrote:")
-    else:
-        report = ex.run_case(name, settings, planners=planners, progress=progress_bars())
-        print(report.markdown())
-        written = write_report(report, name, out)
-        if args.trace:
-            written += trace_plot(settings, out, planner=(planners or ["mi"])[0], case=name)
-        print(f"case {name} in {time.perf_counter() - t0:.0f} s; wrote:")
-    for p in written:
-        print(f"  {p}")
+    # one run per --out and work folder: a second is refused, naming the first's PID
+    with folder_lock(out, settings.workdir):
+        t0 = time.perf_counter()
+        if dataset:
+            report = ex.run_dataset(folder, model, settings, planners=planners, progress=progress_bars())
+            print(report.markdown())
+            written = write_report(report, "dataset", out, title=f"Database {Path(folder).name}")
+            print(f"campaign on {folder} in {time.perf_counter() - t0:.0f} s; wrote:")
+        else:
+            report = ex.run_case(name, settings, planners=planners, progress=progress_bars())
+            print(report.markdown())
+            written = write_report(report, name, out)
+            if args.trace:
+                written += trace_plot(settings, out, planner=(planners or ["mi"])[0], case=name)
+            print(f"case {name} in {time.perf_counter() - t0:.0f} s; wrote:")
+        for p in written:
+            print(f"  {p}")
     return 0

@@ -1,0 +1,103 @@
+"""One campaign per folder: an exclusive lock on an ``experiment`` run's
+``--out`` and work folders.
+
+Two ``experiment`` runs into one ``--out`` (or one work folder) each ran
+every trial and stored each twice (issue 32).  :func:`folder_lock` holds a
+``flock`` on ``FOLDER/.jaxrecog.lock`` for the whole run; the file names the
+holder (PID, host, start time), so a second run is refused with one line
+naming the first.  The kernel drops the lock when its holder dies, however it
+dies: the lock file of a killed run (a dead PID) is simply taken over by the
+next run.  The file is removed when the run ends.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import fcntl
+import os
+import socket
+import time
+from pathlib import Path
+from typing import Iterator
+
+__all__ = ["LOCK_NAME", "FolderLockedError", "folder_lock"]
+
+LOCK_NAME = ".jaxrecog.lock"
+
+
+class FolderLockedError(OSError):
+    """Another run holds the folder (one line naming it)."""
+
+
+def _holder(fd: int) -> str:
+    try:
+        os.lseek(fd, 0, os.SEEK_SET)
+        text = os.read(fd, 512).decode("utf-8", "replace").split()
+    except OSError:
+        text = []
+    if len(text) >= 2 and text[0].isdigit():
+        since = f", started {' '.join(text[2:4])}" if len(text) >= 4 else ""
+        return f"PID {text[0]} on {text[1]}{since}"
+    return "a process that has not written its PID yet"
+
+
+def _acquire(folder: Path, what: str) -> tuple[int, Path]:
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / LOCK_NAME
+    flags = os.O_RDWR | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0)
+    for _ in range(20):
+        try:
+            fd = os.open(path, flags, 0o644)
+        except OSError as e:  # e.g. a symbolic link there: never followed
+            raise OSError(e.errno, f"cannot take the lock {path} ({e.strerror})") from None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = _holder(fd)
+            os.close(fd)
+            raise FolderLockedError(f"{folder} is in use by another {what} ({holder}); wait for it to end "
+                                    f"or choose another folder") from None
+        try:  # the file we locked is still the one at the path (not one a finishing run just removed)
+            same = os.fstat(fd).st_ino == os.stat(path, follow_symlinks=False).st_ino
+        except FileNotFoundError:
+            same = False
+        if not same:
+            os.close(fd)
+            continue
+        stamp = time.strftime("%Y-%m-%d %H:%M:%S", time.gmtime())
+        os.ftruncate(fd, 0)
+        os.lseek(fd, 0, os.SEEK_SET)
+        os.write(fd, f"{os.getpid()} {socket.gethostname() or 'host'} {stamp} UTC\n".encode())
+        return fd, path
+    raise FolderLockedError(f"{folder}: could not take {path} (it keeps being replaced)")
+
+
+def _release(fd: int, path: Path) -> None:
+    try:
+        os.unlink(path)  # while still holding it: a newcomer then locks a fresh file
+    except OSError:
+        pass
+    os.close(fd)
+
+
+@contextlib.contextmanager
+def folder_lock(*folders: str | os.PathLike, what: str = "jaxrecog experiment run") -> Iterator[None]:
+    """Hold an exclusive lock on each of ``folders`` (created if missing; one
+    folder given twice is locked once) for the ``with`` block.
+
+    Raises:
+        FolderLockedError: a live process holds one of them; the message
+            names the folder and that process's PID.  Nothing is held then.
+    """
+    seen: dict[str, Path] = {}
+    for f in folders:
+        p = Path(f)
+        seen.setdefault(os.path.realpath(p), p)
+    held: list[tuple[int, Path]] = []
+    try:
+        for real in sorted(seen):
+            held.append(_acquire(seen[real], what))
+        yield
+    finally:
+        for fd, path in reversed(held):
+            _release(fd, path)
