@@ -240,6 +240,9 @@ class Settings:
     view_jitter_deg: float = 10.0
 
     def __post_init__(self):
+        from ._fieldtypes import check_settings
+
+        check_settings(self)  # every field's type (and plain ranges) first: one line naming it
         object.__setattr__(self, "workdir", Path(self.workdir))
         self._check_training()
         self._check_view_jitter()

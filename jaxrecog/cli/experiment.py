@@ -13,6 +13,7 @@ from .._lock import folder_lock
 from ..driver import trial_mesh
 from ..planners import DEFAULT_MIN_PER_STRATUM
 from .._progress import enabled as progress_bars
+from ..hardware.problems import one_line
 from ._common import UsageError
 from ._options import (PLANNERS, capture_options, capture_params, choice_options, default_likelihood,
                        given_likelihood_options, likelihood_options, positive, render_jitter_options,
@@ -132,7 +133,11 @@ def run(args) -> int:
                              "or 'rig' = 'dataset:FOLDER' and 'model'")
         name = str(data.pop("case")) if "case" in data else None
         if planners is None and "planners" in data:
-            planners = list(data.pop("planners"))
+            planners = data.pop("planners")
+            if (not isinstance(planners, list) or not planners
+                    or any(not isinstance(x, str) or x not in PLANNERS for x in planners)):
+                raise UsageError(f"experiment file {path}: planners must be a list of planner names "
+                                 f"({', '.join(PLANNERS)}), got {one_line(repr(planners), 80)}")
         data.pop("planners", None)
         values.update(data)
     dataset = rig is not None and str(rig) != "synthetic"

@@ -1,0 +1,103 @@
+"""Type checks of a settings dataclass's fields from their annotations.
+
+A settings file (an experiment TOML) gives any TOML type for any field; the
+run-time type checker is off for users.  :func:`check_field_types` gives
+the one-line ``TypeError``-free answer: a :class:`ValueError` ``"FIELD must
+be WHAT, got VALUE"`` for the first field whose value does not fit its
+annotation, before any value is used (a list for ``samples`` failed deep in
+a campaign with ``'<=' not supported between instances of 'int' and
+'list'``; issue 32).  Annotations it does not know are not checked.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+from typing import Any, Callable
+
+import numpy as np
+
+from .hardware.problems import one_line
+
+__all__ = ["check_field_types", "check_settings"]
+
+
+def _int(v) -> bool:
+    return isinstance(v, (int, np.integer)) and not isinstance(v, (bool, np.bool_))
+
+
+def _number(v) -> bool:
+    return (isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, (bool, np.bool_))
+            and math.isfinite(v))
+
+
+def _seq(n: int, *checks: Callable[[Any], bool]) -> Callable[[Any], bool]:
+    def ok(v) -> bool:
+        return isinstance(v, (tuple, list)) and len(v) == n and all(c(x) for c, x in zip(checks, v))
+    return ok
+
+
+def _options(v) -> bool:
+    if isinstance(v, dict):
+        return all(isinstance(k, str) for k in v)
+    return isinstance(v, (tuple, list)) and all(
+        isinstance(p, (tuple, list)) and len(p) == 2 and isinstance(p[0], str) for p in v)
+
+
+#: annotation (as written) -> (check, what it must be)
+_RULES: dict[str, tuple[Callable[[Any], bool], str]] = {
+    "int": (_int, "an integer"),
+    "float": (_number, "a finite number"),
+    "float | None": (lambda v: v is None or _number(v), "a finite number (or left out)"),
+    "int | None": (lambda v: v is None or _int(v), "an integer (or left out)"),
+    "bool": (lambda v: isinstance(v, (bool, np.bool_)), "true or false"),
+    "str": (lambda v: isinstance(v, str), "a string"),
+    "str | None": (lambda v: v is None or isinstance(v, str), "a string (or left out)"),
+    "Path | str": (lambda v: isinstance(v, (str, os.PathLike)), "a folder name"),
+    "tuple[float, float, int]": (_seq(3, _number, _number, _int), "three numbers (the last an integer)"),
+    "tuple[float, float] | list[float]": (_seq(2, _number, _number), "two numbers"),
+    "tuple[float, float] | list[float] | float": (lambda v: _number(v) or _seq(2, _number, _number)(v),
+                                                  "a number or two numbers"),
+    "tuple[tuple[str, object], ...] | dict[str, object]": (_options, "a table of named options"),
+}
+
+
+def check_field_types(obj) -> None:
+    """Raise ``ValueError("FIELD must be WHAT, got VALUE")`` for the first
+    field of the dataclass ``obj`` whose value does not fit its annotation."""
+    for f in dataclasses.fields(obj):
+        rule = _RULES.get(f.type if isinstance(f.type, str) else getattr(f.type, "__name__", ""))
+        if rule is None:
+            continue
+        check, what = rule
+        v = getattr(obj, f.name)
+        if not check(v):
+            raise ValueError(f"{f.name} must be {what}, got {one_line(repr(v), 80)}")
+
+
+#: integer fields of :class:`jaxrecog.experiments.Settings` and their smallest value
+_AT_LEAST = {"samples": 1, "batch": 1, "n_components": 1, "min_per_stratum": 1, "max_steps": 1}
+
+
+def check_settings(obj) -> None:
+    """:func:`check_field_types`, then the ranges of the
+    :class:`~jaxrecog.experiments.Settings` fields not checked elsewhere
+    (counts >= 1, the seed, ``p_threshold``, ``transition``, ``capture_noise``)."""
+    check_field_types(obj)
+    for name, lo in _AT_LEAST.items():
+        v = getattr(obj, name, lo)
+        if v < lo:
+            raise ValueError(f"{name} must be an integer >= {lo}, got {v!r}")
+    seed = getattr(obj, "seed", 0)
+    if not 0 <= seed < 2**63:
+        raise ValueError(f"seed must be an integer in 0..2**63-1, got {seed!r}")
+    p = getattr(obj, "p_threshold", 0.5)
+    if not 0.0 < p <= 1.0:
+        raise ValueError(f"p_threshold must be a probability in (0, 1], got {p!r}")
+    t = getattr(obj, "transition", "uniform")
+    if t not in ("uniform", "sticky"):
+        raise ValueError(f"transition must be 'uniform' or 'sticky', got {one_line(repr(t), 80)}")
+    noise = getattr(obj, "capture_noise", (0, 0, 0))
+    if min(noise) < 0:
+        raise ValueError(f"capture_noise (brightness, pixel sigma, max shift) must be >= 0, got {tuple(noise)!r}")
