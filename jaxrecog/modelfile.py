@@ -19,7 +19,10 @@ rank being ``W``'s last axis), the training metadata's ``likelihood_options``
 and the calibration metadata's ``shape`` offsets (:mod:`jaxrecog.calibration`):
 an older reader stops at the version instead of at an unknown kind.  A
 version-2 file is a valid version-3 file (Gaussians only) and loads as it is,
-without a warning.  Every likelihood parameter is checked on load (finite,
+without a warning.  Version 4 added the ``recipe`` metadata entry
+(:mod:`jaxrecog.recipes`: how the model was trained and its stop rule);
+files of versions 2 and 3 load as they are and report recipe ``thesis``
+(:func:`jaxrecog.recipes.recipe_from_meta`).  Every likelihood parameter is checked on load (finite,
 and the family's ``problems()``: e.g. ``nu <= 2``, a non-positive variance, a
 rank larger than K), each failure one line naming the field.
 
@@ -56,6 +59,7 @@ import numpy as np
 
 from .hardware.problems import one_line, problem_message
 from .kernels import likelihood_class
+from .recipes import THESIS
 from .sensor_model import CameraModel, SensorModel
 
 __all__ = [
@@ -73,9 +77,9 @@ __all__ = [
     "load_model_meta",
 ]
 
-FORMAT_VERSION = 3
+FORMAT_VERSION = 4
 _OLD_VERSIONS = (1,)  # still read, as uncalibrated models, with a warning
-_SAME_VERSIONS = (2,)  # read as they are: a subset of version 3 (Gaussian likelihoods only)
+_SAME_VERSIONS = (2, 3)  # read as they are: subsets of version 4 (no recipe entry: recipe 'thesis')
 _EIGEN = {"mean_image": "V D", "basis": "V D K", "eigenvalues": "V K"}   # every camera, before its likelihood
 _CALIBRATION = {"calibration": "V L"}
 
@@ -130,14 +134,17 @@ def _content_hash(arrays: dict[str, np.ndarray]) -> str:
 
 
 def save_model(path: str | os.PathLike, model: SensorModel, *, training: dict | None = None,
-               manifest_sha256: str | None = None, calibration: dict | None = None) -> Path:
+               manifest_sha256: str | None = None, calibration: dict | None = None,
+               recipe: dict | None = None) -> Path:
     """Write ``model`` to ``path`` atomically (temp file + fsync + ``os.replace``).
 
     ``training`` (JSON-serialisable parameters) and ``manifest_sha256`` are
     stored as provenance (see :class:`~jaxrecog.train.TrainingInfo`);
     ``calibration`` (JSON-serialisable, e.g.
     :meth:`jaxrecog.calibration.CalibrationInfo.to_dict`) likewise.  The
-    calibration factors themselves are arrays of the model.
+    calibration factors themselves are arrays of the model.  ``recipe``
+    (:meth:`jaxrecog.recipes.Recipe.to_dict`) is the recipe the model was
+    trained by; ``None`` records ``thesis``.
     """
     path = Path(path)
     arrays = _arrays(model)
@@ -155,6 +162,7 @@ def save_model(path: str | os.PathLike, model: SensorModel, *, training: dict | 
         "training": training or {},
         "calibrated": any(c.calibration is not None for c in model.cameras),
         "calibration": calibration or {},
+        "recipe": recipe if recipe is not None else THESIS.to_dict(),
         "manifest_sha256": manifest_sha256,
         "content_sha256": _content_hash(arrays),
     }

@@ -383,7 +383,7 @@ def model_figures(model, scores: np.ndarray, folder: str | os.PathLike, *,
     0) and ``occlusion_examples`` of the model's occlusion levels on ``image``
     (a training image; default: camera 0's mean image at position 0)."""
     folder = Path(folder)
-    positions = tuple(int(c.mu.shape[0]) for c in model.cameras)
+    positions = tuple(int(c.basis.shape[0]) for c in model.cameras)
     written = list(score_heatmap(scores, positions, folder / "mi_scores",
                                  title="MI of every configuration, uniform belief", label="MI (nats)"))
     cam = model.cameras[0]

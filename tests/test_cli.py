@@ -101,7 +101,8 @@ def test_subcommands_are_the_public_modules_of_the_package():
     --help keeps the workflow order (each module's ORDER)."""
     modules = sorted(p.stem for p in Path(cli.__file__).parent.glob("[!_]*.py"))
     assert sorted(cli.COMMANDS) == modules
-    assert list(cli.COMMANDS) == ["render", "train", "inspect", "plan", "recognize", "experiment", "bench", "demo"]
+    assert list(cli.COMMANDS) == ["render", "train", "recipes", "inspect", "plan", "recognize", "experiment", "bench",
+                                  "demo"]
     assert list(cli.subparsers(cli.build_parser())) == list(cli.COMMANDS)
 
 
@@ -199,10 +200,10 @@ def test_train_bad_database_and_calibrate(tiny, tmp_path):
     p = run("train", tmp_path / "nodb", "--out", tmp_path / "m.npz")
     assert p.returncode == 1
     one_error_line(p, "nodb")
-    # the tiny database has no 'calib' rows: a clear one-line failure, no model written
+    # the tiny database has no 'calib' rows: a clear one-line usage error before training, no model written
     p = run("train", tiny["db"], "--out", tmp_path / "c.npz", "--samples", 4, "--components", 2, "--calibrate")
-    assert p.returncode == 1
-    one_error_line(p, "calib")
+    assert p.returncode == 2
+    assert "--calibrate (recipe robust) needs a 'calib' split" in p.stderr.strip().splitlines()[-1]
     assert not (tmp_path / "c.npz").exists()
 
     # the same database with its test rows relabelled 'calib': calibrated, saved, reported

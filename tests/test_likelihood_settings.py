@@ -208,8 +208,8 @@ def test_train_cli_flags_reach_train_model(tmp_path, monkeypatch, capsys):
 
     monkeypatch.setattr(cli_train, "train_model", spy)
     out = tmp_path / "m.npz"
-    argv = ["--quiet", "train", str(folder), "--out", str(out), "--kind", "DB1", "--components", "3", "--samples",
-            "10", "--likelihood", "student-t", "--nu", "5", "--view-jitter", "--rotation", "3", "--scale", "0.03",
+    argv = ["--quiet", "train", str(folder), "--out", str(out), "--recipe", "thesis", "--kind", "DB1", "--components",
+            "3", "--samples", "10", "--likelihood", "student-t", "--nu", "5", "--view-jitter", "--rotation", "3", "--scale", "0.03",
             "--blur", "1", "--gain", "0.05"]
     assert cli.main(argv) == 0
     assert seen["likelihood"] == "student-t" and seen["likelihood_options"] == {"nu": 5.0}
@@ -219,12 +219,14 @@ def test_train_cli_flags_reach_train_model(tmp_path, monkeypatch, capsys):
     capsys.readouterr()
     assert cli.main(["inspect", str(out)]) == 0
     assert "view jitter: 1 jitter image(s) of 1 view(s), added" in capsys.readouterr().out
-    # --view-jitter on a database without jitter rows: one clear error, exit 1
+    # --view-jitter on a database without jitter rows: one clear usage error before training, exit 2
     plain = tmp_path / "plain"
     write_database(plain, db)
+    capsys.readouterr()
     assert cli.main(["--quiet", "train", str(plain), "--out", str(tmp_path / "p.npz"), "--kind", "DB1",
-                     "--components", "3", "--samples", "10", "--view-jitter"]) == 1
-    assert "no 'jitter' rows" in capsys.readouterr().err
+                     "--components", "3", "--samples", "10", "--view-jitter"]) == 2
+    assert "--view-jitter (recipe robust) needs a 'jitter' split" in capsys.readouterr().err
+    assert not (tmp_path / "p.npz").exists()
     assert cli.main(["train", str(plain), "--out", "x.npz", "--rank", "2"]) == 2  # --rank is gaussian-lowrank's
 
 

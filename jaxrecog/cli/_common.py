@@ -11,6 +11,7 @@ import numpy as np
 from ..hardware import SyntheticRig, default_objects
 from ..hardware.positions import CameraTable, default_table
 from ..modelfile import load_model, load_model_meta
+from ..recipes import recipe_from_meta
 
 __all__ = ["CLIError", "UsageError", "fmt_cfg", "key", "model_positions", "model_report", "print_table",
            "synthetic_rig"]
@@ -29,7 +30,7 @@ def key(seed: int):
 
 
 def model_positions(model) -> tuple[int, ...]:
-    return tuple(int(c.mu.shape[0]) for c in model.cameras)
+    return tuple(int(c.basis.shape[0]) for c in model.cameras)
 
 
 def fmt_cfg(cfg: Sequence[SupportsInt]) -> str:  # ints or NumPy integers
@@ -107,7 +108,12 @@ def model_report(path, model=None) -> str:
     it was trained and, when calibrated, the variance factors per camera and position."""
     model = load_model(str(path)) if model is None else model
     lines = [f"model file {path}", model.summary()]
-    train = load_model_meta(path).get("training") or {}
+    meta = load_model_meta(path)
+    recipe = recipe_from_meta(meta)
+    lines.append(f"  recipe: {recipe.name} (version {recipe.version})"
+                 + ("" if "recipe" in meta else ", a file written before recipes")
+                 + ": " + ", ".join(recipe.describe()))
+    train = meta.get("training") or {}
     if isinstance(train.get("params"), dict):  # TrainingInfo.to_dict() (experiments.prepare) nests them
         train = train["params"]
     if train:
@@ -121,4 +127,9 @@ def model_report(path, model=None) -> str:
             how = ("one mixture component each" if vj.get("mode") == "components"
                    else f"{vj.get('mode')} to the training images' samples")
             lines.append(f"  view jitter: {vj.get('images')} jitter image(s) of {vj.get('views')} view(s), {how}")
+        ip = train.get("interpolate")
+        if isinstance(ip, dict):
+            found = [sum(x >= 0 for pair in cam for x in pair) for cam in ip.get("neighbours", [])]
+            lines.append(f"  interpolated views: {ip.get('points_per_side')} per side; neighbouring positions "
+                         f"found per camera: {found} of {[2 * len(c) for c in ip.get('neighbours', [])]}")
     return "\n".join(lines + _calibration_lines(model))

@@ -104,7 +104,7 @@ def choice_options(p: argparse.ArgumentParser, *, unset: bool = False) -> None:
     ``unset``: leave them ``None`` when not given (``experiment``, where an
     experiment TOML may set them)."""
     g = p.add_argument_group("view choice (departures from the thesis, off by default)")
-    g.add_argument("--exclude-visited", action="store_true", default=None if unset else False,
+    g.add_argument("--exclude-visited", action=argparse.BooleanOptionalAction, default=None if unset else False,
                    help="never send a camera back to a position it already took an image from (the thesis "
                         "excludes only whole configurations already used, so one camera may stay on its view)")
     g.add_argument("--shared-view", action="store_true", default=None if unset else False,
@@ -119,6 +119,16 @@ def choice_options(p: argparse.ArgumentParser, *, unset: bool = False) -> None:
                    help="never stop on the probability threshold before N image sets: a decision is confirmed "
                         "by N - 1 more views (the thesis stops at the first step that reaches it: 1; at most "
                         "the step limit)")
+
+
+def model_recipe(path: str):
+    """The recipe a model file records (:func:`jaxrecog.recipes.recipe_from_meta`;
+    ``thesis`` for files written before recipes).  A file that cannot be read
+    raises its :class:`~jaxrecog.modelfile.ModelFileError` (one line)."""
+    from ..modelfile import load_model_meta
+    from ..recipes import recipe_from_meta
+
+    return recipe_from_meta(load_model_meta(path))
 
 
 def render_workers_option(p: argparse.ArgumentParser, *, default: int | None) -> None:

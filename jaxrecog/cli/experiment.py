@@ -11,11 +11,13 @@ from .. import experiments as ex  # as a module: tests stub its prepare / run_ca
 from .._config import ConfigFileError, read_toml
 from .._lock import folder_lock
 from ..driver import trial_mesh
+from ..modelfile import ModelFileError
 from ..planners import DEFAULT_MIN_PER_STRATUM
 from .._progress import enabled as progress_bars
 from ..hardware.problems import one_line
 from ._common import UsageError
-from ._options import (PLANNERS, capture_options, capture_params, choice_options, default_likelihood,
+from ._options import (PLANNERS, capture_options, capture_params, choice_options, default_likelihood, model_recipe,
+                       probability,
                        given_likelihood_options, likelihood_options, positive, render_jitter_options,
                        render_jitter_values, render_workers_option)
 from ._reports import QUICK, make_settings, trace_plot, write_report
@@ -54,6 +56,8 @@ def add_arguments(p) -> None:
                    f"(default {DEFAULT_MIN_PER_STRATUM})")
     p.add_argument("--batch", type=positive, help="trials run in lockstep")
     p.add_argument("--seed", type=int, help="campaign seed")
+    p.add_argument("--threshold", type=probability, help="stop probability P_th (default: the case's 0.95; on a "
+                   "database the model's recipe's)")
     p.add_argument("--stride", type=positive,
                    help="synthetic rig: keep every STRIDE-th position of each camera (8 = a 4 x 1 table "
                         "that renders and trains in seconds; default 1 = the thesis's 32 x 7)")
@@ -167,8 +171,18 @@ def run(args) -> int:
             "min_per_stratum": args.min_per_stratum, "batch": args.batch, "seed": args.seed,
             "stride": args.stride, "devices": args.devices,
             "render_workers": args.render_workers, "exclude_visited_positions": args.exclude_visited,
-            "shared_view": args.shared_view, "motion_cost": args.motion_cost, "min_views": args.min_views}
+            "shared_view": args.shared_view, "motion_cost": args.motion_cost, "min_views": args.min_views,
+            "p_threshold": args.threshold}
     values.update({k: v for k, v in over.items() if v is not None})
+    if dataset:  # the stop rule: the model's recipe unless an option or the experiment file gives it
+        try:
+            recipe = model_recipe(str(model))
+        except (ModelFileError, ValueError):
+            recipe = None   # the campaign's own load of the model reports it, after the usage checks
+        for part, field in (("p_threshold", "p_threshold"), ("min_views", "min_views"),
+                            ("exclude_visited", "exclude_visited_positions")):
+            if recipe is not None:
+                values.setdefault(field, getattr(recipe, part))
     values.update(_training_values(args, values))
     if args.quick:
         for k, v in QUICK.items():

@@ -57,7 +57,7 @@ def run(args) -> int:
         model = load_model(str(path))
         print(model_report(path, model))
         if args.plot_dir:
-            if args.camera >= len(model.cameras) or args.position >= model.cameras[args.camera].mu.shape[0]:
+            if args.camera >= len(model.cameras) or args.position >= model.cameras[args.camera].basis.shape[0]:
                 raise UsageError(f"the model has no camera {args.camera} position {args.position} "
                                  f"(positions {model_positions(model)})")
             cam = model.cameras[args.camera]

@@ -18,7 +18,7 @@ from ..planners import DEFAULT_PLANNER, make_planner
 from ..recognizer import Recognizer
 from ._common import CLIError, UsageError, fmt_cfg, key, model_positions, print_table, synthetic_rig
 from ._images import usable
-from ._options import (PLANNERS, choice_options, config_tuple, nonneg, planner_size_options, positive, probability,
+from ._options import (PLANNERS, choice_options, model_recipe, config_tuple, nonneg, planner_size_options, positive, probability,
                        skip_invalid_option, table_options)
 
 NAME = "recognize"
@@ -38,7 +38,8 @@ def add_arguments(p) -> None:
     p.add_argument("--start", type=config_tuple, metavar="V1,V2",
                    help="initial configuration (default: random from --seed)")
     p.add_argument("--planner", choices=PLANNERS, default=DEFAULT_PLANNER, help="view planner")
-    p.add_argument("--threshold", type=probability, default=0.95, help="stop probability P_th")
+    p.add_argument("--threshold", type=probability, default=None,
+                   help="stop probability P_th (default: the model's recipe's, 0.95 in both built-in recipes)")
     p.add_argument("--max-steps", type=positive, default=7, help="largest number of image sets")
     planner_size_options(p)
     skip_invalid_option(p)
@@ -46,7 +47,7 @@ def add_arguments(p) -> None:
     p.add_argument("--noise", type=float, default=CAPTURE_NOISE[1], help="synthetic rig: per-pixel noise (gray levels)")
     p.add_argument("--plot", metavar="PNG", help="also plot the belief over objects per step")
     p.add_argument("--seed", type=int, default=0, help="PRNG seed (start, planner, rig noise)")
-    choice_options(p)
+    choice_options(p, unset=True)  # the stop rule's parts default to the model's recipe
     table_options(p)
 
 
@@ -128,8 +129,15 @@ def _trial(args, model, rig, rec, state, k_run):
 
 
 def run(args) -> int:
-    if args.min_views > args.max_steps:  # before the model, the rig and the planner's tables
+    if args.min_views is not None and args.min_views > args.max_steps:  # before the model, the rig and the planner
         raise UsageError(f"--min-views {args.min_views} is above --max-steps {args.max_steps}")
+    recipe = model_recipe(args.model)   # the stop rule: the model's recipe unless an option gives it
+    for opt, part in (("threshold", "p_threshold"), ("min_views", "min_views"), ("exclude_visited", "exclude_visited")):
+        if getattr(args, opt) is None:
+            setattr(args, opt, getattr(recipe, part))
+    args.min_views = min(args.min_views, args.max_steps)  # a recipe's rule within a shorter --max-steps
+    args.shared_view = bool(args.shared_view)
+    args.motion_cost = 0.0 if args.motion_cost is None else args.motion_cost
     model = load_model(args.model)
     positions = model_positions(model)
     if args.object >= model.n_objects or args.pose >= model.n_poses:
@@ -162,7 +170,9 @@ def run(args) -> int:
     finally:
         rig.close()
     print(f"object {args.object}, pose {args.pose} on rig {args.rig}; planner {args.planner}, "
-          f"P_th {args.threshold}")
+          f"P_th {args.threshold}" + (f", recipe {recipe.name}: at least {args.min_views} views"
+                                      + (" from new positions" if args.exclude_visited else "")
+                                      if args.min_views > 1 or args.exclude_visited else ""))
     print_table(["step", "config", "object", "pose", "P", "occluded", "next"], rows)
     ok = int(dec.object) == args.object and int(dec.pose) == args.pose
     print(f"result: object {int(dec.object)}, pose {int(dec.pose)} with P = {float(dec.probability):.3f} after "

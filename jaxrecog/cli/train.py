@@ -10,16 +10,20 @@ from ..database import load_database
 from ..kernels import likelihood_class
 from ..modelfile import check_writable, save_model
 from .._progress import bar
+from ..recipes import AUTO, DEFAULT_RECIPE, RECIPES, Recipe, get_recipe
 from ..train import train_model
 from ._common import UsageError
 from ._options import (capture_options, capture_params, given_likelihood_options, likelihood_choice,
-                       likelihood_options, positive, view_jitter_option)
+                       likelihood_options, nonneg, positive, probability)
 
 NAME = "train"
 ORDER = 20
 HELP = "train a sensor model (DB1/DB2) from an image database"
 DESCRIPTION = ("Train the eigenspace + likelihood sensor model of an image database and write the\n"
                "model file (.npz).  DB1 = noise and shifts; DB2 adds occluders of 5..25 %.\n"
+               f"--recipe (default {DEFAULT_RECIPE}) bundles the likelihood, interpolated views, view jitter,\n"
+               "calibration, shift range and the stop rule (`jaxrecog recipes` lists them); the options\n"
+               "below override its parts, and the model file records the recipe as used.\n"
                "Likelihoods: gaussian-diag (the thesis), gaussian-full, gaussian-lowrank (--rank),\n"
                "student-t (--nu; heavy tails, so one unmodelled deviation cannot drive a belief to 1),\n"
                "view-mixture and view-mixture-lowrank (--rank; one component per rendered view near each\n"
@@ -32,6 +36,8 @@ _COVARIANCE = {"diag": "gaussian-diag", "full": "gaussian-full"}
 def add_arguments(p) -> None:
     p.add_argument("database", metavar="DATABASE", help="image database folder (with manifest.csv)")
     p.add_argument("--out", required=True, metavar="MODEL.NPZ", help="model file to write")
+    p.add_argument("--recipe", choices=tuple(RECIPES), default=DEFAULT_RECIPE,
+                   help=f"training and stop-rule recipe (default {DEFAULT_RECIPE}; 'thesis' = the thesis's protocol)")
     p.add_argument("--kind", choices=("DB1", "DB2"), default="DB2", help="augmentation kind")
     p.add_argument("--components", type=float, default=20,
                    help="eigenvectors K per position (integer), or the energy fraction to keep (0..1)")
@@ -41,10 +47,87 @@ def add_arguments(p) -> None:
     p.add_argument("--covariance", choices=tuple(_COVARIANCE), default=None,
                    help="older alias: 'diag' = --likelihood gaussian-diag, 'full' = --likelihood gaussian-full")
     p.add_argument("--seed", type=int, default=0, help="seed of the augmentation")
-    p.add_argument("--calibrate", action="store_true",
+    g = p.add_argument_group("recipe parts (default: the recipe's)")
+    g.add_argument("--interpolate", type=nonneg, default=None, metavar="N",
+                   help="N interpolated views per side toward each neighbouring position (view-mixture "
+                        "components between the training views; 0 = none)")
+    g.add_argument("--calibrate", action=argparse.BooleanOptionalAction, default=None,
                    help="calibrate the model on the database's 'calib' split (jaxrecog.calibration)")
-    view_jitter_option(p)
-    capture_options(p)
+    g.add_argument("--view-jitter", action=argparse.BooleanOptionalAction, default=None,
+                   help="use the database's 'jitter' rows (images near a training view, each labelled with that "
+                        "view) as extra base images of their view: each gets --samples augmented samples like "
+                        "the training image (jaxrecog.train.train_model)")
+    g.add_argument("--threshold", type=probability, default=None, help="stop rule recorded in the model: P_th")
+    g.add_argument("--min-views", type=positive, default=None, metavar="N",
+                   help="stop rule recorded in the model: never stop on P_th before N image sets")
+    g.add_argument("--exclude-visited", action=argparse.BooleanOptionalAction, default=None,
+                   help="stop rule recorded in the model: never send a camera back to a visited position")
+    capture_options(p, unset=True)
+
+
+def resolve_recipe(args, db=None) -> Recipe:
+    """The recipe of ``--recipe`` with the parts the options give, and with
+    ``"auto"`` resolved against ``db`` (when given).  A part that contradicts
+    an option, or a split the recipe needs that ``db`` lacks, is a
+    :class:`UsageError` of one line."""
+    try:
+        recipe = get_recipe(args.recipe)
+    except ValueError as e:
+        raise UsageError(str(e)) from None
+    parts: dict = {}
+    name = _likelihood_name(args)
+    given = given_likelihood_options(args)
+    if given:
+        try:
+            likelihood_choice(name or recipe.likelihood, given)   # an option of another family: one line
+        except ValueError as e:
+            raise UsageError(str(e)) from None
+    if name is not None:
+        parts["likelihood"] = name
+        parts["likelihood_options"] = given
+    elif given:
+        parts["likelihood_options"] = {**recipe.options, **given}
+    for opt, part in (("interpolate", "interpolate"), ("calibrate", "calibrate"), ("view_jitter", "view_jitter"),
+                      ("threshold", "p_threshold"), ("min_views", "min_views"),
+                      ("exclude_visited", "exclude_visited"), ("max_shift", "max_shift")):
+        if getattr(args, opt, None) is not None:
+            parts[part] = getattr(args, opt)
+    try:
+        recipe = recipe.replace(**parts)
+    except ValueError as e:
+        raise UsageError(str(e)) from None
+    family = likelihood_class(recipe.likelihood)
+    if recipe.interpolate and not family.view_components:
+        if "interpolate" in parts:
+            raise UsageError(f"--interpolate {recipe.interpolate} needs a mixture likelihood (interpolated views are "
+                             f"its components), and recipe {recipe.name} trains {recipe.likelihood}: add "
+                             f"--likelihood view-mixture")
+        raise UsageError(f"--likelihood {recipe.likelihood} contradicts recipe {recipe.name}'s interpolate = "
+                         f"{recipe.interpolate} (interpolated views are mixture components): add --interpolate 0, "
+                         f"or use view-mixture / view-mixture-lowrank")
+    if family.view_components and not recipe.interpolate and recipe.view_jitter is False:
+        raise UsageError(f"--likelihood {recipe.likelihood} needs mixture components: --interpolate N or "
+                         f"--view-jitter (recipe {recipe.name} has neither)")
+    for k in recipe.options:
+        if k not in family.fit_options:
+            raise UsageError(f"recipe {recipe.name}: option {k!r} does not apply to --likelihood {recipe.likelihood}")
+    if db is None:
+        return recipe
+    has = {s: int((db.split == s).sum()) for s in ("calib", "jitter")}
+    resolved = {}
+    for part, split, flag in (("calibrate", "calib", "--calibrate"), ("view_jitter", "jitter", "--view-jitter")):
+        want = getattr(recipe, part)
+        if want is True and not has[split]:
+            raise UsageError(f"{flag} (recipe {recipe.name}) needs a '{split}' split; database {db.root or ''} "
+                             f"has none (add '{split}' rows, or --no-{flag[2:]})")
+        if want == AUTO:
+            resolved[part] = bool(has[split])
+            if not has[split] and part == "calibrate":
+                print(f"recipe {recipe.name}: the database has no 'calib' split, so the model is not calibrated")
+    if family.view_components and not recipe.interpolate and not resolved.get("view_jitter", recipe.view_jitter):
+        raise UsageError(f"--likelihood {recipe.likelihood} takes its components from 'jitter' rows, and the "
+                         f"database has none: add --interpolate N")
+    return recipe.replace(**resolved)
 
 
 def run(args) -> int:
@@ -53,34 +136,39 @@ def run(args) -> int:
         comps = int(comps)
     elif not 0 < comps <= 1:
         raise UsageError(f"--components must be an integer >= 1 or a fraction in (0, 1], got {args.components}")
-    name, options = _likelihood(args)
+    resolve_recipe(args)  # an unknown recipe or a contradiction: one line before the database loads
     try:
-        augment = AugmentParams(**capture_params(args))
+        capture = capture_params(args)
     except (ValueError, argparse.ArgumentTypeError) as e:
         raise UsageError(f"capture augmentation: {e}") from None
-    check_writable(args.out)  # before minutes of training, not after (nothing is left behind)
+    check_writable(args.out)
     db = load_database(args.database)
+    recipe = resolve_recipe(args, db)
+    try:
+        augment = AugmentParams(**{**capture, "max_shift": recipe.max_shift})
+    except (ValueError, argparse.ArgumentTypeError) as e:
+        raise UsageError(f"capture augmentation: {e}") from None
     with bar(sum(db.positions), f"train {args.kind}", "pos") as b:
         model, info = train_model(db, kind=args.kind, n_components=comps, samples_per_image=args.samples,
-                                  likelihood=name, likelihood_options=options, seed=args.seed,
-                                  progress=b.set, augment=augment, view_jitter=args.view_jitter,
-                                  return_info=True)
+                                  likelihood=recipe.likelihood, likelihood_options=recipe.options, seed=args.seed,
+                                  progress=b.set, augment=augment, view_jitter=bool(recipe.view_jitter),
+                                  interpolate=recipe.interpolate, return_info=True)
     params = dict(info.params)
     calibration = None
-    if args.calibrate:
+    if recipe.calibrate:
         model, cal = calibrate_model(model, db)
         params["calibrated"] = True
         calibration = cal.to_dict()
         print(cal.summary())
     path = save_model(args.out, model, training=params, manifest_sha256=info.manifest_sha256,
-                      calibration=calibration)
-    print(f"trained {args.kind} (K={params['K']}) in {info.seconds:.1f} s -> {path}")
+                      calibration=calibration, recipe=recipe.to_dict())
+    print(f"trained {args.kind} (K={params['K']}, recipe {recipe.name}) in {info.seconds:.1f} s -> {path}")
     print(model.summary())
     return 0
 
 
-def _likelihood(args) -> tuple[str, dict]:
-    """The ``--likelihood`` (or its ``--covariance`` alias) and the family's options."""
+def _likelihood_name(args) -> str | None:
+    """The ``--likelihood`` (or its ``--covariance`` alias), ``None`` when neither is given."""
     name = args.likelihood
     if args.covariance is not None:
         alias = _COVARIANCE[args.covariance]
@@ -88,7 +176,4 @@ def _likelihood(args) -> tuple[str, dict]:
             raise UsageError(f"--covariance {args.covariance} means --likelihood {alias}, "
                              f"which contradicts --likelihood {name}")
         name = alias
-    try:
-        return likelihood_choice(name, given_likelihood_options(args), view_jitter=bool(args.view_jitter))
-    except ValueError as e:
-        raise UsageError(str(e)) from None
+    return name

@@ -1,0 +1,162 @@
+"""Recipes: one named, versioned bundle of how a model is trained and when a
+trial stops, instead of a handful of flags spread over ``train`` and
+``experiment`` (issue 28).
+
+A :class:`Recipe` holds the likelihood family and its fit options, the
+interpolated views between training views, the database's view jitter, the
+calibration, the training shift range, and the stop rule (P_th, the fewest
+views before a stop, revisit exclusion).  ``jaxrecog train`` writes the
+resolved recipe into the model file; ``recognize``, ``plan`` and
+``experiment --rig dataset:`` read the stop rule from the model unless an
+option overrides it.  Flags still override a recipe's parts; the model file
+records the parts as they were used.
+
+``thesis``
+    The thesis's protocol, exactly the defaults before recipes: the
+    diagonal Gaussian of eq. 4.23-4.24, no calibration, P_th 0.95 at the
+    first view that reaches it.  The thesis tables (``scripts/reproduce_thesis.py``)
+    use it.  Model files written before recipes load as ``thesis``.
+``robust``
+    The default: the best we measured on real turntable photos with test
+    views between the training views (``scripts/photo_bench.py``,
+    ``docs/results.md`` "Real photos").  A view mixture with two
+    interpolated components per side toward each neighbouring training view
+    (:func:`jaxrecog.train.interpolated_views`), the database's jitter rows
+    when it has them, calibration on its ``calib`` split when it has one,
+    and a stop only after two image sets from different positions.
+
+The registry :data:`RECIPES` maps names to recipes; :func:`get_recipe`
+looks one up (an unknown name is one line listing the known ones).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, Mapping
+
+__all__ = ["Recipe", "RECIPES", "DEFAULT_RECIPE", "THESIS", "ROBUST", "get_recipe", "recipe_from_meta",
+           "STOP_FIELDS", "TRAIN_FIELDS", "AUTO"]
+
+#: ``view_jitter`` / ``calibrate`` value: on when the database has the split, off (with one line) otherwise
+AUTO = "auto"
+_TRISTATE = (True, False, AUTO)
+
+
+@dataclasses.dataclass(frozen=True)
+class Recipe:
+    """How to train a model and when a trial stops (module doc).
+
+    Attributes:
+        name, version: the recipe's identity; a change of any default part
+            bumps ``version`` (the model file records both).
+        summary: one line for ``jaxrecog recipes``.
+        likelihood: the likelihood family (:data:`jaxrecog.kernels.LIKELIHOODS`).
+        likelihood_options: its fit options, as ``(key, value)`` pairs.
+        interpolate: interpolated views per side toward each neighbouring
+            position (``train_model(interpolate=)``; 0 = none).
+        view_jitter: use the database's ``jitter`` rows: ``True``, ``False``
+            or ``"auto"`` (when it has them).
+        calibrate: fit the variance factors on the ``calib`` split
+            (:mod:`jaxrecog.calibration`): ``True``, ``False`` or ``"auto"``.
+        max_shift: training shifts in pixels (``AugmentParams.max_shift``).
+        p_threshold: stop probability P_th.
+        min_views: never stop on P_th before this many image sets.
+        exclude_visited: never send a camera back to a position it took an
+            image from.
+    """
+
+    name: str
+    version: int
+    summary: str
+    likelihood: str = "gaussian-diag"
+    likelihood_options: tuple[tuple[str, Any], ...] = ()
+    interpolate: int = 0
+    view_jitter: bool | str = False
+    calibrate: bool | str = False
+    max_shift: int = 3
+    p_threshold: float = 0.95
+    min_views: int = 1
+    exclude_visited: bool = False
+
+    def __post_init__(self):
+        for f in ("view_jitter", "calibrate"):
+            if getattr(self, f) not in _TRISTATE:
+                raise ValueError(f"recipe {self.name}: {f} must be true, false or 'auto', got {getattr(self, f)!r}")
+        if int(self.interpolate) < 0 or int(self.min_views) < 1 or int(self.max_shift) < 0:
+            raise ValueError(f"recipe {self.name}: interpolate >= 0, min_views >= 1 and max_shift >= 0 needed")
+        if not 0.0 < float(self.p_threshold) <= 1.0:
+            raise ValueError(f"recipe {self.name}: p_threshold must lie in (0, 1], got {self.p_threshold}")
+
+    @property
+    def options(self) -> dict[str, Any]:
+        return dict(self.likelihood_options)
+
+    def replace(self, **parts) -> "Recipe":
+        """The recipe with some parts overridden (``likelihood_options`` may be a dict)."""
+        if "likelihood_options" in parts and isinstance(parts["likelihood_options"], Mapping):
+            parts["likelihood_options"] = tuple(sorted(parts["likelihood_options"].items()))
+        unknown = sorted(set(parts) - {f.name for f in dataclasses.fields(self)})
+        if unknown:
+            raise ValueError(f"recipe {self.name}: no part named {', '.join(unknown)}")
+        return dataclasses.replace(self, **parts)
+
+    def stop_rule(self) -> dict[str, Any]:
+        """The parts a trial's stop reads: ``p_threshold``, ``min_views``, ``exclude_visited``."""
+        return {f: getattr(self, f) for f in STOP_FIELDS}
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON form (the model file's ``recipe`` entry)."""
+        d = dataclasses.asdict(self)
+        d["likelihood_options"] = {k: v for k, v in self.likelihood_options}
+        return d
+
+    def describe(self) -> list[str]:
+        """``part = value`` lines (``jaxrecog recipes``, ``inspect``)."""
+        d = self.to_dict()
+        return [f"{k} = {d[k]!r}" if isinstance(d[k], str) else f"{k} = {d[k]}"
+                for k in (*TRAIN_FIELDS, *STOP_FIELDS)]
+
+
+#: the recipe parts that choose how a model is trained
+TRAIN_FIELDS = ("likelihood", "likelihood_options", "interpolate", "view_jitter", "calibrate", "max_shift")
+#: the recipe parts a trial's stop reads
+STOP_FIELDS = ("p_threshold", "min_views", "exclude_visited")
+
+THESIS = Recipe(
+    name="thesis", version=1,
+    summary="the thesis's protocol: diagonal Gaussian, no calibration, stop at the first view with P >= 0.95",
+)
+
+ROBUST = Recipe(
+    name="robust", version=1,
+    summary="the default: view mixture with interpolated views, calibrated, stop after 2 views from new positions",
+    likelihood="view-mixture", interpolate=2, view_jitter=AUTO, calibrate=AUTO,
+    min_views=2, exclude_visited=True,
+)
+
+RECIPES: dict[str, Recipe] = {r.name: r for r in (ROBUST, THESIS)}
+DEFAULT_RECIPE = ROBUST.name
+
+
+def get_recipe(name: str) -> Recipe:
+    """The registered recipe ``name``; an unknown name is a ``ValueError`` listing them."""
+    try:
+        return RECIPES[name]
+    except KeyError:
+        raise ValueError(f"unknown recipe {name!r}; choose {', '.join(RECIPES)} (`jaxrecog recipes` lists them)") from None
+
+
+def recipe_from_meta(meta: Mapping[str, Any]) -> Recipe:
+    """The recipe a model file records (its metadata dict); a file written
+    before recipes (format version < 4, no ``recipe`` entry) is ``thesis``."""
+    d = meta.get("recipe")
+    if not isinstance(d, Mapping):
+        return THESIS
+    fields = {f.name for f in dataclasses.fields(Recipe)}
+    parts = {k: v for k, v in d.items() if k in fields}
+    opts = parts.get("likelihood_options") or {}
+    parts["likelihood_options"] = tuple(sorted(dict(opts).items())) if isinstance(opts, Mapping) else ()
+    try:
+        return Recipe(**parts)
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"the model's recipe entry is not readable ({e})") from None

@@ -1,0 +1,144 @@
+"""Recipes (issue 28): one named, versioned bundle of training and stop rule,
+recorded in the model file and read back by recognize and experiment; flags
+override its parts; old model files are 'thesis'; bad input is one line."""
+
+from __future__ import annotations
+
+import json
+import zipfile
+
+import numpy as np
+import pytest
+
+from clirun import run_cli
+from jaxrecog.modelfile import FORMAT_VERSION, load_model, load_model_meta
+from jaxrecog.photo_turntable import build_photo_database
+from jaxrecog.recipes import RECIPES, ROBUST, THESIS, get_recipe, recipe_from_meta
+
+FAST = ("--kind", "DB1", "--samples", "10", "--components", "4")
+
+
+@pytest.fixture(scope="module")
+def photo_db(tmp_path_factory):
+    """Two real objects on a 40-degree grid (9 positions, 4 poses), test views 20 degrees off."""
+    root = tmp_path_factory.mktemp("recipes")
+    build_photo_database(root / "db", 40, objects=2)
+    return root
+
+
+@pytest.fixture(scope="module")
+def robust_model(photo_db):
+    out = photo_db / "robust.npz"
+    p = run_cli("train", photo_db / "db", "--out", out, *FAST)
+    assert p.returncode == 0, p.stderr
+    return out
+
+
+def _one_error(p, needle):
+    lines = [l for l in p.stderr.splitlines() if "error:" in l]
+    assert len(lines) == 1 and "Traceback" not in p.stderr, p.stderr
+    assert needle in lines[0], lines[0]
+
+
+def test_registry_and_thesis_is_todays_defaults():
+    assert list(RECIPES) == ["robust", "thesis"] and get_recipe("thesis") is THESIS
+    assert (THESIS.likelihood, THESIS.interpolate, THESIS.calibrate, THESIS.view_jitter) == ("gaussian-diag", 0, False, False)
+    assert THESIS.stop_rule() == {"p_threshold": 0.95, "min_views": 1, "exclude_visited": False}
+    assert recipe_from_meta({}) is THESIS                       # a file written before recipes
+    assert recipe_from_meta({"recipe": ROBUST.to_dict()}) == ROBUST
+    with pytest.raises(ValueError, match="unknown recipe 'fast'; choose robust, thesis"):
+        get_recipe("fast")
+    with pytest.raises(ValueError, match="no part named colour"):
+        ROBUST.replace(colour=1)
+    with pytest.raises(ValueError, match="calibrate must be true, false or 'auto'"):
+        ROBUST.replace(calibrate="sometimes")
+
+
+def test_recipes_command_lists_them():
+    p = run_cli("recipes")
+    assert p.returncode == 0
+    assert p.stdout.startswith("robust (default), version 1:") and "\nthesis, version 1:" in p.stdout
+    assert "  interpolate = 2" in p.stdout and "  min_views = 1" in p.stdout
+    p = run_cli("recipes", "fast")
+    assert p.returncode == 2
+    _one_error(p, "unknown recipe 'fast'")
+
+
+def test_train_records_the_resolved_recipe_and_inspect_shows_it(photo_db, robust_model):
+    meta = load_model_meta(robust_model)
+    assert meta["format_version"] == FORMAT_VERSION == 4
+    r = recipe_from_meta(meta)
+    # 'auto' resolved against the database: it has a calib split and no jitter rows
+    assert (r.name, r.likelihood, r.interpolate, r.calibrate, r.view_jitter) == ("robust", "view-mixture", 2, True, False)
+    assert meta["calibrated"] and meta["training"]["interpolate"]["points_per_side"] == 2
+    assert load_model(robust_model).cameras[0].likelihood.mu.shape[3] == 5   # 1 training view + 2 x 2 blends
+    p = run_cli("inspect", robust_model)
+    assert "recipe: robust (version 1): likelihood = 'view-mixture'" in p.stdout
+    assert "interpolated views: 2 per side; neighbouring positions found per camera: [18] of [18]" in p.stdout
+    # the thesis recipe: today's defaults; a flag overrides one part and the file records it
+    out = photo_db / "thesis.npz"
+    p = run_cli("train", photo_db / "db", "--out", out, *FAST, "--recipe", "thesis", "--min-views", "3")
+    assert p.returncode == 0, p.stderr
+    r = recipe_from_meta(load_model_meta(out))
+    assert r == THESIS.replace(min_views=3)
+    assert not load_model_meta(out)["calibrated"] and load_model_meta(out)["training"]["likelihood"] == "diag"
+
+
+def test_old_model_files_load_as_thesis(photo_db, robust_model, tmp_path):
+    """A version-3 file (before recipes): loads unchanged, reports recipe thesis."""
+    old = tmp_path / "old.npz"
+    with np.load(robust_model) as d:
+        arrays = dict(d)
+    meta = json.loads(bytes(arrays["meta"]).decode())
+    del meta["recipe"]
+    meta["format_version"] = 3
+    arrays["meta"] = np.frombuffer(json.dumps(meta).encode(), np.uint8)
+    arrays["format_version"] = np.array(3, np.int64)
+    np.savez(old, **arrays)
+    assert load_model(old).n_objects == 2
+    assert recipe_from_meta(load_model_meta(old)) is THESIS
+    p = run_cli("inspect", old)
+    assert "recipe: thesis (version 1), a file written before recipes" in p.stdout
+
+
+@pytest.mark.parametrize("argv, needle", [
+    (("--likelihood", "student-t"), "--likelihood student-t contradicts recipe robust's interpolate = 2"),
+    (("--recipe", "thesis", "--interpolate", "2"), "--interpolate 2 needs a mixture likelihood"),
+    (("--recipe", "thesis", "--likelihood", "view-mixture"), "--likelihood view-mixture needs mixture components"),
+    (("--view-jitter",), "--view-jitter (recipe robust) needs a 'jitter' split"),
+    (("--rank", "2"), "--rank applies to gaussian-lowrank, view-mixture-lowrank"),
+])
+def test_train_contradictions_are_one_line_and_write_nothing(photo_db, tmp_path, argv, needle):
+    out = tmp_path / "m.npz"
+    p = run_cli("train", photo_db / "db", "--out", out, *FAST, *argv)
+    assert p.returncode == 2
+    _one_error(p, needle)
+    assert not out.exists()
+
+
+def test_unknown_recipe_is_a_usage_error(photo_db, tmp_path):
+    p = run_cli("train", photo_db / "db", "--out", tmp_path / "m.npz", "--recipe", "fast")
+    assert p.returncode == 2 and "invalid choice: 'fast' (choose from 'robust', 'thesis')" in p.stderr
+
+
+def test_recognize_and_experiment_take_the_stop_rule_from_the_model(photo_db, robust_model, tmp_path):
+    db = photo_db / "db"
+    p = run_cli("recognize", robust_model, "--rig", f"dataset:{db}", "--object", "1", "--pose", "2", "--samples", "16")
+    assert p.returncode == 0, p.stderr
+    assert "recipe robust: at least 2 views from new positions" in p.stdout
+    steps = [l for l in p.stdout.splitlines() if l.strip()[:1].isdigit()]
+    assert len(steps) >= 2                      # robust never stops on one view
+    p = run_cli("recognize", robust_model, "--rig", f"dataset:{db}", "--object", "1", "--pose", "2", "--samples", "16",
+                "--min-views", "1", "--no-exclude-visited")
+    assert p.returncode == 0 and "recipe robust" not in p.stdout
+    out = tmp_path / "exp"
+    p = run_cli("experiment", "--rig", f"dataset:{db}", "--model", robust_model, "--trials", "2", "--out", out,
+                "--planners", "random")
+    assert p.returncode == 0, p.stderr
+    s = json.loads((out / "case_dataset.json").read_text())
+    assert (s["settings"]["min_views"], s["settings"]["exclude_visited_positions"]) == (2, True)
+    assert s["tables"]["random"][-1]["views"] >= 2.0
+    p = run_cli("experiment", "--rig", f"dataset:{db}", "--model", robust_model, "--trials", "2", "--out", out,
+                "--planners", "random", "--min-views", "1", "--threshold", "0.9")
+    s = json.loads((out / "case_dataset.json").read_text())["settings"]
+    assert (s["min_views"], s["exclude_visited_positions"], s["p_threshold"]) == (1, True, 0.9)
