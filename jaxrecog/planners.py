@@ -18,6 +18,9 @@ recognizer takes the argmax; it never branches on the planner's kind.
 - :class:`CRLBPlanner` — minus a criterion of the Cramér-Rao bound J_g(a)^-1
   (eq. 5.14-5.28): trace (A-optimal, default), log-det (D) or the largest
   eigenvalue (E).
+- :class:`PairwiseCRLBPlanner` — the same criterion on a deterministic
+  pairwise-distance estimate of J_g(a) (no samples, issue 30,
+  :func:`~jaxrecog.kernels.pairwise_fisher_information`).
 - :class:`RandomPlanner` — a uniformly random configuration.
 - :class:`FixedPlanner` — one fixed configuration (the passive baseline).
 
@@ -46,6 +49,7 @@ __all__ = [
     "PairwiseMIPlanner",
     "LookaheadMIPlanner",
     "CRLBPlanner",
+    "PairwiseCRLBPlanner",
     "RandomPlanner",
     "FixedPlanner",
     "make_planner",
@@ -289,6 +293,31 @@ class CRLBPlanner(Planner):
         return -K.crlb_criterion(fisher, kind=self.criterion)
 
 
+class PairwiseCRLBPlanner(Planner):
+    """Minus the chosen criterion of the pairwise-distance estimate of J_g(a)
+    (:func:`~jaxrecog.kernels.pairwise_fisher_information`: (Sigma_0 - Sigma_g(a))
+    / sigma_s^4 with pairwise posterior weights, deterministic, no key)."""
+
+    tables: K.PairwiseFisherTables
+    n_objects: int = eqx.field(static=True, default=1)
+    n_poses: int = eqx.field(static=True, default=1)
+    criterion: str = eqx.field(static=True, default="trace")
+
+    @classmethod
+    def from_model(cls, model, *, criterion: str = "trace", sigma_s: float = K.DEFAULT_SIGMA_S,
+                   divergence: str = "bhattacharyya") -> "PairwiseCRLBPlanner":
+        """Build the divergence tables (belief-free, once per model; no key, no samples)."""
+        if criterion not in ("trace", "logdet", "maxeig"):
+            raise ValueError(f"criterion must be 'trace', 'logdet' or 'maxeig', got {criterion!r}")
+        tables = K.pairwise_fisher_tables(model.likelihoods, kind=divergence, sigma_s=sigma_s)
+        return cls(_n_configs(model), tables, model.n_objects, model.n_poses, criterion)
+
+    def scores(self, prior, key):
+        del key  # deterministic
+        fisher = K.pairwise_fisher_information(self.tables, prior, n_objects=self.n_objects, n_poses=self.n_poses)
+        return -K.crlb_criterion(fisher, kind=self.criterion)
+
+
 class RandomPlanner(Planner):
     """Uniformly random configuration (thesis Table 7.3's baseline)."""
 
@@ -330,6 +359,13 @@ def _crlb(criterion: str):
     def build(model, *, key, samples, min_per_stratum, **options):
         return CRLBPlanner.from_model(model, key=key, samples=samples, criterion=criterion,
                                       min_per_stratum=min_per_stratum, **options)
+    return build
+
+
+def _crlb_pairwise(criterion: str):
+    def build(model, *, key, samples, min_per_stratum, **options):
+        del key, samples, min_per_stratum  # deterministic: no samples
+        return PairwiseCRLBPlanner.from_model(model, criterion=criterion, **options)
     return build
 
 
@@ -379,6 +415,8 @@ PLANNERS: dict[str, PlannerSpec] = {
     "crlb": PlannerSpec(_crlb("trace"), "crlb", "Cramér-Rao bound, minimise trace(J_g^-1) (A-optimal), eq. 5.25"),
     "crlb-det": PlannerSpec(_crlb("logdet"), "crlb", "Cramér-Rao bound, minimise log det(J_g^-1) (D-optimal)"),
     "crlb-eig": PlannerSpec(_crlb("maxeig"), "crlb", "Cramér-Rao bound, minimise the largest eigenvalue of J_g^-1 (E-optimal)"),
+    "crlb-pairwise": PlannerSpec(_crlb_pairwise("trace"), "crlb",
+                                 "Cramér-Rao bound, trace(J_g^-1) of a deterministic pairwise-distance (Bhattacharyya) J_g (no samples)"),
     "random": PlannerSpec(_random, "random", "a uniformly random configuration (thesis Table 7.3)"),
     "fixed": PlannerSpec(_fixed, None, "one fixed configuration, option index (passive baseline)"),
 }

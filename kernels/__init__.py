@@ -30,6 +30,7 @@ from .belief import (
     update_with_info,
 )
 from .fisher import DEFAULT_SIGMA_S, FisherDraws, crlb_criterion, fisher_draws, fisher_information
+from .fisher_pairwise import PairwiseFisherTables, pairwise_fisher_information, pairwise_fisher_tables
 from .gaussian_diag import DiagonalGaussian, log_likelihood
 from .gaussian_full import FullGaussian, log_likelihood_full
 from .gaussian_lowrank import LowRankGaussian
@@ -69,6 +70,7 @@ __all__ = [
     "LowRankViewMixture",
     "MITables",
     "PairwiseTables",
+    "PairwiseFisherTables",
     "UpdateInfo",
     "ViewMixture",
     "shared_latent",
@@ -95,6 +97,8 @@ __all__ = [
     "object_marginal",
     "object_pose_marginal",
     "outcome_strata",
+    "pairwise_fisher_information",
+    "pairwise_fisher_tables",
     "pairwise_mutual_information",
     "pairwise_tables",
     "pose_marginal",
