@@ -19,7 +19,11 @@ Every frame goes through :func:`to_gray`:
 
 A frame that cannot be read, or a *black* frame (every pixel <= ``black_level``:
 lens cap, camera still starting), is retried up to ``retries`` times; then a
-:class:`CameraError` names the source and the last reason.
+:class:`CameraError` names the source and the last reason.  When a
+:class:`VideoCamera` delivered no frame at all in those attempts (unplugged,
+stream dropped) the error is a :class:`CameraLostError`, and
+:meth:`VideoCamera.reconnect` reopens the device (``HardwareRig.capture``
+does so with a bounded backoff, ``[[camera]] reconnect_s``).
 """
 
 from __future__ import annotations
@@ -34,6 +38,7 @@ import numpy as np
 __all__ = [
     "Camera",
     "CameraError",
+    "CameraLostError",
     "VideoCamera",
     "ImageSequenceCamera",
     "to_gray",
@@ -45,6 +50,10 @@ IMAGE_SUFFIXES = (".png", ".pgm", ".ppm", ".jpg", ".jpeg", ".bmp", ".tif", ".tif
 
 class CameraError(RuntimeError):
     """A camera could not deliver a usable frame."""
+
+
+class CameraLostError(CameraError):
+    """A device camera delivered no frame at all (unplugged, stream gone): reopen it."""
 
 
 @runtime_checkable
@@ -96,6 +105,7 @@ class _Retrying:
     image_shape: tuple[int, int]
     retries: int
     black_level: int
+    _device = False  # a device that may be lost (and reopened), not a list of files
 
     def _grab(self) -> tuple[np.ndarray | None, str]:
         raise NotImplementedError
@@ -106,10 +116,12 @@ class _Retrying:
     def read(self) -> np.ndarray:
         """One gray ``uint8 [H, W]`` frame; failed or black frames are retried ``retries`` times."""
         why = ""
+        grabbed = False
         for _ in range(self.retries + 1):
             frame, why = self._grab()
             if frame is None:
                 continue
+            grabbed = True
             try:
                 img = to_gray(frame, self.image_shape)
             except CameraError as e:
@@ -119,7 +131,8 @@ class _Retrying:
                 why = f"black frame (every pixel <= {self.black_level})"
                 continue
             return img
-        raise CameraError(f"camera {self._name()}: no usable frame after {self.retries + 1} attempts: {why}")
+        error = CameraLostError if self._device and not grabbed else CameraError
+        raise error(f"camera {self._name()}: no usable frame after {self.retries + 1} attempts: {why}")
 
 
 class VideoCamera(_Retrying):
@@ -150,21 +163,31 @@ class VideoCamera(_Retrying):
         self.black_level = int(black_level)
         self._factory = capture_factory
         self._cap = None
+        self._closed = False
         self.open()
+
+    _device = True
 
     def _name(self) -> str:
         return repr(self.source)
 
+    def reconnect(self) -> None:
+        """Release and reopen the device (after a :class:`CameraLostError`)."""
+        self.open()
+
     def open(self) -> None:
-        self.close()
+        self._release()
+        self._closed = False
         cap = self._factory(self.source)
         if cap is None or not cap.isOpened():
-            raise CameraError(f"camera {self.source!r}: VideoCapture could not open it")
+            raise CameraLostError(f"camera {self.source!r}: VideoCapture could not open it")
         self._cap = cap
 
     def _grab(self):
         if self._cap is None:
-            raise CameraError(f"camera {self.source!r} is closed")
+            if self._closed:
+                raise CameraError(f"camera {self.source!r} is closed")
+            raise CameraLostError(f"camera {self.source!r} is not open (the last reopen failed)")
         try:
             ok, frame = self._cap.read()
         except cv2.error as e:
@@ -173,10 +196,14 @@ class VideoCamera(_Retrying):
             return None, "VideoCapture.read returned no frame"
         return frame, ""
 
-    def close(self) -> None:
+    def _release(self) -> None:
         if self._cap is not None:
-            self._cap.release()
-            self._cap = None
+            cap, self._cap = self._cap, None
+            cap.release()
+
+    def close(self) -> None:
+        self._closed = True
+        self._release()
 
 
 class ImageSequenceCamera(_Retrying):

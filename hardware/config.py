@@ -5,20 +5,30 @@ A file describes one rig: which kind (``"hardware"`` for a real rig,
 controller's UDP address, one ``[[ptu]]`` and one ``[[camera]]`` per camera
 (camera 1 first).  ``docs/hardware.md`` documents every key;
 ``examples/simulated_rig.toml`` is a complete example.  Unknown keys are
-errors (a typo must not silently fall back to a default).
+errors (a typo must not silently fall back to a default), and so is every
+value of the wrong type or outside its range (:data:`_RULES`: a timeout of
+-1 or ``inf``, a probability of 2): the message names the file, the section
+and the key, in the file's units.  Checked when the file is loaded, not when
+the rig first needs them: two pan-tilt units on one serial port, a table
+position outside the workspace or a pan-tilt unit's range, the shared key.
+Every problem is a :class:`ConfigError` -- nothing else leaves
+:func:`load_config`.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
 import os
 import tomllib
 from typing import Any
 
 from .controller_sim import LinkFaults
+from .datagram import SharedKey
 from .motion import MotionSpeeds
-from .pan_tilt import DEFAULT_PAN_TILT, pan_tilt_driver
+from .pan_tilt import DEFAULT_PAN_TILT, pan_tilt_driver, ptu_angles
 from .positions import CameraTable, default_table
+from .problems import one_line
 
 __all__ = [
     "ConfigError",
@@ -53,6 +63,10 @@ class PTUConfig:
     ``"/dev/serial/by-id/usb-FTDI_*"``) with a bounded backoff for
     ``reconnect_s`` seconds (0: fail at once); ``homing_timeout_s`` bounds
     the wait for a unit that is still homing after a reset or power-up.
+    ``pan_range_deg`` / ``tilt_range_deg`` ([min, max], the unit's own angles)
+    bound what the table may ask of it, checked when the file is loaded;
+    default: the driver's ``nominal_range_deg`` (the PTU-D46-17.5's +/-158.9
+    deg pan, -46.6..+31.1 deg tilt).
     """
 
     port: str = ""
@@ -66,28 +80,43 @@ class PTUConfig:
     reconnect_s: float = 10.0
     reconnect_glob: str = ""
     homing_timeout_s: float = 30.0
+    pan_range_deg: tuple[float, float] | None = None
+    tilt_range_deg: tuple[float, float] | None = None
 
 
 @dataclasses.dataclass(frozen=True)
 class CameraConfig:
     """``kind = "video"``: ``source`` is a device index, file, URL or ``%d`` pattern;
-    ``kind = "sequence"``: a folder or glob of image files."""
+    ``kind = "sequence"``: a folder or glob of image files.  A video camera that
+    delivers no frame at all during a capture is reopened for up to
+    ``reconnect_s`` seconds (0: fail at once)."""
 
     source: int | str = 0
     kind: str = "video"
     retries: int = 3
     black_level: int = 0
+    reconnect_s: float = 5.0
 
 
 @dataclasses.dataclass(frozen=True)
 class ControllerConfig:
-    """``max_motion_s`` bounds how long ``MOVING`` replies may extend the wait for one move."""
+    """``max_motion_s`` bounds how long ``MOVING`` replies may extend the wait for one move.
+
+    ``protocol_version``: 2 (``docs/protocol.md``), or 1 for a controller that
+    speaks only version 1.  A shared key (HMAC over every datagram) is read
+    from the file ``key_file`` (relative to the rig file) or the environment
+    variable ``key_env``, when the rig file is loaded, into ``key`` (hidden
+    from ``repr``; never a key in the rig file itself)."""
 
     host: str = "127.0.0.1"
     port: int = 0
     timeout_s: float = 0.25
     retries: int = 5
     max_motion_s: float = 600.0
+    protocol_version: int = 2
+    key_file: str = ""
+    key_env: str = ""
+    key: SharedKey | None = dataclasses.field(default=None, repr=False)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -117,43 +146,38 @@ class RigConfig:
                                          "motion"})
         kind = top.get("kind", "hardware")
         if kind not in KINDS:
-            raise ConfigError(f"kind = {kind!r}: must be one of {KINDS}")
+            raise ConfigError(f"kind = {_short(kind)}: must be one of {KINDS}")
         try:
             table = CameraTable.from_dict(top["table"]) if "table" in top else default_table()
         except (TypeError, ValueError) as e:
             raise ConfigError(f"[table]: {e}") from e
         shape = top.get("image_shape", [120, 160])
-        if not (isinstance(shape, list) and len(shape) == 2 and all(isinstance(v, int) and v > 0 for v in shape)):
-            raise ConfigError(f"image_shape = {shape!r}: must be [height, width], positive integers")
+        if not (isinstance(shape, list) and len(shape) == 2
+                and all(isinstance(v, int) and not isinstance(v, bool) and 0 < v <= 65535 for v in shape)):
+            raise ConfigError(f"image_shape = {_short(shape)}: must be [height, width], integers in 1..65535")
         n_poses = top.get("n_poses", 4)
-        if not isinstance(n_poses, int) or n_poses < 1:
-            raise ConfigError(f"n_poses = {n_poses!r}: must be a positive integer")
-        controller = _build(ControllerConfig, top.get("controller", {}), "[controller]")
+        if not isinstance(n_poses, int) or isinstance(n_poses, bool) or not 1 <= n_poses <= 1_000_000:
+            raise ConfigError(f"n_poses = {_short(n_poses)}: must be an integer in 1..1000000")
+        controller = _build(ControllerConfig, top.get("controller", {}), "[controller]", key=None)
+        controller = dataclasses.replace(controller, key=_shared_key(controller, base_dir))
         ptus = tuple(_build(PTUConfig, p, f"[[ptu]] #{i + 1}") for i, p in enumerate(_list(top, "ptu")))
         cams = []
         for i, c in enumerate(_list(top, "camera")):
             cam = _build(CameraConfig, c, f"[[camera]] #{i + 1}")
             if cam.kind not in ("video", "sequence"):
-                raise ConfigError(f"[[camera]] #{i + 1}: kind = {cam.kind!r} must be 'video' or 'sequence'")
+                raise ConfigError(f"[[camera]] #{i + 1}: kind = {_short(cam.kind)} must be 'video' or 'sequence'")
             if isinstance(cam.source, str) and not _is_url(cam.source) and not os.path.isabs(cam.source):
                 cam = dataclasses.replace(cam, source=os.path.join(os.fspath(base_dir), cam.source))
             cams.append(cam)
         for i, p in enumerate(ptus):
             where = f"[[ptu]] #{i + 1}"
-            if p.pan_sign not in (1, -1):
-                raise ConfigError(f"{where}: pan_sign = {p.pan_sign!r} must be 1 or -1")
-            if not p.reconnect_s >= 0:
-                raise ConfigError(f"{where}: reconnect_s = {p.reconnect_s!r} must be >= 0 seconds")
-            if not p.homing_timeout_s > 0:
-                raise ConfigError(f"{where}: homing_timeout_s = {p.homing_timeout_s!r} must be > 0 seconds")
             try:
                 pan_tilt_driver(p.driver)
             except (KeyError, ImportError) as e:
-                raise ConfigError(f"{where}: driver = {p.driver!r}: {e.args[0]}") from e
-        sim_d = dict(top.get("simulation", {}))
-        faults_d = sim_d.pop("faults", {})
-        faults_d = {k: tuple(v) if isinstance(v, list) else v for k, v in faults_d.items()}
-        faults = _build(LinkFaults, faults_d, "[simulation.faults]")
+                raise ConfigError(f"{where}: driver = {_short(p.driver)}: {e.args[0]}") from e
+        sim_d = _fields(top.get("simulation", {}), "[simulation]", {f.name for f in dataclasses.fields(SimulationConfig)})
+        sim_d = dict(sim_d)
+        faults = _build(LinkFaults, sim_d.pop("faults", {}), "[simulation.faults]")
         sim = _build(SimulationConfig, sim_d, "[simulation]", faults=faults)
         motion = _build(MotionSpeeds, top.get("motion", {}), "[motion]", ptu_deg_s_per_camera=())
         cfg = cls(kind, table, (shape[0], shape[1]), n_poses, controller, ptus, tuple(cams), sim, motion)
@@ -165,6 +189,9 @@ class RigConfig:
         n = self.table.n_cameras
         if not self.controller.max_motion_s > 0:
             raise ConfigError(f"[controller] max_motion_s = {self.controller.max_motion_s!r} must be > 0 seconds")
+        if self.controller.key is not None and self.controller.protocol_version == 1:
+            raise ConfigError("[controller]: a shared key (key_file / key_env) needs protocol_version = 2: "
+                              "version 1 carries no HMAC tag")
         if n not in (1, 2):
             raise ConfigError(f"[table] describes {n} cameras; the controller protocol drives 1 or 2")
         if self.kind == "hardware":
@@ -179,6 +206,49 @@ class RigConfig:
                     raise ConfigError(f"[[ptu]] #{i + 1}: port must be set for a hardware rig")
         elif self.ptus and len(self.ptus) != n:
             raise ConfigError(f"{len(self.ptus)} [[ptu]] entries for {n} cameras: give one per camera or none")
+        self._check_ports()
+        self._check_ranges()
+
+    def _check_ports(self) -> None:
+        """Every pan-tilt unit on its own serial port (two on one: one camera never points)."""
+        seen: dict[str, int] = {}
+        for i, p in enumerate(self.ptus):
+            if not p.port:
+                continue
+            dev = _device(p.port)
+            if dev in seen:
+                j = seen[dev]
+                same = f"port = {p.port!r}" if p.port == self.ptus[j].port else \
+                    f"ports {self.ptus[j].port!r} and {p.port!r} (the same device)"
+                raise ConfigError(f"[[ptu]] #{j + 1} and [[ptu]] #{i + 1} both have {same}: "
+                                  f"each pan-tilt unit needs its own serial port")
+            seen[dev] = i
+
+    def _check_ranges(self) -> None:
+        """Every table position within its pan-tilt unit's range (degrees, the unit's angles)."""
+        ws = self.table.workspace
+        for i, views in enumerate(self.table.views):
+            mount = self.ptu(i)
+            ranges = _ranges(mount)
+            if ranges is None:
+                continue
+            bad = []
+            for v, view in enumerate(views):
+                angles = ptu_angles(view.eye, ws.object_xyz, mount)
+                for axis, a, (lo, hi) in zip(("pan", "tilt"), angles, ranges):
+                    if not lo - 1e-9 <= a <= hi + 1e-9:
+                        bad.append((v, view, axis, a, lo, hi))
+                        break
+            if bad:
+                v, view, axis, a, lo, hi = bad[0]
+                where = f"[[ptu]] #{i + 1}" if self.ptus else f"the default mount of camera {i + 1}"
+                at = (f"[{math.degrees(view.pan):g}, {math.degrees(view.tilt):g}]" if i == 0
+                      else f"{math.degrees(view.pan):g}")
+                more = f" (and {len(bad) - 1} more position(s))" if len(bad) > 1 else ""
+                raise ConfigError(
+                    f"[table] camera{i + 1}[{v}] = {at} deg: {where} would have to {axis} to {a:.4g} deg, outside "
+                    f"its range [{lo:.4g}, {hi:.4g}] deg{more}; change the mount (pan_zero_deg, tilt_zero_deg, "
+                    f"pan_sign) or, if the unit really goes that far, {axis}_range_deg")
 
     def travel_times(self):
         """Per camera ``[V_i, V_i]`` travel seconds between its positions
@@ -203,16 +273,26 @@ def default_mounts(n_cameras: int) -> tuple[PTUConfig, ...]:
 
 
 def load_config(path: str | os.PathLike) -> RigConfig:
-    """Read a TOML rig description (see ``docs/hardware.md``)."""
+    """Read a TOML rig description (see ``docs/hardware.md``).
+
+    Raises:
+        ConfigError: for every problem (unreadable file, not TOML, a bad key or
+            value), one line naming the file and the key.
+    """
+    name = os.fspath(path)
     try:
         with open(path, "rb") as f:
             d = tomllib.load(f)
-    except tomllib.TOMLDecodeError as e:
-        raise ConfigError(f"{os.fspath(path)}: not valid TOML: {e}") from e
+    except OSError as e:
+        raise ConfigError(f"{name}: cannot read the rig file: {e.strerror or e}") from e
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
+        raise ConfigError(f"{name}: not valid TOML: {one_line(e)}") from e
+    except RecursionError as e:
+        raise ConfigError(f"{name}: not valid TOML: nested too deeply") from e
     try:
         return RigConfig.from_dict(d, base_dir=os.path.dirname(os.path.abspath(path)))
     except ConfigError as e:
-        raise ConfigError(f"{os.fspath(path)}: {e}") from e
+        raise ConfigError(one_line(f"{name}: {e}", cap=600)) from e
 
 
 # ---------------------------------------------------------------- helpers
@@ -236,20 +316,167 @@ def _list(d: dict[str, Any], key: str) -> list:
     return v
 
 
+def _short(v: Any) -> str:
+    """``repr(v)``, cut so a 10 kB value cannot blow up a message."""
+    r = repr(v)
+    return r if len(r) <= 60 else r[:57] + "..."
+
+
+def _fmt(v: float) -> str:
+    return str(int(v)) if float(v).is_integer() and abs(v) < 1e15 else f"{v:g}"
+
+
+@dataclasses.dataclass(frozen=True)
+class _Number:
+    """A number in [lo, hi] (``lo_open``: > lo), an integer if ``integer``."""
+
+    lo: float
+    hi: float
+    lo_open: bool = False
+    integer: bool = False
+    unit: str = ""
+
+    def text(self) -> str:
+        kind = "an integer" if self.integer else "a number"
+        return f"{kind} {'>' if self.lo_open else '>='} {_fmt(self.lo)} and <= {_fmt(self.hi)}{self.unit}"
+
+    def ok(self, v: Any) -> bool:
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or (self.integer and not isinstance(v, int)):
+            return False
+        return math.isfinite(v) and (v > self.lo if self.lo_open else v >= self.lo) and v <= self.hi
+
+
+@dataclasses.dataclass(frozen=True)
+class _Choice:
+    values: tuple
+
+    def text(self) -> str:
+        return "one of " + ", ".join(map(repr, self.values))
+
+    def ok(self, v: Any) -> bool:
+        return not isinstance(v, bool) and type(v) in (int, str) and v in self.values
+
+
+@dataclasses.dataclass(frozen=True)
+class _Range:
+    """``[min, max]``, two numbers with ``lo <= min < max <= hi``."""
+
+    lo: float
+    hi: float
+    strict: bool = True
+    unit: str = ""
+
+    def text(self) -> str:
+        rel = "<" if self.strict else "<="
+        return f"[min, max] with {_fmt(self.lo)} <= min {rel} max <= {_fmt(self.hi)}{self.unit}"
+
+    def ok(self, v: Any) -> bool:
+        num = _Number(self.lo, self.hi)
+        return (isinstance(v, (list, tuple)) and len(v) == 2 and all(num.ok(x) for x in v)
+                and (v[0] < v[1] if self.strict else v[0] <= v[1]))
+
+
+_S = " seconds"
+_SECONDS = _Number(0, 3600, lo_open=True, unit=_S)
+_LONG_SECONDS = _Number(0, 86400, lo_open=True, unit=_S)
+_PROBABILITY = _Number(0, 1)
+#: what each key of each section may hold (keys without a rule: their default's type)
+_RULES: dict[type, dict[str, Any]] = {
+    ControllerConfig: {
+        "port": _Number(0, 65535, integer=True), "timeout_s": _SECONDS, "retries": _Number(0, 10_000, integer=True),
+        "max_motion_s": _LONG_SECONDS, "protocol_version": _Choice((1, 2)),
+    },
+    PTUConfig: {
+        "baudrate": _Number(0, 10_000_000, lo_open=True, integer=True), "timeout_s": _SECONDS,
+        "pan_zero_deg": _Number(-360, 360, unit=" degrees"), "tilt_zero_deg": _Number(-180, 180, unit=" degrees"),
+        "pan_sign": _Choice((1, -1)), "speed_deg_s": _Number(0, 100_000, lo_open=True, unit=" degrees/s"),
+        "reconnect_s": _Number(0, 86400, unit=_S), "homing_timeout_s": _LONG_SECONDS,
+        "pan_range_deg": _Range(-360, 360, unit=" degrees"), "tilt_range_deg": _Range(-180, 180, unit=" degrees"),
+    },
+    CameraConfig: {
+        "retries": _Number(0, 1000, integer=True), "black_level": _Number(0, 255, integer=True),
+        "reconnect_s": _Number(0, 86400, unit=_S),
+    },
+    SimulationConfig: {"seed": _Number(-2**63, 2**63 - 1, integer=True), "time_scale": _Number(0, 1000)},
+    LinkFaults: {
+        "loss": _PROBABILITY, "duplicate": _PROBABILITY, "reorder": _PROBABILITY, "corrupt": _PROBABILITY,
+        "delay_s": _Range(0, 60, strict=False, unit=_S), "reorder_delay_s": _Number(0, 60, unit=_S),
+    },
+    MotionSpeeds: {
+        "gantry_m_s": _Number(0, 1000, lo_open=True, unit=" m/s"), "track_m_s": _Number(0, 1000, lo_open=True, unit=" m/s"),
+        "ptu_deg_s": _Number(0, 100_000, lo_open=True, unit=" degrees/s"),
+    },
+}
+
+
 def _build(cls, d: Any, where: str, **extra):
     names = {f.name: f for f in dataclasses.fields(cls)}
-    d = _fields(d, where, set(names) - set(extra))
+    d = dict(_fields(d, where, set(names) - set(extra)))
+    rules = _RULES.get(cls, {})
     for k, v in d.items():
+        rule = rules.get(k)
+        if rule is not None:
+            if not rule.ok(v):
+                raise ConfigError(f"{where}: {k} = {_short(v)} must be {rule.text()}")
+            if isinstance(rule, _Range):
+                d[k] = (float(v[0]), float(v[1]))
+            continue
         default = names[k].default
-        if isinstance(default, bool) and not isinstance(v, bool):
-            raise ConfigError(f"{where}: {k} = {v!r} must be true or false")
-        if isinstance(default, (int, float)) and not isinstance(default, bool):
-            if isinstance(v, bool) or not isinstance(v, (int, float)):
-                if not (k == "source" and isinstance(v, str)):
-                    raise ConfigError(f"{where}: {k} = {v!r} must be a number")
-        if isinstance(default, str) and not isinstance(v, str):
-            raise ConfigError(f"{where}: {k} = {v!r} must be a string")
+        if k == "source":  # a camera: a device index or a path / URL / pattern
+            if not (isinstance(v, str) or (isinstance(v, int) and not isinstance(v, bool) and 0 <= v < 2**31)):
+                raise ConfigError(f"{where}: {k} = {_short(v)} must be a device index (an integer >= 0) or a string")
+        elif isinstance(default, bool) and not isinstance(v, bool):
+            raise ConfigError(f"{where}: {k} = {_short(v)} must be true or false")
+        elif isinstance(default, (int, float)) and not isinstance(default, bool):
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise ConfigError(f"{where}: {k} = {_short(v)} must be a finite number")
+        elif isinstance(default, str) and not isinstance(v, str):
+            raise ConfigError(f"{where}: {k} = {_short(v)} must be a string")
     try:
         return cls(**d, **extra)
     except (TypeError, ValueError) as e:
         raise ConfigError(f"{where}: {e}") from e
+
+
+def _shared_key(c: ControllerConfig, base_dir: str | os.PathLike) -> SharedKey | None:
+    """The key ``key_file`` / ``key_env`` name (None without either); errors never show it."""
+    if c.key_file and c.key_env:
+        raise ConfigError("[controller]: give key_file or key_env, not both")
+    try:
+        if c.key_file:
+            path = os.path.join(os.fspath(base_dir), os.path.expanduser(c.key_file))
+            try:
+                return SharedKey.from_file(path)
+            except OSError as e:
+                raise ValueError(f"cannot read it: {e.strerror or e}") from None
+        if c.key_env:
+            return SharedKey.from_env(c.key_env)
+    except ValueError as e:
+        key = f"key_file = {c.key_file!r}" if c.key_file else f"key_env = {c.key_env!r}"
+        raise ConfigError(f"[controller]: {key}: {e}") from None
+    return None
+
+
+def _device(port: str) -> str:
+    """What a serial port names, for comparing two ports: a local path resolved through its
+    links (``/dev/serial/by-id/...`` -> ``/dev/ttyUSB0``), a URL as written."""
+    if "://" in port:
+        return port
+    try:
+        return os.path.realpath(port)
+    except (OSError, ValueError):
+        return port
+
+
+def _ranges(mount: PTUConfig) -> tuple[tuple[float, float], tuple[float, float]] | None:
+    """(pan, tilt) ranges in degrees of a mount: its own keys, else its driver's nominal ones."""
+    nominal = None
+    try:
+        nominal = getattr(pan_tilt_driver(mount.driver), "nominal_range_deg", None)
+    except (KeyError, ImportError):
+        pass
+    pan = mount.pan_range_deg or (nominal[0] if nominal else None)
+    tilt = mount.tilt_range_deg or (nominal[1] if nominal else None)
+    if pan is None and tilt is None:
+        return None
+    return (pan or (-math.inf, math.inf), tilt or (-math.inf, math.inf))

@@ -26,6 +26,10 @@ other units) with a backoff from ``RECONNECT_FIRST_DELAY_S`` doubling up to
 the speed and repeats the interrupted pointing once.  Each success is logged
 and recorded in :attr:`HardwareRig.reconnects`; a unit that is not back in
 time, or is lost again in the repeat, fails the move with one ``RigError``.
+A camera that delivers no frame at all during ``capture()``
+(:class:`.camera.CameraLostError`: unplugged, stream dropped) is reopened
+the same way for up to its ``reconnect_s`` (``[[camera]]`` key) and read
+again; that too is recorded in :attr:`HardwareRig.reconnects`.
 
 :class:`SimulatedHardwareRig` runs the same code path against the device
 simulators (:class:`.ptu_sim.PTUSimulator` on ptys,
@@ -47,9 +51,9 @@ from typing import Any, Callable, Protocol, Sequence, runtime_checkable
 
 import numpy as np
 
-from .camera import CameraError, ImageSequenceCamera, VideoCamera
-from .config import ConfigError, RigConfig, load_config
-from .pan_tilt import PanTilt, PanTiltConnectionError, PanTiltError, open_pan_tilt
+from .camera import CameraError, CameraLostError, ImageSequenceCamera, VideoCamera
+from .config import CameraConfig, ConfigError, RigConfig, load_config
+from .pan_tilt import PanTilt, PanTiltConnectionError, PanTiltError, open_pan_tilt, ptu_angles
 from .positions import CameraTable
 from .rig import Capture, RigError
 from .udp_link import ControllerLink, LinkError, MoveResult
@@ -72,13 +76,15 @@ RECONNECT_MAX_DELAY_S = 0.5
 
 @dataclasses.dataclass(frozen=True)
 class Reconnect:
-    """One pan-tilt unit brought back: camera (0-based), the port it came back on,
-    seconds from the failed command to the unit answering again, attempts made."""
+    """One device brought back: camera (0-based), the port (for a camera: its source)
+    it came back on, seconds from the failure to the device answering again, attempts
+    made, and which device of that camera (``"pan-tilt"`` or ``"camera"``)."""
 
     camera: int
     port: str
     seconds: float
     attempts: int
+    device: str = "pan-tilt"
 
 
 class _UnitLost(Exception):
@@ -91,21 +97,6 @@ class Renderer(Protocol):
     def reset(self, object: int, pose: int, occluders: Any = None) -> None: ...
 
     def render_at(self, camera: int, eye: tuple[float, float, float]) -> tuple[np.ndarray, float]: ...
-
-
-def _wrap_deg(a: float) -> float:
-    return (a + 180.0) % 360.0 - 180.0
-
-
-def ptu_angles(eye: Sequence[float] | np.ndarray, target: Sequence[float] | np.ndarray, mount) -> tuple[float, float]:
-    """PTU (pan, tilt) in degrees that point a camera at ``eye`` towards ``target``.
-
-    ``pan = pan_sign * wrap(az - pan_zero)``, ``tilt = el - tilt_zero`` with
-    ``az = atan2(dx, dy)``, ``el = atan2(dz, hypot(dx, dy))``, ``d = target - eye``."""
-    dx, dy, dz = (float(t) - float(e) for t, e in zip(target, eye))
-    az = math.degrees(math.atan2(dx, dy))
-    el = math.degrees(math.atan2(dz, math.hypot(dx, dy)))
-    return mount.pan_sign * _wrap_deg(az - mount.pan_zero_deg), el - mount.tilt_zero_deg
 
 
 def line_of_sight(pan: float, tilt: float, mount) -> np.ndarray:
@@ -158,7 +149,7 @@ class HardwareRig:
             if link is None:
                 c = config.controller
                 link = ControllerLink((c.host, c.port), timeout=c.timeout_s, retries=c.retries,
-                                      max_motion_s=c.max_motion_s)
+                                      max_motion_s=c.max_motion_s, key=c.key, version=c.protocol_version)
                 self._opened.append(link)
             self.link = link
             if ptus is None:
@@ -311,10 +302,44 @@ class HardwareRig:
         images = []
         for i, cam in enumerate(self.cameras):
             try:
-                images.append(self._checked_image(i, cam.read()))
+                img = cam.read()
+            except CameraLostError as e:  # the device is gone: reopen it, bounded, and read once more
+                img = self._reconnect_camera(i, cam, e)
             except CameraError as e:
                 raise RigError(f"camera {i + 1}: {e}") from e
+            images.append(self._checked_image(i, img))
         return Capture.of(images)
+
+    def _reconnect_camera(self, i: int, cam: Any, error: CameraLostError) -> np.ndarray:
+        """Reopen camera ``i`` with a bounded backoff and read a frame; one ``RigError`` if it
+        is not back within its ``reconnect_s`` (or cannot be reopened)."""
+        reopen = getattr(cam, "reconnect", None)
+        c = self.config.cameras[i] if i < len(self.config.cameras) else CameraConfig()
+        limit = c.reconnect_s
+        if reopen is None or limit <= 0:
+            why = "it cannot be reopened" if reopen is None else "reconnect_s = 0"
+            raise RigError(f"camera {i + 1}: {error} ({why})") from error
+        log.warning("camera %d delivers no frame (%s); reopening it for up to %.3g s", i + 1, error, limit)
+        t0 = time.monotonic()
+        deadline, delay, attempts, last = t0 + limit, RECONNECT_FIRST_DELAY_S, 0, error
+        while True:
+            attempts += 1
+            try:
+                reopen()
+                img = cam.read()
+            except CameraError as e:
+                last = e
+            else:
+                done = Reconnect(i, str(getattr(cam, "source", "")), time.monotonic() - t0, attempts, "camera")
+                self.reconnects.append(done)
+                log.warning("camera %d is back after %.3f s (%d attempts)", i + 1, done.seconds, attempts)
+                return img
+            left = deadline - time.monotonic()
+            if left <= 0:
+                raise RigError(f"camera {i + 1}: lost its device and it did not come back within reconnect_s = "
+                               f"{limit:.3g} s ({attempts} attempts); last error: {last}") from error
+            time.sleep(min(delay, left))
+            delay = min(2.0 * delay, RECONNECT_MAX_DELAY_S)
 
     def reseed(self, seed) -> None:
         """Real cameras draw no random numbers: nothing to reseed (the
@@ -377,14 +402,14 @@ class SimulatedHardwareRig(HardwareRig):
         self.renderer = renderer
         self.pointing_tolerance_deg = float(pointing_tolerance_deg)
         self.controller_sim = ControllerSimulator(
-            config.table.workspace, faults=s.faults, seed=s.seed, time_scale=s.time_scale
+            config.table.workspace, faults=s.faults, seed=s.seed, time_scale=s.time_scale, key=config.controller.key
         )
         self.ptu_sims = [PTUSimulator(time_scale=s.time_scale, seed=s.seed + i) for i in range(config.table.n_cameras)]
         opened: list[Any] = [self.controller_sim, *self.ptu_sims]
         try:
             c = config.controller
             link = ControllerLink(self.controller_sim.address, timeout=c.timeout_s, retries=c.retries,
-                                  max_motion_s=c.max_motion_s)
+                                  max_motion_s=c.max_motion_s, key=c.key, version=c.protocol_version)
             opened.append(link)
             ptus: list[PanTilt] = []
             for i, sim in enumerate(self.ptu_sims):

@@ -26,7 +26,8 @@ Camera 2 (eq. C.34-C.40) has fixed ``x_c2`` and ``z_c2``; with
 
     y_c2 = y_o + dx tan(theta2),   nu2 = atan(dz / sqrt(dx^2 + dy^2))
 
-Angles are in radians throughout this module.  Positions are in metres.
+Angles are in radians throughout this module (its error messages give them in
+degrees, the unit of rig files).  Positions are in metres.
 """
 
 from __future__ import annotations
@@ -77,16 +78,20 @@ class Workspace:
             raise WorkspaceError("camera 2's track must not pass through the object (cam2_x != object x)")
 
 
-def _check(name: str, value: float, bounds: tuple[float, float]) -> None:
+def _check(name: str, value: float, bounds: tuple[float, float], angle: bool = False) -> None:
+    """Messages give angles in degrees (as rig files and people write them), lengths in metres."""
     lo, hi = bounds
     if not (lo - 1e-9 <= value <= hi + 1e-9) or not math.isfinite(value):
-        raise WorkspaceError(f"{name} = {value:.4f} is outside the workspace limits [{lo:.4f}, {hi:.4f}]")
+        if angle:
+            value, lo, hi = (math.degrees(v) for v in (value, lo, hi))
+            raise WorkspaceError(f"{name} = {value:.4g} deg is outside the workspace limits [{lo:.4g}, {hi:.4g}] deg")
+        raise WorkspaceError(f"{name} = {value:.4f} m is outside the workspace limits [{lo:.4f}, {hi:.4f}] m")
 
 
 def camera1_position(ws: Workspace, pan: float, tilt: float, *, check: bool = True) -> tuple[float, float, float]:
     """Gantry position (x, y, z) of camera 1 for pan ``theta1`` and tilt ``nu1`` (consistent eq. C.27-C.28)."""
     if check:
-        _check("camera 1 tilt", tilt, ws.tilt1_range)
+        _check("camera 1 tilt", tilt, ws.tilt1_range, angle=True)
     xo, yo, zo = ws.object_xyz
     dz = ws.cam1_z - zo
     d = dz / math.tan(tilt)
@@ -110,7 +115,7 @@ def camera1_angles(ws: Workspace, x: float, y: float) -> tuple[float, float]:
 def camera2_position(ws: Workspace, pan: float, *, check: bool = True) -> tuple[tuple[float, float, float], float]:
     """Track position (x, y, z) and tilt ``nu2`` of camera 2 for pan ``theta2`` (eq. C.39-C.40)."""
     if check and not (-math.pi / 2 < pan < math.pi / 2):
-        raise WorkspaceError(f"camera 2 pan = {pan:.4f} rad must lie in (-pi/2, pi/2)")
+        raise WorkspaceError(f"camera 2 pan = {math.degrees(pan):.4g} deg must lie in (-90, 90) deg")
     xo, yo, zo = ws.object_xyz
     dx = ws.cam2_x - xo
     dz = ws.cam2_z - zo

@@ -2,14 +2,29 @@
 
 :class:`.hardware_rig.HardwareRig` talks to its pan-tilt units only through
 this protocol, and builds them from the rig file's ``[[ptu]] driver`` key
-through :func:`open_pan_tilt`.  A second driver is one new file with a class
-that has these members, plus a config key:
+through :func:`open_pan_tilt`.  The key is a *registered name*, never a
+module path: a rig file cannot make the program import anything.  A driver
+is registered
 
-* ``driver = "package.module:Class"`` names it directly (imported on use), or
-* :func:`register_pan_tilt` gives it a short name (``driver = "my-unit"``).
+* as an entry point of group :data:`ENTRY_POINT_GROUP` (``jaxrecog.pan_tilt``)
+  in its package's ``pyproject.toml``::
+
+      [project.entry-points."jaxrecog.pan_tilt"]
+      my-unit = "my_package.my_module:MyUnit"
+
+  (found through ``importlib.metadata``; the module is imported only when a
+  rig file names ``driver = "my-unit"``), or
+* from code, with :func:`register_pan_tilt` (``register_pan_tilt("my-unit", MyUnit)``).
 
 The built-in driver is ``"ptu-d46"`` (:class:`.ptu.PTU`, the Directed
-Perception PTU-D46 of thesis §6.4), the default when the key is left out.
+Perception PTU-D46 of thesis §6.4), the default when the key is left out; it
+is registered in this module (and as an entry point of the package, for
+listing tools), so it works whatever the installed metadata says.  A name
+that is not registered is refused before anything is imported.
+
+A driver class may declare ``nominal_range_deg = ((pan_lo, pan_hi), (tilt_lo,
+tilt_hi))``: the rig file's table is checked against it when it is loaded
+(``[[ptu]] pan_range_deg`` / ``tilt_range_deg`` override it).
 
 Errors: a driver raises :class:`PanTiltError` (or a subclass) for every
 failure, and :class:`PanTiltConnectionError` when the device itself is gone
@@ -20,7 +35,9 @@ fails the move on the first.
 from __future__ import annotations
 
 import importlib
-from typing import TYPE_CHECKING, Protocol, runtime_checkable
+import importlib.metadata
+import math
+from typing import TYPE_CHECKING, Iterable, Protocol, runtime_checkable
 
 if TYPE_CHECKING:
     from .config import PTUConfig
@@ -30,6 +47,8 @@ __all__ = [
     "PanTiltError",
     "PanTiltConnectionError",
     "DEFAULT_PAN_TILT",
+    "ENTRY_POINT_GROUP",
+    "ptu_angles",
     "register_pan_tilt",
     "pan_tilt_driver",
     "pan_tilt_drivers",
@@ -37,9 +56,12 @@ __all__ = [
 ]
 
 DEFAULT_PAN_TILT = "ptu-d46"
+ENTRY_POINT_GROUP = "jaxrecog.pan_tilt"
 
-# name -> driver class, or "module:Class" imported on first use
-_DRIVERS: dict[str, type | str] = {DEFAULT_PAN_TILT: "jaxrecog.hardware.ptu:PTU"}
+# the built-in drivers: name -> "module:Class" of this package, imported on first use
+_BUILTIN: dict[str, str] = {DEFAULT_PAN_TILT: "jaxrecog.hardware.ptu:PTU"}
+# registered from code (register_pan_tilt): name -> class, or "module:Class"
+_DRIVERS: dict[str, type | str] = {}
 
 
 class PanTiltError(RuntimeError):
@@ -85,39 +107,85 @@ class PanTilt(Protocol):
 
 
 def register_pan_tilt(name: str, driver: type | str) -> None:
-    """Make ``driver`` (a class, or ``"module:Class"``) available as ``[[ptu]] driver = name``."""
+    """Make ``driver`` (a class, or ``"module:Class"``) available as ``[[ptu]] driver = name``.
+
+    For code that sets up a rig (tests, a notebook); an installed package
+    registers its driver as an entry point instead (module doc)."""
     if not isinstance(name, str) or not name or ":" in name:
         raise ValueError(f"a pan-tilt driver name must be a non-empty string without ':', not {name!r}")
     _DRIVERS[name] = driver
 
 
+def _entry_points() -> dict[str, importlib.metadata.EntryPoint]:
+    """The drivers installed packages declare (group ``jaxrecog.pan_tilt``); listing imports nothing."""
+    try:
+        eps = importlib.metadata.entry_points(group=ENTRY_POINT_GROUP)
+    except Exception:  # noqa: BLE001 - broken metadata of some package must not break the rig
+        return {}
+    return {ep.name: ep for ep in eps}
+
+
 def pan_tilt_drivers() -> tuple[str, ...]:
-    """The registered driver names."""
-    return tuple(sorted(_DRIVERS))
+    """The registered driver names: built-in, registered from code, entry points."""
+    return tuple(sorted({*_BUILTIN, *_DRIVERS, *_entry_points()}))
 
 
 def pan_tilt_driver(name: str) -> type:
-    """The driver class for ``name``: a registered name or ``"module:Class"``.
+    """The driver class registered as ``name``.
 
     Raises:
-        KeyError: an unknown name (the message lists the known ones).
-        ImportError: ``"module:Class"`` (or a registered string) cannot be imported.
+        KeyError: ``name`` is not registered (nothing is imported; the message
+            lists the known names and how to register one).
+        ImportError: the registered driver cannot be imported, or is not a class.
     """
-    entry = _DRIVERS.get(name, name if ":" in name else None)
-    if entry is None:
-        raise KeyError(f"unknown pan-tilt driver {name!r}; known: {list(pan_tilt_drivers())} or 'module:Class'")
+    if not isinstance(name, str):
+        raise KeyError(f"a pan-tilt driver is named by a string, not {type(name).__name__}")
+    if name in _BUILTIN:
+        entry: type | str | importlib.metadata.EntryPoint = _BUILTIN[name]
+    elif name in _DRIVERS:
+        entry = _DRIVERS[name]
+    else:
+        eps = _entry_points()
+        if name not in eps:
+            known = list(pan_tilt_drivers())
+            how = (f"register it as an entry point in group {ENTRY_POINT_GROUP!r} "
+                   f"([project.entry-points.\"{ENTRY_POINT_GROUP}\"] in its package's pyproject.toml)")
+            if ":" in name:
+                raise KeyError(f"unknown pan-tilt driver {name!r}: a rig file names a registered driver, "
+                               f"not a module to import; {how}; known: {known}")
+            raise KeyError(f"unknown pan-tilt driver {name!r}; known: {known}; a third-party driver: {how}")
+        entry = eps[name]
     if isinstance(entry, type):
         return entry
-    module, _, attr = entry.partition(":")
+    what = entry if isinstance(entry, str) else entry.value
     try:
-        cls = getattr(importlib.import_module(module), attr)
-    except (ImportError, AttributeError, ValueError) as e:
-        raise ImportError(f"cannot import pan-tilt driver {entry!r}: {e}") from e
+        if isinstance(entry, str):
+            module, _, attr = entry.partition(":")
+            cls = getattr(importlib.import_module(module), attr)
+        else:
+            cls = entry.load()
+    except Exception as e:  # noqa: BLE001 - a broken plugin is a clear error naming it
+        raise ImportError(f"cannot import pan-tilt driver {name!r} ({what}): {type(e).__name__}: {e}") from e
     if not isinstance(cls, type):
-        raise ImportError(f"pan-tilt driver {entry!r} is not a class")
+        raise ImportError(f"pan-tilt driver {name!r} ({what}) is not a class")
     return cls
 
 
 def open_pan_tilt(config: "PTUConfig", port: str | None = None) -> PanTilt:
     """Build the unit of one ``[[ptu]]`` entry with the driver its ``driver`` key names."""
     return pan_tilt_driver(config.driver).from_config(config, port)
+
+
+def _wrap_deg(a: float) -> float:
+    return (a + 180.0) % 360.0 - 180.0
+
+
+def ptu_angles(eye: Iterable[float], target: Iterable[float], mount) -> tuple[float, float]:
+    """PTU (pan, tilt) in degrees that point a camera at ``eye`` towards ``target``.
+
+    ``pan = pan_sign * wrap(az - pan_zero)``, ``tilt = el - tilt_zero`` with
+    ``az = atan2(dx, dy)``, ``el = atan2(dz, hypot(dx, dy))``, ``d = target - eye``."""
+    dx, dy, dz = (float(t) - float(e) for t, e in zip(target, eye))
+    az = math.degrees(math.atan2(dx, dy))
+    el = math.degrees(math.atan2(dz, math.hypot(dx, dy)))
+    return mount.pan_sign * _wrap_deg(az - mount.pan_zero_deg), el - mount.tilt_zero_deg

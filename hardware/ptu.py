@@ -229,6 +229,15 @@ class PTU:
             ``"T"``) seen outside a reset or the connect.
     """
 
+    #: The PTU-D46-17.5's travel in degrees, ((pan min, max), (tilt min, max)):
+    #: +/-3090 pan and -907..+604 tilt positions of 185.1428 arc-seconds.  A rig
+    #: file's table is checked against it when the file is loaded (the unit's
+    #: own limits, queried on connect, are checked again before every move).
+    nominal_range_deg = (
+        (-3090 * ARCSEC_PER_POSITION_D46_17_5 / 3600, 3090 * ARCSEC_PER_POSITION_D46_17_5 / 3600),
+        (-907 * ARCSEC_PER_POSITION_D46_17_5 / 3600, 604 * ARCSEC_PER_POSITION_D46_17_5 / 3600),
+    )
+
     def __init__(
         self,
         url: str,

@@ -89,7 +89,8 @@ def test_rig_file_motion_speeds_and_ptu_speed():
     with pytest.raises(ConfigError, match="gantry_m_s"):
         RigConfig.from_dict({"kind": "simulated", "motion": {"gantry_m_s": 0}})
     # a PTU run at its own speed is timed at it
-    slow = RigConfig.from_dict({"kind": "simulated", "ptu": [{"speed_deg_s": 1.0}, {}]})
+    mounts = [{"pan_zero_deg": -22.5, "tilt_zero_deg": -45.0}, {"pan_zero_deg": -90.0, "pan_sign": -1}]
+    slow = RigConfig.from_dict({"kind": "simulated", "ptu": [{"speed_deg_s": 1.0, **mounts[0]}, mounts[1]]})
     assert MotionSpeeds.from_config(slow).ptu(0) == 1.0 and MotionSpeeds.from_config(slow).ptu(1) == 300.0
     assert slow.travel_times()[0].max() > 100
 

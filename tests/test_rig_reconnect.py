@@ -217,7 +217,8 @@ source = 1
 
 def test_the_default_driver_is_the_ptu_d46_and_old_files_load_unchanged():
     assert pan_tilt_driver(PTUConfig().driver) is PTU
-    assert pan_tilt_driver("jaxrecog.hardware.ptu:PTU") is PTU  # "module:Class" works without registering
+    with pytest.raises(KeyError, match="not a module to import"):  # a module path is no driver name (issue 32)
+        pan_tilt_driver("jaxrecog.hardware.ptu:PTU")
     cfg = load_config("examples/simulated_rig.toml")
     assert {p.driver for p in cfg.ptus} == {"ptu-d46"}
     with PTUSimulator(time_scale=0.001) as sim:
@@ -230,11 +231,13 @@ def test_the_default_driver_is_the_ptu_d46_and_old_files_load_unchanged():
     "line,match",
     [
         ('driver = "nonesuch"', r"\[\[ptu\]\] #1: driver = 'nonesuch': unknown pan-tilt driver 'nonesuch'; "
-                                r"known: \['ptu-d46'\] or 'module:Class'"),
-        ('driver = "no.such.module:Unit"', r"\[\[ptu\]\] #1: driver = 'no.such.module:Unit': cannot import pan-tilt driver .*No module named 'no'"),
+                                r"known: \['ptu-d46'\]; a third-party driver: register it as an entry point in group "
+                                r"'jaxrecog.pan_tilt'"),
+        ('driver = "no.such.module:Unit"', r"\[\[ptu\]\] #1: driver = 'no.such.module:Unit': unknown pan-tilt driver "
+                                           r"'no.such.module:Unit': a rig file names a registered driver, not a module"),
         ('driver = 3', r"driver = 3 must be a string"),
-        ("reconnect_s = -1.0", r"reconnect_s = -1.0 must be >= 0"),
-        ("homing_timeout_s = 0", r"homing_timeout_s = 0 must be > 0"),
+        ("reconnect_s = -1.0", r"reconnect_s = -1.0 must be a number >= 0 and <= 86400 seconds"),
+        ("homing_timeout_s = 0", r"homing_timeout_s = 0 must be a number > 0 and <= 86400 seconds"),
     ],
 )
 def test_a_bad_driver_or_reconnect_key_is_a_clear_config_error(tmp_path, line, match):
@@ -242,3 +245,97 @@ def test_a_bad_driver_or_reconnect_key_is_a_clear_config_error(tmp_path, line, m
     toml.write_text(f'kind = "simulated"\n[[ptu]]\n{line}\n[[ptu]]\n')
     with pytest.raises(ConfigError, match=match):
         load_config(toml)
+
+
+# ---------------------------------------------------------------- a camera lost during capture (issue 32, finding 10)
+class USBCamera:
+    """A video device behind ``VideoCamera(capture_factory=...)``: unplugging it kills every
+    capture opened so far (they read nothing for good); while it is away it cannot be
+    opened; plugged back in, a new capture works."""
+
+    def __init__(self, value=120):
+        self.plugged, self.generation, self.opens, self.value, self.black = True, 0, 0, value, False
+
+    def factory(self, source):
+        self.opens += 1
+        cam, gen = self, self.generation
+
+        class Capture:
+            def isOpened(self):
+                return cam.plugged
+
+            def read(self):
+                if not (cam.plugged and cam.generation == gen):
+                    return False, None
+                return True, np.full((H, W), 0 if cam.black else cam.value, np.uint8)
+
+            def release(self):
+                pass
+
+        return Capture()
+
+    def unplug(self, back_after_s=None):
+        self.plugged = False
+        self.generation += 1
+        if back_after_s is not None:
+            threading.Timer(back_after_s, self.replug).start()
+
+    def replug(self):
+        self.plugged = True
+
+
+@pytest.fixture
+def usb_rig():
+    """A HardwareRig (controller simulator, fake pan-tilt units) with two VideoCameras on
+    USBCamera devices; camera 1's reconnect_s is 0.4 s."""
+    from jaxrecog.hardware.camera import VideoCamera
+    from jaxrecog.hardware.config import CameraConfig
+
+    table = default_table()
+    devices = [USBCamera(120), USBCamera(130)]
+    with ControllerSimulator(table.workspace, time_scale=0.001) as ctl:
+        cfg = RigConfig("hardware", table, controller=ControllerConfig(port=ctl.address[1]), ptus=mounts(),
+                        cameras=(CameraConfig(source=0, reconnect_s=0.4), CameraConfig(source=1)))
+        cams = [VideoCamera(i, capture_factory=d.factory, retries=1) for i, d in enumerate(devices)]
+        ptus = [FakePanTilt(f"fake:{i}", m) for i, m in enumerate(cfg.ptus)]
+        with ControllerLink(ctl.address, timeout=0.1, retries=2) as link, \
+                HardwareRig(cfg, ptus=ptus, link=link, cameras=cams) as rig:
+            rig.move((3, 2))
+            yield rig, devices
+
+
+def test_a_camera_unplugged_before_a_capture_is_reopened_and_the_capture_succeeds(usb_rig, caplog):
+    rig, (d1, d2) = usb_rig
+    assert [int(im.max()) for im in rig.capture().images] == [120, 130]
+    d2.unplug(back_after_s=0.15)  # camera 2 (default reconnect_s, 5 s) comes back after 0.15 s
+    t0 = time.monotonic()
+    images = rig.capture().images  # no error: reopened and read again
+    assert [int(im.max()) for im in images] == [120, 130]
+    (r,) = rig.reconnects
+    assert (r.camera, r.device, r.port) == (1, "camera", "1") and 0.15 * 0.9 <= r.seconds <= time.monotonic() - t0
+    assert r.attempts >= 2 and d2.opens >= 3  # failed reopens while it was away, then the one that worked
+    assert "camera 2 is back" in caplog.text
+
+
+def test_a_camera_not_back_in_time_is_one_rig_error_and_a_later_capture_reopens_it(usb_rig):
+    rig, (d1, _) = usb_rig
+    d1.unplug()  # stays away
+    t0 = time.monotonic()
+    with pytest.raises(RigError, match=r"^camera 1: lost its device and it did not come back within "
+                                       r"reconnect_s = 0.4 s \(\d+ attempts\); last error: .*could not open it"):
+        rig.capture()
+    assert time.monotonic() - t0 < 0.4 + 1.0 and not rig.reconnects
+    d1.replug()
+    assert [int(im.max()) for im in rig.capture().images] == [120, 130]
+    assert [(r.camera, r.device) for r in rig.reconnects] == [(0, "camera")]
+
+
+def test_black_frames_are_not_a_lost_camera(usb_rig):
+    rig, (d1, _) = usb_rig
+    d1.black = True
+    opens = d1.opens
+    with pytest.raises(RigError, match=r"^camera 1: camera 0: no usable frame after 2 attempts: black frame"):
+        rig.capture()
+    assert d1.opens == opens and not rig.reconnects  # a black frame is not a lost device: nothing reopened
+    d1.black = False
+    assert len(rig.capture().images) == 2
