@@ -21,6 +21,9 @@ recognizer takes the argmax; it never branches on the planner's kind.
 - :class:`PairwiseCRLBPlanner` — the same criterion on a deterministic
   pairwise-distance estimate of J_g(a) (no samples, issue 30,
   :func:`~jaxrecog.kernels.pairwise_fisher_information`).
+- :class:`QMCCRLBPlanner` — the CRLB of the Monte Carlo J_g(a) on randomised
+  scrambled-Sobol draws (quasi-Monte Carlo, issue 30,
+  :func:`~jaxrecog.kernels.qmc_fisher_information`).
 - :class:`RandomPlanner` — a uniformly random configuration.
 - :class:`FixedPlanner` — one fixed configuration (the passive baseline).
 
@@ -50,6 +53,7 @@ __all__ = [
     "LookaheadMIPlanner",
     "CRLBPlanner",
     "PairwiseCRLBPlanner",
+    "QMCCRLBPlanner",
     "RandomPlanner",
     "FixedPlanner",
     "make_planner",
@@ -318,6 +322,37 @@ class PairwiseCRLBPlanner(Planner):
         return -K.crlb_criterion(fisher, kind=self.criterion)
 
 
+class QMCCRLBPlanner(Planner):
+    """Minus the chosen criterion of the quasi-Monte Carlo J_g(a)
+    (:func:`~jaxrecog.kernels.qmc_fisher_information`: the Monte Carlo kernel
+    on scrambled Sobol points, the smoothing draws re-randomised from the key
+    at every call)."""
+
+    tables: K.QMCFisherTables
+    n_objects: int = eqx.field(static=True, default=1)
+    n_poses: int = eqx.field(static=True, default=1)
+    criterion: str = eqx.field(static=True, default="trace")
+    sigma_s: float = eqx.field(static=True, default=K.DEFAULT_SIGMA_S)
+
+    @classmethod
+    def from_model(cls, model, *, key: PRNGKeyArray, samples: int = 1024, criterion: str = "trace",
+                   sigma_s: float = K.DEFAULT_SIGMA_S, min_per_stratum: int = DEFAULT_MIN_PER_STRATUM) -> "QMCCRLBPlanner":
+        """J from :func:`samples_per_stratum`, rounded up to a power of 2 (Sobol
+        points); the scrambling seed drawn from ``key``."""
+        if criterion not in ("trace", "logdet", "maxeig"):
+            raise ValueError(f"criterion must be 'trace', 'logdet' or 'maxeig', got {criterion!r}")
+        j = samples_per_stratum(model, samples, min_per_stratum)
+        j = 1 << (j - 1).bit_length()
+        seed = int(jr.randint(key, (), 0, 2**31 - 1))
+        tables = K.qmc_fisher_tables(model.likelihoods, seed=seed, samples_per_stratum=j)
+        return cls(_n_configs(model), tables, model.n_objects, model.n_poses, criterion, sigma_s)
+
+    def scores(self, prior, key):
+        fisher = K.qmc_fisher_information(self.tables, prior, key=key, n_objects=self.n_objects,
+                                          n_poses=self.n_poses, sigma_s=self.sigma_s)
+        return -K.crlb_criterion(fisher, kind=self.criterion)
+
+
 class RandomPlanner(Planner):
     """Uniformly random configuration (thesis Table 7.3's baseline)."""
 
@@ -369,6 +404,13 @@ def _crlb_pairwise(criterion: str):
     return build
 
 
+def _crlb_qmc(criterion: str):
+    def build(model, *, key, samples, min_per_stratum, **options):
+        return QMCCRLBPlanner.from_model(model, key=key, samples=samples, criterion=criterion,
+                                         min_per_stratum=min_per_stratum, **options)
+    return build
+
+
 def _random(model, *, key, samples, min_per_stratum):
     return RandomPlanner(_n_configs(model))
 
@@ -417,6 +459,8 @@ PLANNERS: dict[str, PlannerSpec] = {
     "crlb-eig": PlannerSpec(_crlb("maxeig"), "crlb", "Cramér-Rao bound, minimise the largest eigenvalue of J_g^-1 (E-optimal)"),
     "crlb-pairwise": PlannerSpec(_crlb_pairwise("trace"), "crlb",
                                  "Cramér-Rao bound, trace(J_g^-1) of a deterministic pairwise-distance (Bhattacharyya) J_g (no samples)"),
+    "crlb-qmc": PlannerSpec(_crlb_qmc("trace"), "crlb",
+                            "Cramér-Rao bound, trace(J_g^-1) of the Monte Carlo J_g on randomised scrambled-Sobol draws (quasi-Monte Carlo)"),
     "random": PlannerSpec(_random, "random", "a uniformly random configuration (thesis Table 7.3)"),
     "fixed": PlannerSpec(_fixed, None, "one fixed configuration, option index (passive baseline)"),
 }

@@ -31,6 +31,7 @@ from .belief import (
 )
 from .fisher import DEFAULT_SIGMA_S, FisherDraws, crlb_criterion, fisher_draws, fisher_information
 from .fisher_pairwise import PairwiseFisherTables, pairwise_fisher_information, pairwise_fisher_tables
+from .fisher_qmc import QMCFisherTables, qmc_fisher_draws, qmc_fisher_information, qmc_fisher_tables
 from .gaussian_diag import DiagonalGaussian, log_likelihood
 from .gaussian_full import FullGaussian, log_likelihood_full
 from .gaussian_lowrank import LowRankGaussian
@@ -71,6 +72,7 @@ __all__ = [
     "MITables",
     "PairwiseTables",
     "PairwiseFisherTables",
+    "QMCFisherTables",
     "UpdateInfo",
     "ViewMixture",
     "shared_latent",
@@ -102,6 +104,9 @@ __all__ = [
     "pairwise_mutual_information",
     "pairwise_tables",
     "pose_marginal",
+    "qmc_fisher_draws",
+    "qmc_fisher_information",
+    "qmc_fisher_tables",
     "register_likelihood",
     "StudentT",
     "samples_per_configuration",

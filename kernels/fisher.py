@@ -132,6 +132,15 @@ def _fisher_information(tables: MITables, belief: Belief, key: PRNGKeyArray, n_o
     """The body of :func:`fisher_information` (arguments checked), compiled as
     one program (one XLA compilation per shape when called eagerly, instead of
     one per operation)."""
+    return fisher_from_draws(tables, belief, fisher_draws(key, tables), n_objects, n_poses, sigma_s, levels, with_stderr)
+
+
+def fisher_from_draws(tables: MITables, belief: Belief, draws: FisherDraws, n_objects: int, n_poses: int,
+                      sigma_s: float, levels: str = "belief", with_stderr: bool = False):
+    """:func:`fisher_information` on given smoothing draws (arguments not
+    checked; traceable, for callers that make their own draws, e.g. the
+    quasi-Monte Carlo estimator of :mod:`.fisher_qmc`): the J-sample average
+    of eq. 5.28's score outer products with s_c = d + sigma_s eps."""
     n = len(tables.ld)
     positions = tuple(t.shape[0] for t in tables.ld)
     n_c, j = tables.ld[0].shape[1], tables.ld[0].shape[3]
@@ -146,7 +155,6 @@ def _fisher_information(tables: MITables, belief: Belief, key: PRNGKeyArray, n_o
     cls = jnp.arange(n_c)
     obj = (cls // n_poses).astype(dtype)
     pose = (cls % n_poses).astype(dtype)
-    draws = fisher_draws(key, tables)
     s_obj = obj[:, None] + sigma_s * draws.eps_obj  # [C, J]
     s_pose = pose[:, None] + sigma_s * draws.eps_pose
     extra = (
