@@ -202,6 +202,9 @@ class Settings:
             neighbouring views of the turn-table between the training poses.
             0 = off (the thesis).  Not in the thesis; its own database folder
             (``database...-vjNxD``) and model files.
+        interpolate: interpolated views per side toward each neighbouring
+            position (``train_model(interpolate=)``, a view-mixture
+            ``likelihood``; 0 = off, the thesis); its own model files.
     """
 
     workdir: Path | str = Path("out/experiments")  # a str becomes a Path (__post_init__)
@@ -238,6 +241,7 @@ class Settings:
     max_shift: int = 3
     view_jitter: int = 0
     view_jitter_deg: float = 10.0
+    interpolate: int = 0
 
     def __post_init__(self):
         from ._fieldtypes import check_settings
@@ -297,6 +301,11 @@ class Settings:
                              f"(it takes: {', '.join(family.fit_options) or 'none'})")
         opts = family.with_defaults(**opts)   # a changed default changes the cache key
         object.__setattr__(self, "likelihood_options", tuple(sorted(opts.items())))
+        if isinstance(self.interpolate, bool) or not isinstance(self.interpolate, int) or self.interpolate < 0:
+            raise ValueError(f"interpolate must be an integer >= 0, got {self.interpolate!r}")
+        if self.interpolate and not family.view_components:
+            raise ValueError(f"interpolate = {self.interpolate}: interpolated views are mixture components; "
+                             f"likelihood {name!r} has none (use view-mixture or view-mixture-lowrank)")
         blur = self.blur_sigma
         blur = (0.0, float(blur)) if isinstance(blur, (int, float)) else tuple(float(x) for x in blur)
         object.__setattr__(self, "blur_sigma", blur)
@@ -354,7 +363,8 @@ def _progress_bar(total: int, desc: str, enabled: bool):
 _AUGMENT_FIELDS = ("max_rotation", "max_scale", "blur_sigma", "gain_amplitude", "gain_cells", "occluder_gray",
                    "max_shift")
 _LATER_AUGMENT_FIELDS = ("occluder_gray", "max_shift")
-_TRAINING_FIELDS = ("likelihood", "likelihood_options", *_AUGMENT_FIELDS, "view_jitter", "view_jitter_deg")
+_TRAINING_FIELDS = ("likelihood", "likelihood_options", *_AUGMENT_FIELDS, "view_jitter", "view_jitter_deg",
+                    "interpolate")
 
 
 def _training_defaults() -> dict:
@@ -385,6 +395,8 @@ def _training_params(settings: Settings, kind: str) -> dict:
         # a field added later counts only when set: model files from before it stay valid
         params["augment"] = {k: (list(aug[k]) if isinstance(aug[k], tuple) else aug[k])
                              for k in _AUGMENT_FIELDS if k in extra or k not in _LATER_AUGMENT_FIELDS}
+        if settings.interpolate:
+            params["interpolate"] = {"points_per_side": settings.interpolate}
     return params
 
 
@@ -486,6 +498,7 @@ def _train(settings: Settings, db, kind: str, progress: bool):
                            samples_per_image=settings.samples_per_image, seed=settings.seed,
                            likelihood=settings.likelihood, likelihood_options=dict(settings.likelihood_options),
                            augment=settings.augment_params(), view_jitter=bool(settings.view_jitter),
+                           interpolate=settings.interpolate,
                            progress=lambda done, total: bar.update(done - bar.n), return_info=True)
 
 

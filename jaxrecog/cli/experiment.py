@@ -17,7 +17,7 @@ from .._progress import enabled as progress_bars
 from ..hardware.problems import one_line
 from ._common import UsageError
 from ._options import (PLANNERS, capture_options, capture_params, choice_options, default_likelihood, model_recipe,
-                       probability,
+                       nonneg, probability,
                        given_likelihood_options, likelihood_options, positive, render_jitter_options,
                        render_jitter_values, render_workers_option)
 from ._reports import QUICK, make_settings, trace_plot, write_report
@@ -72,6 +72,9 @@ def add_arguments(p) -> None:
     choice_options(p, unset=True)
     g = p.add_argument_group("training of the case's models (thesis cases; each choice has its own cached models)")
     likelihood_options(g)
+    g.add_argument("--interpolate", type=nonneg, default=None, metavar="N",
+                   help="N interpolated views per side toward each neighbouring position (view-mixture components "
+                        "between the training views; default 0 = off, the thesis)")
     render_jitter_options(g)
     capture_options(p, unset=True)
 
@@ -84,8 +87,10 @@ def _training_values(args, values: dict[str, Any]) -> dict[str, Any]:
     out: dict[str, Any] = {}
     if args.likelihood is not None:
         out["likelihood"] = args.likelihood
-    elif args.view_jitter and "likelihood" not in values:  # view jitter trains its own default family
+    elif (args.view_jitter or args.interpolate) and "likelihood" not in values:  # a mixture's default family
         out["likelihood"] = default_likelihood(True)
+    if args.interpolate is not None:
+        out["interpolate"] = args.interpolate
     opts = given_likelihood_options(args)
     if opts:
         base = values.get("likelihood_options") or {}
