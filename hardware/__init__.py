@@ -12,7 +12,7 @@ from .kinematics import (
 )
 from .occluders import Board, OccluderLayout, random_occluders
 from .rig import Capture, Rig, RigError, config_from_index, index_from_config
-from .camera import Camera, CameraError, ImageSequenceCamera, VideoCamera
+from .camera import Camera, CameraError, CameraLostError, ImageSequenceCamera, VideoCamera
 from .config import ConfigError, RigConfig, load_config
 from .controller_sim import ControllerSimulator, LinkFaults
 from .hardware_rig import HardwareRig, Reconnect, SimulatedHardwareRig, rig_from_config
@@ -35,6 +35,7 @@ __all__ = [
     "Capture",
     "Camera",
     "CameraError",
+    "CameraLostError",
     "ConfigError",
     "ControllerLink",
     "ControllerRejected",
