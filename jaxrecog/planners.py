@@ -45,11 +45,13 @@ import jax.random as jr
 from jaxtyping import Array, Float, PRNGKeyArray
 
 from . import kernels as K
+from .kernels import tempered_mi as _tempered_mi
 
 __all__ = [
     "Planner",
     "MIPlanner",
     "PairwiseMIPlanner",
+    "TemperedPairwiseMIPlanner",
     "LookaheadMIPlanner",
     "CRLBPlanner",
     "PairwiseCRLBPlanner",
@@ -199,6 +201,31 @@ class PairwiseMIPlanner(Planner):
     def scores(self, prior, key):
         del key  # deterministic
         return K.pairwise_mutual_information(self.tables, prior, target=self.target, levels=self.levels)
+
+
+class TemperedPairwiseMIPlanner(PairwiseMIPlanner):
+    """The pairwise-distance MI under the tempered class belief
+    P_tau(c) ∝ P(c)^tau (:mod:`~jaxrecog.kernels.tempered_mi`, issue 28 item 4):
+    ``temper = 1`` is :class:`PairwiseMIPlanner`; ``temper = 0`` (default)
+    scores I(c; g | a) under the uniform class prior, so the next view is the
+    unvisited one the model separates classes best at over all class pairs,
+    not the one where it predicts the present (often wrong, over-confident)
+    top class farthest from its few competitors: on real photos between the
+    training views that prediction is least reliable exactly where it is
+    largest.  The level rows of the belief are used as they are."""
+
+    temper: float = eqx.field(static=True, default=0.0)
+
+    @classmethod
+    def from_model(cls, model, *, target: str = "class", divergence: str = "bhattacharyya",
+                   levels: str = "belief", temper: float = 0.0) -> "TemperedPairwiseMIPlanner":
+        base = super().from_model(model, target=target, divergence=divergence, levels=levels)
+        return dataclasses.replace(base, temper=_tempered_mi.check_temper(temper))
+
+    def scores(self, prior, key):
+        del key  # deterministic
+        return _tempered_mi.tempered_pairwise_mutual_information(self.tables, prior, self.temper,
+                                                                 target=self.target, levels=self.levels)
 
 
 class LookaheadMIPlanner(Planner):
@@ -383,6 +410,13 @@ def _pairwise(target: str, divergence: str):
     return build
 
 
+def _tempered(target: str):
+    def build(model, *, key, samples, min_per_stratum, **options):
+        del key, samples, min_per_stratum  # deterministic: no samples
+        return TemperedPairwiseMIPlanner.from_model(model, target=target, **options)
+    return build
+
+
 def _lookahead(target: str):
     def build(model, *, key, samples, min_per_stratum, **options):
         return LookaheadMIPlanner.from_model(model, key=key, samples=samples, target=target,
@@ -450,6 +484,9 @@ PLANNERS: dict[str, PlannerSpec] = {
                                   "pairwise-distance I(s; g | a), KL (an upper bound; deterministic)"),
     "mi-class-pairwise-kl": PlannerSpec(_pairwise("class", "kl"), "mi",
                                         "pairwise-distance I(c; g | a), KL (deterministic; levels marginalised)"),
+    "mi-class-pairwise-robust": PlannerSpec(_tempered("class"), "mi",
+                                            "pairwise I(c; g | a) under the tempered class belief P(c)^tau (option temper, default 0: "
+                                            "the uniform class prior; does not chase an over-confident belief, issue 28)"),
     "mi-lookahead": PlannerSpec(_lookahead("state"), "mi",
                                 "two-step lookahead: pairwise I(s; g_1 | a_1) + E max_a2 I(s; g_2 | a_2, g_1), top-k first moves (options top_k, outcomes)"),
     "mi-class-lookahead": PlannerSpec(_lookahead("class"), "mi",
