@@ -36,7 +36,7 @@ def _holder(fd: int) -> str:
     except OSError:
         text = []
     if len(text) >= 2 and text[0].isdigit():
-        since = f", started {' '.join(text[2:4])}" if len(text) >= 4 else ""
+        since = f", started {' '.join(text[2:5])}" if len(text) >= 4 else ""
         return f"PID {text[0]} on {text[1]}{since}"
     return "a process that has not written its PID yet"
 

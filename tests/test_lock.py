@@ -56,7 +56,7 @@ def test_a_second_run_is_refused_with_the_pid_of_the_first(tmp_path, holder, mon
     err = capsys.readouterr().err.splitlines()
     assert len(err) == 1 and re.fullmatch(
         rf"jaxrecog: error: {re.escape(str(out))} is in use by another jaxrecog experiment run \(PID {first.pid} "
-        r"on \S+, started \d{4}-\d\d-\d\d \d\d:\d\d:\d\d\); wait for it to end or choose another folder", err[0]), err
+        r"on \S+, started \d{4}-\d\d-\d\d \d\d:\d\d:\d\d UTC\); wait for it to end or choose another folder", err[0]), err
     # the same work folder under another --out is refused too
     assert cli.main(["experiment", "i", "--out", str(tmp_path / "other"), "--workdir", str(out / "work"),
                      "--quick"]) == 1
