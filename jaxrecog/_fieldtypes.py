@@ -83,21 +83,22 @@ _AT_LEAST = {"samples": 1, "batch": 1, "n_components": 1, "min_per_stratum": 1, 
 def check_settings(obj) -> None:
     """:func:`check_field_types`, then the ranges of the
     :class:`~jaxrecog.experiments.Settings` fields not checked elsewhere
-    (counts >= 1, the seed, ``p_threshold``, ``transition``, ``capture_noise``)."""
+    (counts >= 1, the seed, ``p_threshold``, ``transition``, ``capture_noise``;
+    a field left ``None`` is not checked here)."""
     check_field_types(obj)
     for name, lo in _AT_LEAST.items():
-        v = getattr(obj, name, lo)
-        if v < lo:
+        v = getattr(obj, name, None)
+        if v is not None and v < lo:
             raise ValueError(f"{name} must be an integer >= {lo}, got {v!r}")
-    seed = getattr(obj, "seed", 0)
-    if not 0 <= seed < 2**63:
+    seed = getattr(obj, "seed", None)
+    if seed is not None and not 0 <= seed < 2**63:
         raise ValueError(f"seed must be an integer in 0..2**63-1, got {seed!r}")
-    p = getattr(obj, "p_threshold", 0.5)
-    if not 0.0 < p <= 1.0:
+    p = getattr(obj, "p_threshold", None)
+    if p is not None and not 0.0 < p <= 1.0:
         raise ValueError(f"p_threshold must be a probability in (0, 1], got {p!r}")
-    t = getattr(obj, "transition", "uniform")
-    if t not in ("uniform", "sticky"):
+    t = getattr(obj, "transition", None)
+    if t is not None and t not in ("uniform", "sticky"):
         raise ValueError(f"transition must be 'uniform' or 'sticky', got {one_line(repr(t), 80)}")
-    noise = getattr(obj, "capture_noise", (0, 0, 0))
-    if min(noise) < 0:
+    noise = getattr(obj, "capture_noise", None)
+    if noise is not None and min(noise) < 0:
         raise ValueError(f"capture_noise (brightness, pixel sigma, max shift) must be >= 0, got {tuple(noise)!r}")
