@@ -73,6 +73,7 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from ._grid import check_belief_sizes, floor_log_probs, weights
@@ -82,7 +83,7 @@ from .likelihood import as_likelihoods
 from .mutual_information import per_position_levels
 from .pairwise_mi import DIVERGENCES
 
-__all__ = ["PairwiseFisherTables", "pairwise_fisher_tables", "pairwise_fisher_information", "smoothing_kappa"]
+__all__ = ["PairwiseFisherTables", "pairwise_fisher_tables", "pairwise_fisher_information", "smoothing_kappa", "transition_form"]
 
 _LETTERS = "pqrstuvwxy"
 
@@ -164,6 +165,7 @@ def pairwise_fisher_information(
     *,
     n_objects: int,
     n_poses: int,
+    fast: bool = True,
 ) -> Float[Array, "A D D"]:
     """The pairwise-distance estimate (Sigma_0 - Sigma_g(a)) / sigma_s^4 of
     J_g(a) (module doc, eq. 1-4) for every configuration, ``D = 2 + n_cameras``.
@@ -172,6 +174,13 @@ def pairwise_fisher_information(
         tables: from :func:`pairwise_fisher_tables` (the divergence and sigma_s are theirs).
         belief: predicted prior; level rows ``[C, L_i]`` or ``[V_i, C, L_i]``.
         n_objects, n_poses: with ``C = n_objects * n_poses``, c = object * n_poses + pose.
+        fast: the prior's level rows are equal at all positions of each camera
+            but at most one, as :func:`~jaxrecog.kernels.transition_per_position`
+            makes them (either kind; the recognizer's predicted prior): the
+            smoothing side is then computed at two positions per camera.  Not
+            checkable under ``jit`` (a traced belief is taken to have the form);
+            a concrete belief without it takes the general path.  ``False``:
+            every position's rows (any belief).  Static.
 
     Returns:
         ``[A, D, D]`` symmetric matrices, coordinates (object, pose, k_0, ...),
@@ -182,7 +191,9 @@ def pairwise_fisher_information(
     check_belief_sizes(len(tables.w_max), n_c, belief)
     if n_objects * n_poses != n_c:
         raise ValueError(f"pairwise_fisher_information: n_objects * n_poses = {n_objects * n_poses} != C = {n_c}")
-    return _pairwise_fisher(tables, belief, n_objects, n_poses)
+    if fast and not any(isinstance(x, jax.core.Tracer) for x in (belief.log_pc, *belief.log_pk)):
+        fast = transition_form(belief, tuple(t.shape[0] for t in tables.w_max))
+    return _pairwise_fisher(tables, belief, n_objects, n_poses, bool(fast))
 
 
 def _to_grid(t):
@@ -322,31 +333,44 @@ def _side(tabs, log_pk, extra, dobj, dpose, log_pc, kappa):
     return jnp.sum(cov.reshape((d, d) + split), axis=tuple(3 + 2 * i for i in range(n)))
 
 
-def _transition_form(log_pk):
-    """Whether every camera's level rows are the same at all positions but at
-    most one (the form of :func:`~jaxrecog.kernels.transition_per_position`:
-    re-drawn, uniform rows where a camera moves), and per camera that
-    position and another (the same where V_i = 1)."""
-    ok, cur, other = jnp.ones((), bool), [], []
+def _representatives(log_pk):
+    """Per camera, for rows equal at all positions but at most one (the form
+    of :func:`~jaxrecog.kernels.transition_per_position`, either kind: the
+    moved rows are the same wherever the camera goes): that position and
+    another (the same where V_i = 1).  Traceable; assumes the form."""
+    cur, other = [], []
     for lp in log_pk:
         n_v = lp.shape[0]
-        u = jnp.asarray(-math.log(lp.shape[-1]), lp.dtype)
-        differs = jnp.any(lp != u, axis=(1, 2))  # [V]
-        ok = ok & (jnp.sum(differs.astype(jnp.int32)) <= 1)
-        c = jnp.argmax(differs).astype(jnp.int32)
+        d0 = jnp.any(lp != lp[:1], axis=(1, 2))  # [V]: differs from position 0
+        c = jnp.where(jnp.sum(d0.astype(jnp.int32)) == 1, jnp.argmax(d0), 0).astype(jnp.int32)
         cur.append(c)
-        other.append((c + 1) % n_v)
-    return ok, cur, other
+        other.append(jnp.where(c == 0, 1 % n_v, 0).astype(jnp.int32))
+    return cur, other
 
 
-@functools.partial(jax.jit, static_argnames=("n_objects", "n_poses"))
-def _pairwise_fisher(tables: PairwiseFisherTables, belief: Belief, n_objects: int, n_poses: int):
+def transition_form(belief: Belief, positions: tuple[int, ...]) -> bool:
+    """Whether a concrete belief's level rows are equal at all positions of
+    each camera but at most one (what ``fast=True`` of
+    :func:`pairwise_fisher_information` needs).  Host-side NumPy."""
+    for lp in per_position_levels(belief, positions):
+        lp = np.asarray(lp)
+        if lp.shape[0] > 2:
+            d0 = np.any(lp != lp[:1], axis=(1, 2))
+            d1 = np.any(lp != lp[1:2], axis=(1, 2))
+            if d0.sum() > 1 and d1.sum() > 1:
+                return False
+    return True
+
+
+@functools.partial(jax.jit, static_argnames=("n_objects", "n_poses", "fast"))
+def _pairwise_fisher(tables: PairwiseFisherTables, belief: Belief, n_objects: int, n_poses: int, fast: bool):
     """The body of :func:`pairwise_fisher_information` (arguments checked), one program.
 
     The smoothing side Sigma_0 depends on the configuration only through the
-    level rows; where the prior has the transition's form (rows equal at all
-    positions of a camera but one) it is computed at two positions per camera
-    and broadcast (under ``lax.cond``: the general path where not)."""
+    level rows; with ``fast`` (rows equal at all positions of a camera but
+    one) it is computed at two positions per camera and broadcast.  (A
+    ``lax.cond`` between the two paths cost 2x the whole kernel on the 2-core
+    CPU even when the general branch was not taken, hence the static switch.)"""
     n = len(tables.w_max)
     positions = tuple(t.shape[0] for t in tables.w_max)
     n_c = tables.w_max[0].shape[1]
@@ -363,16 +387,13 @@ def _pairwise_fisher(tables: PairwiseFisherTables, belief: Belief, n_objects: in
     side = functools.partial(_side, extra=extra, dobj=dobj, dpose=dpose, log_pc=log_pc, kappa=kappa)
 
     sig_g = side(tuple(zip(tables.w_exp, tables.w_max)), log_pk)
-    ok, cur, other = _transition_form(log_pk)
-
-    def fast(_):
-        pick = [jnp.stack([lp[c], lp[o]]) for lp, c, o in zip(log_pk, cur, other)]  # [2, C, L]
-        small = side(None, pick)  # [D, D, 2, ..., 2]
+    if fast:
+        cur, other = _representatives(log_pk)
+        sig_0 = side(None, [jnp.stack([lp[c], lp[o]]) for lp, c, o in zip(log_pk, cur, other)])  # [D, D, 2, ...]
         for i, (v, c) in enumerate(zip(positions, cur)):
-            small = jnp.take(small, jnp.where(jnp.arange(v, dtype=jnp.int32) == c, 0, 1), axis=2 + i)
-        return small
-
-    sig_0 = jax.lax.cond(ok, fast, lambda _: side(None, log_pk), None)
+            sig_0 = jnp.take(sig_0, jnp.where(jnp.arange(v, dtype=jnp.int32) == c, 0, 1), axis=2 + i)
+    else:
+        sig_0 = side(None, log_pk)
     d = n + 2
     fis = jnp.moveaxis((sig_0 - sig_g).reshape((d, d, -1)), -1, 0) / tables.sigma_s.astype(dtype) ** 4
     fis = 0.5 * (fis + jnp.swapaxes(fis, -1, -2))

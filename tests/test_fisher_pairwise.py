@@ -18,7 +18,7 @@ pytestmark = pytest.mark.usefixtures("strict_dtype_promotion")  # numerics: no i
 
 MI_TABLES, _, FISHER = jitted()
 PFT = jax.jit(K.pairwise_fisher_tables, static_argnames=("kind", "sigma_s"))
-PFI = jax.jit(K.pairwise_fisher_information, static_argnames=("n_objects", "n_poses"))
+PFI = jax.jit(K.pairwise_fisher_information, static_argnames=("n_objects", "n_poses", "fast"))
 
 
 def _covs(vars):
@@ -52,11 +52,12 @@ def test_matches_reference(rng, x64, kind, levels, positions, dims, m, n):
     assert got.shape == (int(np.prod(positions)), d, d)
     ref = pairwise_fisher_ref(mus, _covs(vars), np.asarray(K.log_joint(as_jax_belief(b))), n, 0.4, kind=kind)
     np.testing.assert_allclose(got, ref, rtol=1e-9, atol=1e-11)
-    # the same belief given per position: general path (rows at every position) and the
-    # transition's form (the smoothing side at two positions per camera) agree with it
-    for cur in (None, tuple(v - 1 for v in positions)):
+    # the same belief given per position: the fast path (rows equal at every position, or at
+    # all but one: the smoothing side at two positions per camera) and the general one agree
+    for cur in (None, tuple(v - 1 for v in positions), (0,) * len(positions)):
         pb = _per_position(b, positions, current=cur)
         got_p = PFI(t, as_jax_belief(pb), n_objects=m, n_poses=n)
+        np.testing.assert_allclose(PFI(t, as_jax_belief(pb), n_objects=m, n_poses=n, fast=False), got_p, rtol=1e-9, atol=1e-11)
         if cur is None:
             np.testing.assert_allclose(got_p, ref, rtol=1e-9, atol=1e-11)
         else:  # per-configuration prior: reference one configuration at a time
@@ -65,6 +66,24 @@ def test_matches_reference(rng, x64, kind, levels, positions, dims, m, n):
                 lj = np.asarray(K.log_joint(as_jax_belief(rows)))
                 want = pairwise_fisher_ref(mus, _covs(vars), lj, n, 0.4, kind=kind)[a]
                 np.testing.assert_allclose(got_p[a], want, rtol=1e-9, atol=1e-11)
+
+
+def test_general_per_position_rows(rng, x64):
+    """Rows that differ at every position: fast=False (or an eager call, which
+    checks the form) against the reference one configuration at a time."""
+    levels, positions, dims, m, n = (2, 3), (3, 2), (2, 1), 2, 2
+    mus, vars = random_model(rng, m * n, levels, positions, dims)
+    t = PFT(as_jax(mus), as_jax(vars), kind="bhattacharyya", sigma_s=0.4)
+    rows = tuple(np.log(rng.dirichlet(np.ones(l), size=(v, m * n))) for l, v in zip(levels, positions))
+    pb = K.Belief(np.log(rng.dirichlet(np.ones(m * n))), rows)
+    assert not K.fisher_pairwise.transition_form(pb, positions)
+    got = PFI(t, as_jax_belief(pb), n_objects=m, n_poses=n, fast=False)
+    eager = K.pairwise_fisher_information(t, as_jax_belief(pb), n_objects=m, n_poses=n)  # checks: general path
+    np.testing.assert_allclose(eager, got, rtol=1e-9, atol=1e-11)
+    for a, cfg in enumerate(np.ndindex(*positions)):
+        one = K.Belief(pb.log_pc, tuple(r[v] for r, v in zip(pb.log_pk, cfg)))
+        want = pairwise_fisher_ref(mus, _covs(vars), np.asarray(K.log_joint(as_jax_belief(one))), n, 0.4)[a]
+        np.testing.assert_allclose(got[a], want, rtol=1e-9, atol=1e-11)
 
 
 def test_float32_symmetric_psd_and_finite(rng):
@@ -176,11 +195,16 @@ def test_zero_recompiles_after_warm_up(rng):
         pb = _per_position(r, (3, 2), current=current)
         return K.Belief(jnp.asarray(pb.log_pc, jnp.float32), tuple(jnp.asarray(x, jnp.float32) for x in pb.log_pk))
 
+    def general():
+        rows = tuple(jnp.asarray(np.log(rng.dirichlet(np.ones(l), size=(v, 4))), jnp.float32) for l, v in zip((2, 3), (3, 2)))
+        return K.Belief(jnp.asarray(np.log(rng.dirichlet(np.ones(4))), jnp.float32), rows)
+
     score = lambda b: K.crlb_criterion(K.pairwise_fisher_information(t, b, n_objects=2, n_poses=2))
     jax.block_until_ready(score(belief(None)))
+    jax.block_until_ready(score(general()))  # the general path (an eager call checks the form)
     with count_compiles() as later:
-        for cur in ((0, 0), None, (2, 1), None):  # both branches of the smoothing side's lax.cond
-            jax.block_until_ready(score(belief(cur)))
+        for b in (belief((0, 0)), belief(None), general(), belief((2, 1)), general()):
+            jax.block_until_ready(score(b))
     assert sum(later.values()) == 0, dict(later)
 
 
