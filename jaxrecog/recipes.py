@@ -20,8 +20,8 @@ records the parts as they were used.
     The default: the best we measured on real turntable photos with test
     views between the training views (``scripts/photo_bench.py``,
     ``docs/results.md`` "Real photos").  A view mixture with two
-    interpolated components per side toward each neighbouring training view
-    (:func:`jaxrecog.train.interpolated_views`), the database's jitter rows
+    interpolated components per side toward each neighbouring training view,
+    made by optical-flow morphing (:mod:`jaxrecog.view_interpolation`), the database's jitter rows
     when it has them, calibration on its ``calib`` split when it has one,
     and a stop only after two image sets from different positions.
 
@@ -54,6 +54,8 @@ class Recipe:
         likelihood_options: its fit options, as ``(key, value)`` pairs.
         interpolate: interpolated views per side toward each neighbouring
             position (``train_model(interpolate=)``; 0 = none).
+        interpolation: how they are made: ``"linear"`` (cross-fade) or
+            ``"flow"`` (optical-flow morph), :mod:`jaxrecog.view_interpolation`.
         view_jitter: use the database's ``jitter`` rows: ``True``, ``False``
             or ``"auto"`` (when it has them).
         calibrate: fit the variance factors on the ``calib`` split
@@ -71,6 +73,7 @@ class Recipe:
     likelihood: str = "gaussian-diag"
     likelihood_options: tuple[tuple[str, Any], ...] = ()
     interpolate: int = 0
+    interpolation: str = "linear"
     view_jitter: bool | str = False
     calibrate: bool | str = False
     max_shift: int = 3
@@ -84,6 +87,8 @@ class Recipe:
                 raise ValueError(f"recipe {self.name}: {f} must be true, false or 'auto', got {getattr(self, f)!r}")
         if int(self.interpolate) < 0 or int(self.min_views) < 1 or int(self.max_shift) < 0:
             raise ValueError(f"recipe {self.name}: interpolate >= 0, min_views >= 1 and max_shift >= 0 needed")
+        if self.interpolation not in ("linear", "flow"):
+            raise ValueError(f"recipe {self.name}: interpolation must be 'linear' or 'flow', got {self.interpolation!r}")
         if not 0.0 < float(self.p_threshold) <= 1.0:
             raise ValueError(f"recipe {self.name}: p_threshold must lie in (0, 1], got {self.p_threshold}")
 
@@ -118,7 +123,8 @@ class Recipe:
 
 
 #: the recipe parts that choose how a model is trained
-TRAIN_FIELDS = ("likelihood", "likelihood_options", "interpolate", "view_jitter", "calibrate", "max_shift")
+TRAIN_FIELDS = ("likelihood", "likelihood_options", "interpolate", "interpolation", "view_jitter", "calibrate",
+                "max_shift")
 #: the recipe parts a trial's stop reads
 STOP_FIELDS = ("p_threshold", "min_views", "exclude_visited")
 
@@ -129,8 +135,9 @@ THESIS = Recipe(
 
 ROBUST = Recipe(
     name="robust", version=1,
-    summary="the default: view mixture with interpolated views, calibrated, stop after 2 views from new positions",
-    likelihood="view-mixture", interpolate=2, view_jitter=AUTO, calibrate=AUTO,
+    summary="the default: view mixture with optical-flow interpolated views, calibrated, stop after 2 views "
+            "from new positions",
+    likelihood="view-mixture", interpolate=2, interpolation="flow", view_jitter=AUTO, calibrate=AUTO,
     min_views=2, exclude_visited=True,
 )
 

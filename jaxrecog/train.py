@@ -44,6 +44,7 @@ import numpy as np
 from .augment import (AugmentParams, SamplePlan, ShiftWindows, apply_geometry, capture_rng, draw_plan, levels_for,
                       occluder_bank, plan_rng)
 from .database import ImageDatabase, load_database
+from .view_interpolation import INTERPOLATIONS, interpolated_views, view_neighbours
 from .eigenspace import choose_n_components, position_eigenspace
 from .kernels import Likelihood, likelihood_class
 from .sensor_model import CameraModel, GaussianAccumulator, SensorModel
@@ -80,6 +81,7 @@ def train_model(
     batch_size: int = 256,
     view_jitter: bool = False,
     interpolate: int = 0,
+    interpolation: str = "linear",
     return_info: bool = False,
 ) -> SensorModel | tuple[SensorModel, TrainingInfo]:
     """Train the sensor model of a database (thesis ch. 4, §7.1).
@@ -131,11 +133,14 @@ def train_model(
         interpolate: ``n > 0`` adds ``2 n`` components per view to a
             ``view_components`` family: the training image blended with each
             neighbouring position's training image of the same class
-            (:func:`interpolated_views`), ``n`` points per side out to
-            halfway: the appearance manifold between training views
-            (Murase & Nayar's parametric eigenspace, piecewise linear).
-            Needs no new images; combines with ``view_jitter``.  The info
-            records ``params["interpolate"]`` (``n`` and the neighbours found).
+            (:func:`~jaxrecog.view_interpolation.interpolated_views`), ``n``
+            points per side out to halfway: the appearance manifold between
+            training views (Murase & Nayar's parametric eigenspace).  Needs
+            no new images; combines with ``view_jitter``.  The info records
+            ``params["interpolate"]`` (``n``, the interpolation and the
+            neighbours found).
+        interpolation: ``"linear"`` (cross-fade) or ``"flow"`` (optical-flow
+            morph), :mod:`jaxrecog.view_interpolation`.
         return_info: also return a :class:`TrainingInfo`.
 
     Returns:
@@ -164,6 +169,8 @@ def train_model(
     n_interp = int(interpolate)
     if n_interp < 0:
         raise ValueError(f"interpolate must be >= 0, got {interpolate}")
+    if interpolation not in INTERPOLATIONS:
+        raise ValueError(f"interpolation must be one of {', '.join(INTERPOLATIONS)}, got {interpolation!r}")
     if n_interp and not family.view_components:
         raise ValueError(f"interpolate: the interpolated views are mixture components; likelihood "
                          f"{family.name or family.kind!r} has none (use view-mixture or view-mixture-lowrank)")
@@ -176,7 +183,8 @@ def train_model(
     if n_interp:
         neighbours = [view_neighbours(db.train_images(i)) for i in range(db.n_cameras)]
         jitter = _merge_views(jitter, {(i, v): x for i in range(db.n_cameras) for v, x in
-                                       enumerate(interpolated_views(db.train_images(i), neighbours[i], n_interp))})
+                                       enumerate(interpolated_views(db.train_images(i), neighbours[i], n_interp,
+                                                                    interpolation))})
     if family.view_components:
         missing = [(i, v) for i in range(db.n_cameras) for v in range(db.positions[i]) if (i, v) not in jitter]
         if missing:
@@ -238,6 +246,7 @@ def train_model(
             "image_shape": [H, W],
             **({} if neighbours is None else {"interpolate": {
                 "points_per_side": n_interp,
+                "interpolation": interpolation,
                 "neighbours": [[list(map(int, nb)) for nb in cam] for cam in neighbours],
             }}),
             **({} if not view_jitter else {"view_jitter": {
@@ -266,70 +275,6 @@ def _jitter_images(db: ImageDatabase) -> dict[tuple[int, int], tuple[np.ndarray,
     for i, v in sorted(set(zip(db.camera[rows].tolist(), db.position[rows].tolist()))):
         sel = rows[(db.camera[rows] == i) & (db.position[rows] == v)]
         out[i, v] = (db.images[sel], cls[sel].astype(np.int64))
-    return out
-
-
-def view_neighbours(train: np.ndarray) -> list[tuple[int, int]]:
-    """The neighbouring positions of each position of one camera, for
-    interpolation: ``[(left, right)] * V`` (a position index, or ``-1`` where
-    there is none).
-
-    Candidates are the index neighbours ``v - 1`` and ``v + 1`` (the last and
-    the first position too: a turntable is a ring).  With ``S[v, v']`` the
-    mean over classes of the cosine between a class's training images at
-    ``v`` and ``v'``, a candidate pair counts as neighbouring views when it is
-    at least as similar as the median other position of each of the two:
-    along a path of views the object changes less between neighbours than
-    between most other pairs.  (Not "the nearest": many objects look alike
-    from opposite sides, so the view 180° away is often nearer than the
-    next one on a 30° grid.)  Positions not ordered along a path find no
-    neighbours, and their interpolated slots repeat the training view.
-
-    Args:
-        train: ``uint8 [V, C, H, W]`` the camera's training images.
-    """
-    V, C = train.shape[:2]
-    if V < 2:
-        return [(-1, -1)] * V
-    x = train.reshape(V, C, -1).astype(np.float64)
-    x /= np.maximum(np.linalg.norm(x, axis=2, keepdims=True), 1e-12)
-    S = np.einsum("vcd,wcd->vw", x, x) / C                         # mean cosine of a class's two views
-    typical = np.array([np.median(np.delete(S[v], v)) for v in range(V)])
-
-    def adjacent(a: int, b: int) -> bool:
-        return bool(a != b and S[a, b] >= max(typical[a], typical[b]))
-
-    right = [adjacent(v, (v + 1) % V) and (v + 1 < V or V > 2) for v in range(V)]
-    return [((v - 1) % V if right[(v - 1) % V] else -1, (v + 1) % V if right[v] else -1) for v in range(V)]
-
-
-def interpolated_views(train: np.ndarray, neighbours: list[tuple[int, int]], n: int) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Blended images between each training view and its neighbours, as
-    jitter images: per position ``v``, ``(uint8 [C * 2n, H, W], class int [C * 2n])``.
-
-    For class ``c`` and side ``s`` (left, right) with neighbour ``v_s`` the
-    images are ``round((1 - t_j) x[v, c] + t_j x[v_s, c])``, ``t_j = j / (2 n)``,
-    ``j = 1..n``: the straight segment from the training view to halfway to
-    the next (a view at ``t`` of the way is modelled by the component at
-    ``t``; the eigenspace projection of a blend is the blend of the
-    projections, before the norm of eq. 4.3).  A side without a neighbour
-    repeats the other side (or the training view itself), so every position
-    has ``2 n`` of them per class and the mixture one ``M``.
-    """
-    V, C = train.shape[:2]
-    ts = np.arange(1, n + 1) / (2.0 * n)
-    out = []
-    for v in range(V):
-        left, right = neighbours[v]
-        sides = [s for s in (left, right) if s >= 0] or [v]
-        sides = (sides * 2)[:2]
-        imgs, cls = [], []
-        for c in range(C):
-            for s in sides:
-                for t in ts:
-                    imgs.append(np.rint((1.0 - t) * train[v, c] + t * train[s, c].astype(np.float64)))
-                    cls.append(c)
-        out.append((np.clip(np.stack(imgs), 0, 255).astype(np.uint8), np.asarray(cls, np.int64)))
     return out
 
 

@@ -53,6 +53,7 @@ APPROACHES: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
                                ("--min-views", "2", "--exclude-visited")),
     "student-t, robust stop": (("--recipe", "robust", "--likelihood", "student-t", "--interpolate", "0"), ()),
     "robust, thesis stop": (("--recipe", "robust",), ("--min-views", "1", "--no-exclude-visited")),
+    "robust, linear interpolation": (("--recipe", "robust", "--interpolation", "linear"), ()),
     "robust, lowrank mixture": (("--recipe", "robust", "--likelihood", "view-mixture-lowrank"), ()),
 }
 PLANNERS = ("mi-class-pairwise", "random")

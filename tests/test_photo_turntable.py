@@ -10,7 +10,8 @@ import pytest
 
 from jaxrecog.database import ImageDatabase, load_database
 from jaxrecog.photo_turntable import PHOTOS, build_photo_database, scan_photos
-from jaxrecog.train import interpolated_views, train_model, view_neighbours
+from jaxrecog.train import train_model
+from jaxrecog.view_interpolation import interpolated_views, morph, view_neighbours
 from jaxrecog.augment import AugmentParams
 
 
@@ -133,3 +134,27 @@ def test_interpolate_needs_a_mixture_family():
         train_model(db, kind="DB1", n_components=2, samples_per_image=2, interpolate=1)
     with pytest.raises(ValueError, match="interpolate must be >= 0"):
         train_model(db, kind="DB1", n_components=2, samples_per_image=2, likelihood="view-mixture", interpolate=-1)
+
+
+def _blob(cx, cy=32.0, size=64, r=6.0):
+    yy, xx = np.mgrid[:size, :size]
+    return np.clip(255 * np.exp(-((yy - cy) ** 2 + (xx - cx) ** 2) / (2 * r * r)), 0, 255).astype(np.uint8)
+
+
+def test_flow_morph_moves_an_edge_where_a_cross_fade_draws_it_twice():
+    """A blob moved 8 pixels: the optical-flow morph halfway is one blob 4
+    pixels along (near the NumPy-drawn blob there), the linear cross-fade two
+    half blobs; at t = 0 and 1 both give the end views."""
+    a, b, mid = _blob(28.0), _blob(36.0), _blob(32.0)
+    flow = morph(a, b, [0.0, 0.5, 1.0], "flow")
+    lin = morph(a, b, [0.0, 0.5, 1.0], "linear")
+    np.testing.assert_array_equal(lin[0], a)
+    np.testing.assert_array_equal(lin[2], b)
+    assert np.abs(flow[0].astype(int) - a).max() <= 2 and np.abs(flow[2].astype(int) - b).max() <= 2
+    err = lambda x: np.abs(x.astype(float) - mid).mean()  # noqa: E731
+    assert err(flow[1]) < 0.2 * err(lin[1])
+    cols = flow[1].astype(float).sum(axis=0)
+    assert abs(float((cols * np.arange(64)).sum() / cols.sum()) - 32.0) < 0.5      # its centre moved halfway
+    np.testing.assert_allclose(lin[1], np.rint(0.5 * a.astype(float) + 0.5 * b), atol=0)
+    with pytest.raises(ValueError, match="interpolation must be one of linear, flow"):
+        morph(a, b, [0.5], "cubic")

@@ -51,6 +51,8 @@ def add_arguments(p) -> None:
     g.add_argument("--interpolate", type=nonneg, default=None, metavar="N",
                    help="N interpolated views per side toward each neighbouring position (view-mixture "
                         "components between the training views; 0 = none)")
+    g.add_argument("--interpolation", choices=("linear", "flow"), default=None,
+                   help="how the interpolated views are made: 'linear' (cross-fade) or 'flow' (optical-flow morph)")
     g.add_argument("--calibrate", action=argparse.BooleanOptionalAction, default=None,
                    help="calibrate the model on the database's 'calib' split (jaxrecog.calibration)")
     g.add_argument("--view-jitter", action=argparse.BooleanOptionalAction, default=None,
@@ -87,7 +89,7 @@ def resolve_recipe(args, db=None) -> Recipe:
         parts["likelihood_options"] = given
     elif given:
         parts["likelihood_options"] = {**recipe.options, **given}
-    for opt, part in (("interpolate", "interpolate"), ("calibrate", "calibrate"), ("view_jitter", "view_jitter"),
+    for opt, part in (("interpolate", "interpolate"), ("interpolation", "interpolation"), ("calibrate", "calibrate"), ("view_jitter", "view_jitter"),
                       ("threshold", "p_threshold"), ("min_views", "min_views"),
                       ("exclude_visited", "exclude_visited"), ("max_shift", "max_shift")):
         if getattr(args, opt, None) is not None:
@@ -152,7 +154,8 @@ def run(args) -> int:
         model, info = train_model(db, kind=args.kind, n_components=comps, samples_per_image=args.samples,
                                   likelihood=recipe.likelihood, likelihood_options=recipe.options, seed=args.seed,
                                   progress=b.set, augment=augment, view_jitter=bool(recipe.view_jitter),
-                                  interpolate=recipe.interpolate, return_info=True)
+                                  interpolate=recipe.interpolate, interpolation=recipe.interpolation,
+                                  return_info=True)
     params = dict(info.params)
     calibration = None
     if recipe.calibrate:
