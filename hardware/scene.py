@@ -5,7 +5,11 @@ CPU TinyRenderer (headless).  Visual shapes are built once; a new pose only
 moves bodies (``resetBasePositionAndOrientation``), a new object swaps the few
 bodies made from those shapes (TinyRenderer transforms every body's triangles,
 even off-screen ones), and occluder boards are toggled by parking them far
-above every camera.
+above every camera.  pybullet keeps the data of every body and visual shape
+ever made on a client (about 7 kB a reset with four boards, ~3 kB without:
+a long env run grew without bound), so after :data:`REBUILD_AFTER` bodies
+the scene moves to a fresh client, at the next :meth:`Scene.set_object`,
+with the same object, pose and boards: the images do not change.
 
 Frames.  The *object frame* has its origin on the turn-table axis at the
 turn-table top, z up; objects span about z = 0 .. 0.2 m, so their centre is
@@ -59,6 +63,8 @@ __all__ = [
 
 CENTRE_HEIGHT = 0.10
 _PARK = (0.0, 0.0, 1000.0)  # far above every camera: outside every view frustum
+#: bodies made on one pybullet client before the scene rebuilds it (module doc)
+REBUILD_AFTER = 4000
 
 
 def require_pybullet():
@@ -360,6 +366,12 @@ class Scene:
         self.centre = tuple(float(v) for v in object_xyz)
         self.origin = np.array([self.centre[0], self.centre[1], self.centre[2] - CENTRE_HEIGHT])
         self.radius = object_radius(self.objects, self.data_path)
+        self._connect()
+        self._boards: tuple = ()
+
+    def _connect(self) -> None:
+        """A fresh client with the room and the objects' shapes, nothing placed."""
+        self._bodies_made = 0
         self.client = self._p.connect(self._p.DIRECT)
         self._textures: dict[str, int] = {}
         try:
@@ -374,6 +386,17 @@ class Scene:
         self._occluder_poses: list[tuple[tuple[float, float, float], tuple[float, ...]]] = []
         self._occluder_key: object = None
         self._occluders_shown = False
+
+    def _rebuild(self) -> None:
+        """Move to a fresh client (freeing what pybullet kept of removed bodies),
+        with the same boards, shown or parked as they were; the caller places
+        the object (:meth:`set_object`)."""
+        boards, key, shown = self._boards, self._occluder_key, self._occluders_shown
+        self.close()
+        self._connect()
+        if boards:
+            self.set_occluders(boards, key)
+            self.show_occluders(shown)
 
     # -- construction
     def _visual(self, part: Part) -> int:
@@ -399,6 +422,7 @@ class Scene:
         )
         if body < 0:
             raise RuntimeError("pybullet could not create a body")
+        self._bodies_made += 1
         return body
 
     def _build_room(self) -> None:
@@ -427,6 +451,8 @@ class Scene:
         if not 0 <= int(pose) < self.n_poses:
             raise ValueError(f"pose {pose} is out of range 0..{self.n_poses - 1}")
         obj, pose, off = int(obj), int(pose), float(yaw_offset_deg)
+        if self._bodies_made > REBUILD_AFTER:
+            self._rebuild()
         if self._current == (obj, pose, off):
             return
         p, cid = self._p, self.client
@@ -457,6 +483,7 @@ class Scene:
         for body in self.occluder_ids:
             p.removeBody(body, physicsClientId=cid)
         self.occluder_ids, self._occluder_poses = [], []
+        self._boards = tuple(boards)
         for b in boards:
             vis = p.createVisualShape(
                 p.GEOM_BOX, halfExtents=b.half_extents, rgbaColor=(b.gray * 1.05, b.gray * 0.95, b.gray * 0.8, 1.0),
