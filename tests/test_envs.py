@@ -277,7 +277,9 @@ def test_logits_prediction_is_softmaxed(moving):
     logits[target] = 10.0  # softmax: p = e^10 / (e^10 + 5) > 0.95
     _, reward, terminated, _, info = env.step({"action": 2, "prediction": logits})
     assert terminated
-    assert info["prediction"]["loss"] == pytest.approx(-np.log(np.exp(10) / (np.exp(10) + 5)) / np.log(6), rel=1e-6)
+    # declared at view 2 of 7: the loss stands for the 6 steps left (the episode rule)
+    assert info["prediction"]["steps"] == 6
+    assert info["prediction"]["loss"] == pytest.approx(-6 * np.log(np.exp(10) / (np.exp(10) + 5)) / np.log(6), rel=1e-6)
     env.reset(seed=2)
     with pytest.raises(gym.error.InvalidAction, match="NaN or \\+inf"):
         env.step({"action": 0, "prediction": np.full(6, np.nan, np.float32)})

@@ -68,6 +68,12 @@ def test_step_reward_loss_and_auto_reset(small):
     _, obs, reward, done, info = env.step(state, sure, jr.PRNGKey(4))
     assert bool(done) and bool(info["declared"]) and bool(info["correct"])
     np.testing.assert_allclose(info["prediction"]["loss"], 0.0, atol=1e-6)
+    # the episode rule: a wrong declaration at the first view stands for all 3 steps
+    state, obs = env.init(4, jnp.asarray((0, 0)), jr.PRNGKey(5))
+    wrong = {"action": jnp.asarray(0), "prediction": jax.nn.one_hot(5, 6)}
+    _, _, reward, done, info = env.step(state, wrong, jr.PRNGKey(6))
+    assert bool(done) and bool(info["declared"]) and int(info["prediction"]["steps"]) == 3
+    np.testing.assert_allclose(reward, -0.25 - 3 * np.log(1e12) / np.log(6), rtol=1e-5)
 
 
 def test_pure_under_jit_and_vmap(small):

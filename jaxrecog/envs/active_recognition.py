@@ -1,6 +1,9 @@
 """``ActiveRecognitionEnv``: the rig, a trained model and the recognizer's
-belief as a Gymnasium environment, in the conventions of ap-gym's
-``ActivePerceptionEnv`` (TimSchneider42/active-perception-gym).
+belief as a Gymnasium environment, built on ap-gym's
+``ActiveClassificationEnv`` (TimSchneider42/active-perception-gym) when
+``ap_gym`` is installed (the ``gym`` extra), so that ap-gym's wrappers and
+baselines take it; without ``ap_gym`` it is a plain ``gymnasium.Env`` with the
+same spaces, reward and info (:data:`AP_GYM` says which).
 
 Episode.  ``reset`` places an object in a pose (and, ``case="occluded"``,
 cardboard occluders) and takes the first image set at a random initial
@@ -17,6 +20,16 @@ and the prediction loss normalised so that a blind guess scores 1,
 ``loss = -log p(target) / log C`` (cross entropy; for an index prediction the
 0-1 loss).  ``info["base_reward"]``, ``info["prediction"]["target"]`` and
 ``info["prediction"]["loss"]`` carry them.
+
+The episode rule: **a prediction that ends the episode stands for the rest of
+it.**  An episode has ``max_steps`` prediction steps; declaring at view ``t``
+ends it early, and its loss counts once for each step it skips,
+``loss * (max_steps - t + 1)`` (``info["prediction"]["steps"]``).  So a
+declared wrong guess costs what never answering costs, and with an index
+prediction an episode's return is minus the number of steps without the right
+answer: guessing blind at once (expected return ``-(1 - 1/C) max_steps``) is
+worse than looking first.  (Without the rule, a guess cost as much as one
+"not yet" and ended the episode, so PPO learned to guess at once.)
 
 Prediction forms (``prediction=``):
 
@@ -43,6 +56,7 @@ configurations under the predicted prior (``info["scores"][name]``, ``[A]``).
 from __future__ import annotations
 
 import math
+import os
 from typing import Any, Sequence
 
 import equinox as eqx
@@ -57,7 +71,18 @@ from ..hardware.rig import config_from_index, index_from_config
 from . import _engine as E
 from .rigs import build_rig, load_env_model
 
-__all__ = ["ActiveRecognitionEnv", "ACTION_FORMS", "PREDICTION_FORMS"]
+try:  # the ap-gym base (extra `gym`); ap_gym 0.7 imports aiohttp and PIL without declaring them
+    import ap_gym as _ap
+except ImportError as e:  # the env works without it, as a plain gymnasium.Env
+    _ap = None
+    AP_GYM_MISSING = f"{type(e).__name__}: {e}"
+else:
+    AP_GYM_MISSING = ""
+
+#: whether :class:`ActiveRecognitionEnv` subclasses ``ap_gym.ActiveClassificationEnv``
+AP_GYM = _ap is not None
+
+__all__ = ["ActiveRecognitionEnv", "ACTION_FORMS", "PREDICTION_FORMS", "AP_GYM"]
 
 ACTION_FORMS = ("flat", "per-camera")
 PREDICTION_FORMS = ("probabilities", "logits", "index")
@@ -102,14 +127,83 @@ def _reset_options(options) -> dict[str, Any]:
     return dict(options)
 
 
+# -- fork: JAX is multithreaded, and a forked child of a process whose JAX has
+# started hangs in its first JAX call (gymnasium.vector.AsyncVectorEnv's
+# default start method on Linux).  Such a child fails at once instead.
+from jax._src import xla_bridge as _xla_bridge  # noqa: E402
+
+_FORKED_AFTER_JAX = False
+
+
+def _after_fork_in_child() -> None:
+    global _FORKED_AFTER_JAX
+    _FORKED_AFTER_JAX = _FORKED_AFTER_JAX or bool(getattr(_xla_bridge, "_backends", None))
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_after_fork_in_child)
+
+FORK_MESSAGE = ("ActiveRecognitionEnv cannot run in a process forked after JAX started (JAX is multithreaded: the "
+                "child would hang); start vector-env workers with spawn: gymnasium.vector.AsyncVectorEnv(env_fns, "
+                "context='spawn'), or gymnasium.make_vec(..., vectorization_mode='async', "
+                "vector_kwargs={'context': 'spawn'})")
+
+
+def _check_not_forked() -> None:
+    if _FORKED_AFTER_JAX:
+        raise RuntimeError(FORK_MESSAGE)
+
+
+def _make_loss_fn(form: str, n_classes: int):
+    """The ap-gym loss of one step's prediction (``None`` without ap_gym):
+    ap-gym's own normalised cross entropy for logits, the same on normalised
+    class weights, the 0-1 loss for an index ("not yet" = ``C`` scores 1)."""
+    if _ap is None:
+        return None
+    if form == "logits":
+        return _ap.CrossEntropyLossFn(num_classes=n_classes).normalized
+    norm = math.log(n_classes) if n_classes > 1 else 1.0
+
+    class _Loss(_ap.LossFn):
+        def numpy(self, prediction, target, batch_shape=(), rng=None):
+            t = np.asarray(target)
+            if form == "index":
+                return (np.asarray(prediction) != t).astype(np.float32)
+            x = np.asarray(prediction, np.float64)
+            s = x.sum(axis=-1, keepdims=True)
+            p = np.where(s > 0, x / np.where(s > 0, s, 1.0), 1.0 / n_classes)
+            pt = np.take_along_axis(p, t[..., None], axis=-1)[..., 0]
+            return (-np.log(np.maximum(pt, _P_FLOOR)) / norm).astype(np.float32)
+
+        def _lower_bound(self):
+            return 0.0
+
+        def _blind_guessing_expected_value(self):
+            return 1.0
+
+    return _Loss()
+
+
 def _choice(name: str, value: str, allowed: Sequence[str]) -> str:
     if value not in allowed:
         raise ValueError(f"{name} must be one of {', '.join(map(repr, allowed))}, got {value!r}")
     return value
 
 
-class ActiveRecognitionEnv(gym.Env):
+_Base = _ap.ActiveClassificationEnv if _ap is not None else gym.Env
+
+
+class ActiveRecognitionEnv(_Base):
     """Active multi-camera recognition of an object on the turn-table (module doc).
+
+    With ``ap_gym`` installed it is an ``ap_gym.ActiveClassificationEnv``:
+    ``action_space`` is an ``ap_gym.ActivePerceptionActionSpace``,
+    ``prediction_target_space`` ``Discrete(C)``, ``loss_fn`` the per-step loss
+    (ap-gym's normalised cross entropy for ``prediction="logits"``), and
+    ``_step`` the ap-gym hook.  ``step`` is the env's own: ap-gym 0.7's
+    ``ActivePerceptionEnv.step`` replaces ``_step``'s info with only
+    ``base_reward`` and ``prediction`` (the true object, pose, belief and
+    scores would be lost) and has no place for the episode rule above.
 
     Args:
         model: a :class:`~jaxrecog.SensorModel`, a model file, or ``None``
@@ -162,6 +256,7 @@ class ActiveRecognitionEnv(gym.Env):
     ):
         from ..experiments import Settings
 
+        _check_not_forked()
         self.settings = settings if settings is not None else Settings()
         cams = None if cameras is None else tuple(int(c) for c in cameras)
         self.action_form = _choice("action", action, ACTION_FORMS)
@@ -191,13 +286,19 @@ class ActiveRecognitionEnv(gym.Env):
 
         cfg_space = gym.spaces.Discrete(self.n_configs) if action == "flat" else gym.spaces.MultiDiscrete(self.positions)
         C = self.n_classes
+        logit_space = _ap.LogitSpace if _ap is not None else gym.spaces.Box
         pred_space = {
             "probabilities": gym.spaces.Box(0.0, 1.0, (C,), np.float32),
-            "logits": gym.spaces.Box(-np.inf, np.inf, (C,), np.float32),
+            "logits": logit_space(-np.inf, np.inf, (C,), np.float32),
             "index": gym.spaces.Discrete(C + 1),
         }[prediction]
-        self.action_space = gym.spaces.Dict({"action": cfg_space, "prediction": pred_space})
+        if _ap is not None:
+            _ap.ActiveClassificationEnv.__init__(self, C, cfg_space)
+            self.action_space = _ap.ActivePerceptionActionSpace(cfg_space, pred_space)
+        else:
+            self.action_space = gym.spaces.Dict({"action": cfg_space, "prediction": pred_space})
         self.prediction_target_space = gym.spaces.Discrete(C)
+        self.loss_fn = _make_loss_fn(prediction, C)
         H, W = self.model.image_shape
         obs = {
             "images": gym.spaces.Box(0, 255, (len(self.positions), H, W), np.uint8),
@@ -216,6 +317,13 @@ class ActiveRecognitionEnv(gym.Env):
     def configuration(self) -> tuple[int, ...]:
         """The cameras' current positions."""
         return tuple(int(v) for v in self._config)
+
+    @property
+    def class_belief(self) -> np.ndarray:
+        """The recognizer's class marginal P(c) after the images so far, ``float32 [C]``."""
+        if self._scene is None:
+            raise gym.error.ResetNeeded("call reset() before reading the belief")
+        return self._class_probs()
 
     @property
     def views(self) -> int:
@@ -244,6 +352,7 @@ class ActiveRecognitionEnv(gym.Env):
         :func:`~jaxrecog.campaign.run_campaign` run with ``seed=s`` (the
         driver's ``(seed, trial, step)``).
         Otherwise the scene is drawn from the env's generator."""
+        _check_not_forked()
         options = _reset_options(options)  # before anything changes: a bad option loses nothing
         if "trial" in options:
             self._check_scene(options["trial"])
@@ -296,13 +405,27 @@ class ActiveRecognitionEnv(gym.Env):
             raise gym.error.ResetNeeded("call reset() before step()")
         if self._done:
             raise gym.error.ResetNeeded("the episode has ended (terminated or truncated); call reset() before step()")
-        config = self._parse_configuration(action)
+        self._parse_configuration(action)  # both parts checked before anything changes
         probs, declared = self._parse_prediction(action)
-        target = self._target
+        views = self._views
+        obs, base, terminated, truncated, info, target = self._step(action["action"], action["prediction"])
         if self.prediction_form == "index":
             loss = 0.0 if int(action["prediction"]) == target else 1.0
         else:
             loss = -math.log(max(float(probs[target]), _P_FLOOR)) / (math.log(self.n_classes) if self.n_classes > 1 else 1.0)
+        # the episode rule (module doc): a declaration stands for the steps it skips
+        steps = self.max_steps - views + 1 if declared else 1
+        # "metrics": ap-gym's log wrappers read them (its losses here report none)
+        info["prediction"] = {"target": target, "loss": float(loss * steps), "steps": steps, "metrics": {}}
+        return obs, float(base - loss * steps), terminated, truncated, info
+
+    def _step(self, action, prediction):
+        """ap-gym's hook: one transition, ``(obs, base_reward, terminated,
+        truncated, info, prediction_target)``, without the prediction's loss."""
+        full = {"action": action, "prediction": prediction}
+        config = self._parse_configuration(full)
+        _, declared = self._parse_prediction(full)
+        target = self._target
         terminated = bool(declared)
         truncated = not terminated and self._views >= self.max_steps
         if not (terminated or truncated):
@@ -312,8 +435,7 @@ class ActiveRecognitionEnv(gym.Env):
         base = 0.0 - self.step_cost
         info = self._info()
         info["base_reward"] = base
-        info["prediction"] = {"target": target, "loss": float(loss)}
-        return self._obs(), float(base - loss), terminated, truncated, info
+        return self._obs(), base, terminated, truncated, info, target
 
     # -- input checks (nothing changes before they pass) ----------------------
 

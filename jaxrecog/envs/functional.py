@@ -23,7 +23,9 @@ entry computed once from the model when the env is built (memory
 ``sum_i V_i C S C L_i`` floats: 15 MB for the thesis's sizes at S = 16), the level transition
 for the cameras that move (eq. 3.7-3.9); the agent declares when its
 normalised prediction reaches ``p_threshold``; reward
-``-step_cost - (-log p(target) / log C)``.  When an episode ends
+``-step_cost - (-log p(target) / log C)``, a declaration's loss counted for
+each step it skips (``max_steps - views + 1``, ActiveRecognitionEnv's episode
+rule).  When an episode ends
 (``done``), ``step`` returns the state and observation of a fresh episode
 (gymnax's auto-reset); ``info`` describes the step that ended.
 """
@@ -268,9 +270,12 @@ class FunctionalEnv(eqx.Module):
         belief, _ = E.belief_from_logliks(prior, logliks)
         new = FunctionalState(target, nxt, belief, feats, jnp.where(done, 1, state.views + 1))
         base = -jnp.asarray(self.step_cost, loss.dtype)
+        # the episode rule of ActiveRecognitionEnv: a declaration stands for the steps it skips
+        steps = jnp.where(declared, self.max_steps - state.views + 1, 1)
+        loss = loss * steps
         info = {
             "base_reward": base,
-            "prediction": {"target": state.target, "loss": loss},
+            "prediction": {"target": state.target, "loss": loss, "steps": steps},
             "declared": declared,
             "truncated": truncated,
             "views": state.views,
