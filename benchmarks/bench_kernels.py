@@ -9,12 +9,19 @@ timed in full) and, for the CRLB, against VEGAS at equal error on a small
 problem (both measured: the kernel's samples are raised until its error
 matches VEGAS's).  Writes JSON (default out/bench/kernels.json).
 
+The CRLB estimator comparison (issue 30; ``--crlb-only`` runs it alone):
+Monte Carlo and quasi-Monte Carlo at J = 1..16 and the deterministic
+pairwise-distance estimate, each as median ms and worst relative argmax
+regret against a J = 64 Monte Carlo oracle, with ratios against the J = 8
+Monte Carlo of the same run (:func:`crlb_estimators`).
+
 Numbers from a shared 2-core machine are noisy.
 """
 
 from __future__ import annotations
 
 import argparse
+import copy
 import importlib
 import json
 import math
@@ -371,6 +378,90 @@ def accuracy(likelihoods, n_objects, n_poses, rng, repeat=5, oracle_j=32, mi_j=8
     return out
 
 
+#: the CRLB estimators compared by :func:`crlb_estimators` (issue 30)
+CRLB_ESTIMATOR_JS = (1, 2, 4, 8, 16)
+
+
+def crlb_estimators(likelihoods, n_objects, n_poses, beliefs, repeat=5, oracle_j=64, js=CRLB_ESTIMATOR_JS,
+                    oracle_noise=True):
+    """Estimator comparison of the smoothed Fisher information (issue 30):
+    estimator x J -> median time on the ``after_1_update`` belief (224
+    configurations, the criterion included) and the relative argmax regret of
+    -trace(J_g^-1) against a J = ``oracle_j`` Monte Carlo oracle (tables key
+    100, smoothing key 1), worst over :func:`accuracy_beliefs`'s beliefs
+    (regret / the oracle's range over the configurations).  Estimators: the
+    Monte Carlo kernel (``mc``, tables key 0), the quasi-Monte Carlo kernel
+    (``qmc``, scrambled Sobol seed 0, J a power of 2) at each J, and the
+    deterministic pairwise-distance estimate (``pairwise``, Bhattacharyya;
+    ``pairwise-kl``).  Ratios are against ``mc`` at J = 8 in the same run
+    (time: estimator / MC J=8; regret: estimator's worst regret / MC J=8's).
+    ``oracle_noise``: a second oracle (tables key 200, smoothing key 2) scored
+    against the first, the floor below which a regret is oracle noise."""
+    timed = beliefs[TIMED_BELIEF]
+    key = jax.random.PRNGKey(1)
+    tables_fn = jax.jit(K.mi_tables, static_argnames=("samples_per_stratum", "store"))
+    mc_fn = jax.jit(lambda t, b, k: -K.crlb_criterion(K.fisher_information(t, b, key=k, n_objects=n_objects, n_poses=n_poses)))
+    qmc_fn = jax.jit(lambda t, b, k: -K.crlb_criterion(K.qmc_fisher_information(t, b, key=k, n_objects=n_objects,
+                                                                                  n_poses=n_poses)))
+    pw_fn = jax.jit(lambda t, b: -K.crlb_criterion(K.pairwise_fisher_information(t, b, n_objects=n_objects, n_poses=n_poses)))
+
+    def oracle(tkey, ekey):
+        t = tables_fn(likelihoods, key=jax.random.PRNGKey(tkey), samples_per_stratum=oracle_j, store="full")
+        out = {k: np.asarray(mc_fn(t, b, jax.random.PRNGKey(ekey))) for k, b in beliefs.items()}
+        del t
+        return out
+
+    ref = oracle(100, 1)
+
+    def rel_regrets(scores):
+        return {k: _regret(ref[k], scores[k]) / max(float(np.ptp(ref[k])), 1e-30) for k in beliefs}
+
+    def entry(estimator, j, fn):
+        scores = {k: np.asarray(fn(b)) for k, b in beliefs.items()}
+        rel = rel_regrets(scores)
+        t = _timeit(fn, timed, repeat=max(3, repeat // 2) if (j or 0) >= 8 else repeat)
+        return {"estimator": estimator, "J": j, **t, "regret_rel_max": float(max(rel.values())),
+                "regret_rel_per_belief": rel, "spearman_min": float(np.nanmin([_spearman(ref[k], scores[k]) for k in beliefs]))}
+
+    rows = []
+    for j in js:
+        t = jax.block_until_ready(tables_fn(likelihoods, key=jax.random.PRNGKey(0), samples_per_stratum=j, store="full"))
+        rows.append(entry("mc", j, lambda b, t=t: mc_fn(t, b, key)))
+        del t
+    for j in js:
+        qt = K.qmc_fisher_tables(likelihoods, seed=0, samples_per_stratum=j)
+        rows.append(entry("qmc", j, lambda b, qt=qt: qmc_fn(qt, b, key)))
+        del qt
+    for kind, name in (("bhattacharyya", "pairwise"), ("kl", "pairwise-kl")):
+        pt = jax.block_until_ready(K.pairwise_fisher_tables(likelihoods, kind=kind))
+        rows.append(entry(name, None, lambda b, pt=pt: pw_fn(pt, b)))
+    base = next(r for r in rows if r["estimator"] == "mc" and r["J"] == 8)
+    for r in rows:
+        r["ms_ratio_vs_mc_J8"] = r["median_ms"] / base["median_ms"]
+        r["regret_ratio_vs_mc_J8"] = r["regret_rel_max"] / max(base["regret_rel_max"], 1e-30)
+    out = {"oracle": f"MC J={oracle_j}, tables key 100, smoothing key 1; scores -trace(J_g^-1)",
+           "timed_belief": TIMED_BELIEF, "beliefs": list(beliefs), "rows": rows}
+    if oracle_noise:
+        other = oracle(200, 2)
+        out["oracle_noise"] = {"second_oracle": f"MC J={oracle_j}, tables key 200, smoothing key 2",
+                               "regret_rel_per_belief": rel_regrets(other),
+                               "regret_rel_max": float(max(rel_regrets(other).values()))}
+    out["table"] = crlb_table(out)
+    return out
+
+
+def crlb_table(result):
+    """The estimator comparison as Markdown lines."""
+    lines = ["| estimator | J | median ms | x MC J=8 (time) | worst rel. regret | x MC J=8 (regret) |",
+             "|---|---|---|---|---|---|"]
+    for r in result["rows"]:
+        lines.append(f"| {r['estimator']} | {r['J'] if r['J'] is not None else '—'} | {r['median_ms']:.1f} | "
+                     f"{r['ms_ratio_vs_mc_J8']:.3f} | {100 * r['regret_rel_max']:.2f} % | {r['regret_ratio_vs_mc_J8']:.3f} |")
+    if "oracle_noise" in result:
+        lines.append(f"| (second J=64 oracle) | 64 | | | {100 * result['oracle_noise']['regret_rel_max']:.2f} % | |")
+    return lines
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default="out/bench/kernels.json")
@@ -378,6 +469,8 @@ def main(argv=None):
     ap.add_argument("--quick", action="store_true", help="skip the NumPy and VEGAS baselines")
     ap.add_argument("--accuracy-only", action="store_true",
                     help="only the speed-at-equal-accuracy comparison (MI J=8, pairwise, CRLB vs J=32 oracles)")
+    ap.add_argument("--crlb-only", action="store_true",
+                    help="only the CRLB estimator comparison (MC / QMC per J, pairwise; J=64 oracle; issue 30)")
     args = ap.parse_args(argv)
     rng = np.random.default_rng(0)
     n_c, n_l = 32, 6
@@ -397,8 +490,19 @@ def main(argv=None):
     # measured on the same sizes with graded separation: per position the means
     # are scaled by 0.02 .. 0.1 (pairwise Bhattacharyya distances ~0.2 .. 4)
     graded = tuple(m * jnp.asarray(rng.uniform(0.07, 0.33, size=(m.shape[0], 1, 1, 1)), jnp.float32) for m in mus)
+    if args.crlb_only:  # the same model and beliefs as the accuracy section (same rng draws)
+        g_liks = K.gaussian_likelihoods(graded, vars)
+        out["crlb_estimators"] = crlb_estimators(g_liks, 8, 4, accuracy_beliefs(g_liks, 8, 4, rng), repeat=args.repeat)
+        out["crlb_estimators"]["model"] = "thesis sizes, means scaled per position by U(0.07, 0.33) (graded separation)"
+        _write(out, args.out)
+        print("\n".join(out["crlb_estimators"]["table"]))
+        return
+    b_rng = copy.deepcopy(rng)  # the accuracy section's beliefs, again for the CRLB estimators below
     out["accuracy"] = accuracy(K.gaussian_likelihoods(graded, vars), 8, 4, rng, repeat=args.repeat)
     out["accuracy"]["model"] = "thesis sizes, means scaled per position by U(0.07, 0.33) (graded separation)"
+    # issue 30: the CRLB estimators against a J = 64 oracle, on the accuracy section's beliefs
+    g_liks = K.gaussian_likelihoods(graded, vars)
+    out["crlb_estimators"] = crlb_estimators(g_liks, 8, 4, accuracy_beliefs(g_liks, 8, 4, b_rng), repeat=args.repeat)
     if args.accuracy_only:
         _write(out, args.out)
         return
