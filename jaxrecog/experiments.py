@@ -769,9 +769,18 @@ def run_case(
                          on_result=on_result, probe=probe)
 
 
-#: Planners of :func:`run_dataset` when none are given: the default planner
-#: (:data:`~jaxrecog.planners.DEFAULT_PLANNER`) against the random baseline.
+#: Planners of :func:`run_dataset` when none are given: the model's recipe's
+#: planner (:data:`~jaxrecog.planners.DEFAULT_PLANNER` for a thesis-recipe or
+#: older model file) against the random baseline.
 DATASET_PLANNERS = (DEFAULT_PLANNER, "random")
+
+
+def dataset_planners(model_path) -> tuple[str, ...]:
+    """``(the model's recipe's planner, "random")``: what :func:`run_dataset` compares by default."""
+    from .modelfile import load_model_meta
+    from .recipes import recipe_from_meta
+
+    return tuple(dict.fromkeys((recipe_from_meta(load_model_meta(model_path)).planner, "random")))
 
 
 def _check_database_fits(db, model, folder, model_path) -> None:
@@ -808,7 +817,8 @@ def run_dataset(
     A :class:`~jaxrecog.hardware.DatasetRig` replays the database's ``test``
     split; for every object of the model, ``settings.trials_per_object``
     trials with a random pose and a random initial configuration
-    (:func:`~jaxrecog.campaign.plan_trials`), each planner on the same trials.
+    (:func:`~jaxrecog.campaign.plan_trials`), each planner on the same trials
+    (default :func:`dataset_planners`: the model's recipe's and random).
     The model file fixes the cameras and positions (any number of each);
     the database must have a test image of every view.  Finished trials are
     kept in ``workdir/trials`` (named by the settings, the model's and the
@@ -827,7 +837,7 @@ def run_dataset(
     db = load_database(folder)
     _check_database_fits(db, model, folder, model_path)
     rig = DatasetRig(db, seed=settings.seed)
-    planners = tuple(planners or DATASET_PLANNERS)
+    planners = tuple(planners or dataset_planners(model_path))
     case = Case("dataset", f"Image database {folder} ({model.n_objects} objects x {model.n_poses} poses, "
                            f"positions {tuple(int(p) for p in model.positions)}), model {model_path}",
                 str(folder), False, None, planners)

@@ -23,7 +23,10 @@ records the parts as they were used.
     interpolated components per side toward each neighbouring training view,
     made by optical-flow morphing (:mod:`jaxrecog.view_interpolation`), the database's jitter rows
     when it has them, calibration on its ``calib`` split when it has one,
-    and a stop only after two image sets from different positions.
+    a stop only after two image sets from different positions, and the
+    planner ``mi-class-pairwise-robust`` (MI under the tempered class belief:
+    the plain planner trusts an over-confident one-view belief and picks
+    views where the model is worst, below random on the photos).
 
 The registry :data:`RECIPES` maps names to recipes; :func:`get_recipe`
 looks one up (an unknown name is one line listing the known ones).
@@ -35,7 +38,7 @@ import dataclasses
 from typing import Any, Mapping
 
 __all__ = ["Recipe", "RECIPES", "DEFAULT_RECIPE", "THESIS", "ROBUST", "get_recipe", "recipe_from_meta",
-           "STOP_FIELDS", "TRAIN_FIELDS", "AUTO"]
+           "STOP_FIELDS", "TRAIN_FIELDS", "PLAN_FIELDS", "AUTO"]
 
 #: ``view_jitter`` / ``calibrate`` value: on when the database has the split, off (with one line) otherwise
 AUTO = "auto"
@@ -65,6 +68,9 @@ class Recipe:
         min_views: never stop on P_th before this many image sets.
         exclude_visited: never send a camera back to a position it took an
             image from.
+        planner: the view planner ``recognize``, ``plan`` and ``experiment
+            --rig dataset:`` use unless ``--planner(s)`` names one
+            (:data:`jaxrecog.planners.PLANNERS`).
     """
 
     name: str
@@ -80,6 +86,7 @@ class Recipe:
     p_threshold: float = 0.95
     min_views: int = 1
     exclude_visited: bool = False
+    planner: str = "mi-class-pairwise"
 
     def __post_init__(self):
         for f in ("view_jitter", "calibrate"):
@@ -119,7 +126,7 @@ class Recipe:
         """``part = value`` lines (``jaxrecog recipes``, ``inspect``)."""
         d = self.to_dict()
         return [f"{k} = {d[k]!r}" if isinstance(d[k], str) else f"{k} = {d[k]}"
-                for k in (*TRAIN_FIELDS, *STOP_FIELDS)]
+                for k in (*TRAIN_FIELDS, *STOP_FIELDS, *PLAN_FIELDS)]
 
 
 #: the recipe parts that choose how a model is trained
@@ -127,18 +134,22 @@ TRAIN_FIELDS = ("likelihood", "likelihood_options", "interpolate", "interpolatio
                 "max_shift")
 #: the recipe parts a trial's stop reads
 STOP_FIELDS = ("p_threshold", "min_views", "exclude_visited")
+#: the recipe parts that choose where the cameras go next
+PLAN_FIELDS = ("planner",)
 
 THESIS = Recipe(
     name="thesis", version=1,
     summary="the thesis's protocol: diagonal Gaussian, no calibration, stop at the first view with P >= 0.95",
+    planner="mi-class-pairwise",
 )
 
+# version 2: the planner part (mi-class-pairwise-robust); a version-1 file recorded no planner
 ROBUST = Recipe(
-    name="robust", version=1,
+    name="robust", version=2,
     summary="the default: view mixture with optical-flow interpolated views, calibrated, stop after 2 views "
-            "from new positions",
+            "from new positions, MI under a tempered class belief",
     likelihood="view-mixture", interpolate=2, interpolation="flow", view_jitter=AUTO, calibrate=AUTO,
-    min_views=2, exclude_visited=True,
+    min_views=2, exclude_visited=True, planner="mi-class-pairwise-robust",
 )
 
 RECIPES: dict[str, Recipe] = {r.name: r for r in (ROBUST, THESIS)}

@@ -41,7 +41,7 @@ from ._grid import check_belief
 from .belief import Belief
 from .fisher import DEFAULT_SIGMA_S, FisherDraws, fisher_from_draws
 from .likelihood import as_likelihoods
-from .mutual_information import MITables, _camera_ld
+from .mutual_information import MITables, camera_log_densities
 
 __all__ = ["QMCFisherTables", "qmc_fisher_tables", "qmc_fisher_draws", "qmc_fisher_information", "sobol_normal_points"]
 
@@ -101,7 +101,7 @@ def qmc_fisher_tables(likelihoods, vars=None, *, seed: int, samples_per_stratum:
         zc = jnp.asarray(ndtri(jnp.asarray(u[:, :, col + 1: col + 1 + lik.noise_dim])), dtype)  # [C, J, K]
         col += 1 + lik.noise_dim
         z = jnp.broadcast_to(zc[:, None], (n_c, lik.n_levels) + zc.shape[1:])  # shared by the levels
-        ld = _camera_ld(lik, z)
+        ld = camera_log_densities(lik, z)
         d1 = jnp.diagonal(ld, axis1=1, axis2=4)  # [V, L, J, L', C]
         d2 = jnp.diagonal(d1, axis1=1, axis2=3)  # [V, J, C, L]
         selfs.append(jnp.transpose(d2, (0, 2, 3, 1)))

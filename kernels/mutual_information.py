@@ -100,7 +100,7 @@ def samples_per_configuration(tables: MITables) -> int:
     return c * j * math.prod(t.shape[2] for t in tables.ld_self)
 
 
-def _camera_ld(lik: Likelihood, z):
+def camera_log_densities(lik: Likelihood, z):
     """LD [V, C, L, J, C', L'] for one camera: every sample of every component
     under every component of the same position (``lax.map`` over positions)."""
     return jax.lax.map(lambda lik_v: lik_v.log_density(lik_v.sample(z)), lik)
@@ -146,7 +146,7 @@ def _mi_tables(liks: tuple[Likelihood, ...], key: PRNGKeyArray, j: int, store: s
     for i, lik in enumerate(liks):
         c, l = lik.n_classes, lik.n_levels
         z = jr.normal(jr.fold_in(key, i), (c, l, j, lik.noise_dim), lik.dtype)
-        ld = _camera_ld(lik, z)
+        ld = camera_log_densities(lik, z)
         # diagonal LD[v, c, k, j, c, k]
         d1 = jnp.diagonal(ld, axis1=1, axis2=4)  # [V, L, J, L', C]
         d2 = jnp.diagonal(d1, axis1=1, axis2=3)  # [V, J, C, L]

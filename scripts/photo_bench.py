@@ -11,8 +11,8 @@ runs, through the CLI as a user would::
     jaxrecog train DB --out MODEL --kind DB1 --recipe R [approach flags]
     jaxrecog experiment --rig dataset:DB --model MODEL --trials N [--planners ...]
 
-(the default planners ``mi-class-pairwise`` and ``random`` on the same
-trials, the stop rule from the model's recipe).  It writes
+(the default planners: the model's recipe's planner and ``random`` on the
+same trials, and the stop rule from the model's recipe).  It writes
 ``photo_bench.md`` (one table: rate, views, confident errors, ECE, mean exit
 probability, each with its standard error where one applies),
 ``photo_bench.json`` and ``photo_bench_confident_errors.png`` (confident
@@ -55,8 +55,8 @@ APPROACHES: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "robust, thesis stop": (("--recipe", "robust",), ("--min-views", "1", "--no-exclude-visited")),
     "robust, linear interpolation": (("--recipe", "robust", "--interpolation", "linear"), ()),
     "robust, lowrank mixture": (("--recipe", "robust", "--likelihood", "view-mixture-lowrank"), ()),
+    "robust, plain MI planner": (("--recipe", "robust"), ("--planners", "mi-class-pairwise")),
 }
-PLANNERS = ("mi-class-pairwise", "random")
 QUICK = {"grids": [20], "objects": 3, "trials": 4, "samples": 20, "components": 8}
 
 
@@ -90,7 +90,7 @@ def _metrics(workdir: Path, planner: str, p_threshold: float) -> dict:
 
 
 def run(out: Path, *, photos: Path, grids, recipes, approaches: bool, trials: int, objects: int | None,
-        samples: int, components: int, planners=PLANNERS, log=None) -> list[dict]:
+        samples: int, components: int, log=None) -> list[dict]:
     ps = scan_photos(photos)
     variants: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
         f"recipe {r}": (("--recipe", r), ()) for r in recipes}
@@ -113,9 +113,10 @@ def run(out: Path, *, photos: Path, grids, recipes, approaches: bool, trials: in
             if exp.exists():
                 shutil.rmtree(exp)
             _cli("experiment", "--rig", f"dataset:{db}", "--model", model, "--trials", trials, "--out", exp,
-                 "--planners", *planners, *exp_flags, log=log)
-            settings = json.loads((exp / "case_dataset.json").read_text())["settings"]
-            for planner in planners:
+                 *exp_flags, log=log)
+            report = json.loads((exp / "case_dataset.json").read_text())
+            settings = report["settings"]
+            for planner in report["tables"]:   # the model recipe's planner and random unless --planners
                 m = _metrics(exp / "work", planner, settings["p_threshold"])
                 rows.append({"grid": grid, "offset": grid / 2, "variant": name, "planner": planner,
                              "train_s": train_s, "min_views": settings["min_views"],

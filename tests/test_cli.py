@@ -687,13 +687,16 @@ def test_recognize_view_choice_flags(tiny, capsys):
     assert "no view components" in err and "Traceback" not in err
 
 
-def test_default_planner_is_one_registered_name_everywhere():
-    """`recognize`, `plan` and a dataset campaign share one default planner
-    (planners.DEFAULT_PLANNER), a registry entry."""
+def test_default_planner_is_the_model_recipes_everywhere():
+    """`recognize`, `plan` and a dataset campaign take the planner from the
+    model's recipe (no parser default); every recipe names a registered
+    planner, and the thesis recipe's is planners.DEFAULT_PLANNER."""
     from jaxrecog.experiments import DATASET_PLANNERS
     from jaxrecog.planners import DEFAULT_PLANNER, PLANNERS
+    from jaxrecog.recipes import RECIPES, THESIS
 
-    assert DEFAULT_PLANNER in PLANNERS and DATASET_PLANNERS[0] == DEFAULT_PLANNER
+    assert DEFAULT_PLANNER in PLANNERS and DATASET_PLANNERS[0] == DEFAULT_PLANNER == THESIS.planner
+    assert all(r.planner in PLANNERS for r in RECIPES.values())
     subs = cli.subparsers(cli.build_parser())
-    for name in ("recognize", "plan"):
-        assert subs[name].get_default("planner") == DEFAULT_PLANNER
+    for name in ("recognize", "plan", "train"):
+        assert subs[name].get_default("planner") is None

@@ -57,8 +57,9 @@ def test_registry_and_thesis_is_todays_defaults():
 def test_recipes_command_lists_them():
     p = run_cli("recipes")
     assert p.returncode == 0
-    assert p.stdout.startswith("robust (default), version 1:") and "\nthesis, version 1:" in p.stdout
+    assert p.stdout.startswith("robust (default), version 2:") and "\nthesis, version 1:" in p.stdout
     assert "  interpolate = 2" in p.stdout and "  min_views = 1" in p.stdout
+    assert "  planner = 'mi-class-pairwise-robust'" in p.stdout and "  planner = 'mi-class-pairwise'" in p.stdout
     p = run_cli("recipes", "fast")
     assert p.returncode == 2
     _one_error(p, "unknown recipe 'fast'")
@@ -73,7 +74,7 @@ def test_train_records_the_resolved_recipe_and_inspect_shows_it(photo_db, robust
     assert meta["calibrated"] and meta["training"]["interpolate"]["points_per_side"] == 2
     assert load_model(robust_model).cameras[0].likelihood.mu.shape[3] == 5   # 1 training view + 2 x 2 blends
     p = run_cli("inspect", robust_model)
-    assert "recipe: robust (version 1): likelihood = 'view-mixture'" in p.stdout
+    assert "recipe: robust (version 2): likelihood = 'view-mixture'" in p.stdout
     assert "interpolated views: 2 per side; neighbouring positions found per camera: [18] of [18]" in p.stdout
     # the thesis recipe: today's defaults; a flag overrides one part and the file records it
     out = photo_db / "thesis.npz"
@@ -82,6 +83,14 @@ def test_train_records_the_resolved_recipe_and_inspect_shows_it(photo_db, robust
     r = recipe_from_meta(load_model_meta(out))
     assert r == THESIS.replace(min_views=3)
     assert not load_model_meta(out)["calibrated"] and load_model_meta(out)["training"]["likelihood"] == "diag"
+    # the planner part: recorded, and what a dataset campaign compares with random by default
+    from jaxrecog.experiments import dataset_planners
+
+    assert dataset_planners(robust_model) == ("mi-class-pairwise-robust", "random")
+    assert dataset_planners(out) == ("mi-class-pairwise", "random")
+    out2 = photo_db / "thesis-random.npz"
+    p = run_cli("train", photo_db / "db", "--out", out2, *FAST, "--recipe", "thesis", "--planner", "random")
+    assert p.returncode == 0 and dataset_planners(out2) == ("random",)
 
 
 def test_old_model_files_load_as_thesis(photo_db, robust_model, tmp_path):
@@ -126,6 +135,7 @@ def test_recognize_and_experiment_take_the_stop_rule_from_the_model(photo_db, ro
     p = run_cli("recognize", robust_model, "--rig", f"dataset:{db}", "--object", "1", "--pose", "2", "--samples", "16")
     assert p.returncode == 0, p.stderr
     assert "recipe robust: at least 2 views from new positions" in p.stdout
+    assert "planner mi-class-pairwise-robust" in p.stdout       # the recipe's planner
     steps = [l for l in p.stdout.splitlines() if l.strip()[:1].isdigit()]
     assert len(steps) >= 2                      # robust never stops on one view
     p = run_cli("recognize", robust_model, "--rig", f"dataset:{db}", "--object", "1", "--pose", "2", "--samples", "16",

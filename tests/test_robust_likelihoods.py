@@ -57,7 +57,7 @@ def test_model_file_round_trip(tmp_path, models):
         p = save_model(tmp_path / f"{name}.npz", m, training=info.params)
         back = load_model(p)
         meta = load_model_meta(p)
-        assert meta["format_version"] == FORMAT_VERSION == 3
+        assert meta["format_version"] == FORMAT_VERSION == 4
         assert meta["likelihoods"] == [name, name] and meta["training"]["likelihood_options"] == _NEW[name]
         assert back.likelihood_kinds == (name, name)
         a, b = jax.tree.leaves(m), jax.tree.leaves(back)
@@ -123,7 +123,8 @@ def test_bad_parameter_fields_are_one_line_errors(tmp_path, models, name, change
 
 def test_cli_train_likelihood_option(tmp_path, small_db, capsys):
     db = write_database(tmp_path / "db", small_db)
-    base = ["--quiet", "train", str(db), "--kind", "DB1", "--components", "3", "--samples", "6"]
+    base = ["--quiet", "train", str(db), "--kind", "DB1", "--components", "3", "--samples", "6",
+            "--recipe", "thesis"]  # the thesis recipe's single-Gaussian families
     cases = [(["--likelihood", "student-t", "--nu", "auto"], "student-t", {"nu": "auto"}),
              (["--likelihood", "student-t", "--nu", "6"], "student-t", {"nu": 6.0}),
              (["--likelihood", "gaussian-lowrank", "--rank", "1"], "gaussian-lowrank", {"rank": 1}),

@@ -695,7 +695,9 @@ def test_view_jitter_trains_the_low_rank_mixture_unless_told_otherwise(tmp_path,
     from jaxrecog import write_database
 
     write_database(folder, _with_jitter(db, _jitter_rows(db)))
-    base = ["--quiet", "train", str(folder), "--kind", "DB1", "--components", "3", "--samples", "10"]
+    # the thesis recipe's families (the robust recipe's is the view mixture, tests/test_recipes.py)
+    base = ["--quiet", "train", str(folder), "--kind", "DB1", "--components", "3", "--samples", "10",
+            "--recipe", "thesis"]
     for extra, family in ((["--view-jitter"], K.LowRankViewMixture), ([], K.DiagonalGaussian),
                           (["--view-jitter", "--likelihood", "gaussian-diag"], K.DiagonalGaussian),
                           (["--view-jitter", "--likelihood", "view-mixture"], K.ViewMixture)):

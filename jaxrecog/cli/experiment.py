@@ -49,7 +49,7 @@ def add_arguments(p) -> None:
     p.add_argument("--model", metavar="MODEL.NPZ", help="trained model file for --rig dataset:FOLDER")
     p.add_argument("--planners", nargs="+", choices=PLANNERS, metavar="PLANNER",
                    help=f"planners to compare, from {', '.join(PLANNERS)} (default: the case's; "
-                        f"{' '.join(ex.DATASET_PLANNERS)} on a dataset rig)")
+                        "the model's recipe's planner and random on a dataset rig)")
     p.add_argument("--trials", type=positive, help="trials per object (default: the case's)")
     p.add_argument("--samples", type=positive, help="Monte Carlo samples of the planners")
     p.add_argument("--min-per-stratum", type=positive, help="at least this many planner samples per state "

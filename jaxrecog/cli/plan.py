@@ -12,7 +12,7 @@ from ..planners import DEFAULT_PLANNER, make_planner
 from ..recognizer import Recognizer
 from ._common import UsageError, fmt_cfg, key, model_positions, print_table
 from ._images import read_gray, usable
-from ._options import PLANNERS, config_tuple, planner_size_options, positive, skip_invalid_option
+from ._options import PLANNERS, config_tuple, model_recipe, planner_size_options, positive, skip_invalid_option
 
 NAME = "plan"
 ORDER = 40
@@ -23,7 +23,8 @@ DESCRIPTION = ("Score every configuration with a planner, for the uniform belief
 
 def add_arguments(p) -> None:
     p.add_argument("model", metavar="MODEL.NPZ", help="model file")
-    p.add_argument("--planner", choices=PLANNERS, default=DEFAULT_PLANNER, help="scoring rule")
+    p.add_argument("--planner", choices=PLANNERS, default=None,
+                   help=f"scoring rule (default: the model's recipe's; thesis-recipe and older files: {DEFAULT_PLANNER})")
     p.add_argument("--images", nargs="+", metavar="PNG",
                    help="one gray image per camera (8-bit, or float such as a 32-bit TIFF), taken at --at "
                         "(default: score the uniform belief)")
@@ -44,6 +45,8 @@ def _scores_report(scores, positions, top: int) -> tuple[int, list]:
 
 
 def run(args) -> int:
+    if args.planner is None:
+        args.planner = model_recipe(args.model).planner
     model = load_model(args.model)
     positions = model_positions(model)
     imgs = None

@@ -37,7 +37,9 @@ def add_arguments(p) -> None:
     p.add_argument("--pose", type=nonneg, default=0, help="its pose (0-based)")
     p.add_argument("--start", type=config_tuple, metavar="V1,V2",
                    help="initial configuration (default: random from --seed)")
-    p.add_argument("--planner", choices=PLANNERS, default=DEFAULT_PLANNER, help="view planner")
+    p.add_argument("--planner", choices=PLANNERS, default=None,
+                   help="view planner (default: the model's recipe's; thesis-recipe and older model files: "
+                        f"{DEFAULT_PLANNER})")
     p.add_argument("--threshold", type=probability, default=None,
                    help="stop probability P_th (default: the model's recipe's, 0.95 in both built-in recipes)")
     p.add_argument("--max-steps", type=positive, default=7, help="largest number of image sets")
@@ -132,7 +134,8 @@ def run(args) -> int:
     if args.min_views is not None and args.min_views > args.max_steps:  # before the model, the rig and the planner
         raise UsageError(f"--min-views {args.min_views} is above --max-steps {args.max_steps}")
     recipe = model_recipe(args.model)   # the stop rule: the model's recipe unless an option gives it
-    for opt, part in (("threshold", "p_threshold"), ("min_views", "min_views"), ("exclude_visited", "exclude_visited")):
+    for opt, part in (("threshold", "p_threshold"), ("min_views", "min_views"), ("exclude_visited", "exclude_visited"),
+                      ("planner", "planner")):
         if getattr(args, opt) is None:
             setattr(args, opt, getattr(recipe, part))
     args.min_views = min(args.min_views, args.max_steps)  # a recipe's rule within a shorter --max-steps

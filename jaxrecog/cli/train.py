@@ -13,8 +13,8 @@ from .._progress import bar
 from ..recipes import AUTO, DEFAULT_RECIPE, RECIPES, Recipe, get_recipe
 from ..train import train_model
 from ._common import UsageError
-from ._options import (capture_options, capture_params, given_likelihood_options, likelihood_choice,
-                       likelihood_options, nonneg, positive, probability)
+from ._options import (PLANNERS, capture_options, capture_params, default_likelihood, given_likelihood_options,
+                       likelihood_choice, likelihood_options, nonneg, positive, probability)
 
 NAME = "train"
 ORDER = 20
@@ -64,6 +64,8 @@ def add_arguments(p) -> None:
                    help="stop rule recorded in the model: never stop on P_th before N image sets")
     g.add_argument("--exclude-visited", action=argparse.BooleanOptionalAction, default=None,
                    help="stop rule recorded in the model: never send a camera back to a visited position")
+    g.add_argument("--planner", choices=PLANNERS, default=None,
+                   help="view planner recorded in the model (recognize, plan and experiment --rig dataset: use it)")
     capture_options(p, unset=True)
 
 
@@ -79,6 +81,8 @@ def resolve_recipe(args, db=None) -> Recipe:
     parts: dict = {}
     name = _likelihood_name(args)
     given = given_likelihood_options(args)
+    if name is None and args.view_jitter and not likelihood_class(recipe.likelihood).view_components:
+        name = default_likelihood(True)   # --view-jitter on a single-Gaussian recipe: the thesis-era default family
     if given:
         try:
             likelihood_choice(name or recipe.likelihood, given)   # an option of another family: one line
@@ -91,7 +95,7 @@ def resolve_recipe(args, db=None) -> Recipe:
         parts["likelihood_options"] = {**recipe.options, **given}
     for opt, part in (("interpolate", "interpolate"), ("interpolation", "interpolation"), ("calibrate", "calibrate"), ("view_jitter", "view_jitter"),
                       ("threshold", "p_threshold"), ("min_views", "min_views"),
-                      ("exclude_visited", "exclude_visited"), ("max_shift", "max_shift")):
+                      ("exclude_visited", "exclude_visited"), ("max_shift", "max_shift"), ("planner", "planner")):
         if getattr(args, opt, None) is not None:
             parts[part] = getattr(args, opt)
     try:
