@@ -23,7 +23,7 @@ Nothing is fitted or chosen on the test views: they are only replayed.
 M from 1, I the angle index); ``--quick`` is the CI form (one grid, a few
 objects and trials, small models: it checks the pipeline, not the numbers).
 
-Example (the docs/results.md table; ~6 min on 2 cores)::
+Example (the docs/results.md table; 730 s on 2 cores)::
 
     python scripts/photo_bench.py --out out/photo-bench --approaches
 """
@@ -56,8 +56,11 @@ APPROACHES: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "robust, linear interpolation": (("--recipe", "robust", "--interpolation", "linear"), ()),
     "robust, lowrank mixture": (("--recipe", "robust", "--likelihood", "view-mixture-lowrank"), ()),
     "robust, plain MI planner": (("--recipe", "robust"), ("--planners", "mi-class-pairwise")),
+    "robust, 4 interpolated views": (("--recipe", "robust", "--interpolate", "4"), ()),
+    "robust, 3 views": (("--recipe", "robust",), ("--min-views", "3")),
+    "robust, P_th 0.99": (("--recipe", "robust",), ("--threshold", "0.99")),
 }
-QUICK = {"grids": [20], "objects": 3, "trials": 4, "samples": 20, "components": 8}
+QUICK = {"grids": [40], "objects": 2, "trials": 3, "samples": 10, "components": 6}
 
 
 def _cli(*args, log) -> None:
@@ -89,13 +92,14 @@ def _metrics(workdir: Path, planner: str, p_threshold: float) -> dict:
     return m
 
 
-def run(out: Path, *, photos: Path, grids, recipes, approaches: bool, trials: int, objects: int | None,
+def run(out: Path, *, photos: Path, grids, recipes, approaches, trials: int, objects: int | None,
         samples: int, components: int, log=None) -> list[dict]:
+    """``approaches``: ``True`` (all of :data:`APPROACHES`), ``False`` or a list of their names."""
     ps = scan_photos(photos)
     variants: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
         f"recipe {r}": (("--recipe", r), ()) for r in recipes}
     if approaches:
-        variants.update(APPROACHES)
+        variants.update(APPROACHES if approaches is True else {a: APPROACHES[a] for a in approaches})
     rows = []
     for grid in grids:
         db = out / "work" / f"grid{grid}" / "db"
@@ -138,25 +142,37 @@ HEADER = ("| grid / test offset | recipe or approach | planner | rate % ± SE | 
 
 
 def figure(rows: list[dict], path: Path) -> Path:
+    """Confident errors against the offset: the recipes with both planners
+    (left), every variant with the planner it ran first (right)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(7, 4.2))
-    keys = sorted({(r["variant"], r["planner"]) for r in rows})
-    for variant, planner in keys:
-        sel = sorted((r for r in rows if r["variant"] == variant and r["planner"] == planner), key=lambda r: r["offset"])
-        ax.errorbar([r["offset"] for r in sel], [r["confident_error_pct_of_trials"] for r in sel],
-                    yerr=[r["confident_error_pct_of_trials_se"] for r in sel], marker="o" if planner != "random" else "s",
-                    linestyle="-" if planner != "random" else "--", capsize=3, label=f"{variant}, {planner}")
-    ax.set_xlabel("test views' offset from the nearest training view (degrees)")
-    ax.set_ylabel("confident errors (% of trials)")
-    ax.set_title("Real turntable photos: trials that stopped sure and wrong")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=7)
+    variants = list(dict.fromkeys(r["variant"] for r in rows))
+    colour = {v: plt.get_cmap("tab20")(i % 20) for i, v in enumerate(variants)}
+    first = {v: next(r["planner"] for r in rows if r["variant"] == v) for v in variants}
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.6), sharey=True)
+    panels = ([(v, p) for v in variants if v.startswith("recipe ") for p in dict.fromkeys(
+                  r["planner"] for r in rows if r["variant"] == v)],
+              [(v, first[v]) for v in variants])
+    for ax, keys, title in zip(axes, panels, ("recipes: default planner and random", "every variant, its first planner")):
+        for variant, planner in keys:
+            sel = sorted((r for r in rows if r["variant"] == variant and r["planner"] == planner),
+                         key=lambda r: r["offset"])
+            rnd = planner == "random"
+            ax.errorbar([r["offset"] for r in sel], [r["confident_error_pct_of_trials"] for r in sel],
+                        yerr=[r["confident_error_pct_of_trials_se"] for r in sel], marker="s" if rnd else "o",
+                        linestyle="--" if rnd else "-", color=colour[variant], capsize=3,
+                        label=f"{variant}, {planner}")
+        ax.set_xlabel("test views' offset from the nearest training view (degrees)")
+        ax.set_title(title, fontsize=10)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7, loc="upper left")
+    axes[0].set_ylabel("confident errors (% of trials)")
+    fig.suptitle("Real turntable photos: trials that stopped sure and wrong")
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
 
@@ -168,6 +184,8 @@ def main(argv=None) -> int:
     ap.add_argument("--grids", type=int, nargs="+", default=[20, 30, 40], help="grid steps in degrees")
     ap.add_argument("--recipes", nargs="+", default=list(RECIPES), choices=list(RECIPES))
     ap.add_argument("--approaches", action="store_true", help="also the other approaches (APPROACHES)")
+    ap.add_argument("--approach", nargs="+", choices=list(APPROACHES), metavar="NAME", default=None,
+                    help="only these approaches (names as in the table), besides --recipes")
     ap.add_argument("--trials", type=int, default=30, help="trials per object")
     ap.add_argument("--objects", type=int, default=None, help="the first N objects (default all)")
     ap.add_argument("--samples", type=int, default=100, help="augmented samples per training image")
@@ -181,7 +199,8 @@ def main(argv=None) -> int:
     t0 = time.perf_counter()
     print(HEADER, flush=True)
     with open(args.out / "photo_bench.log", "w") as log:
-        rows = run(args.out, photos=args.photos, grids=args.grids, recipes=args.recipes, approaches=args.approaches,
+        rows = run(args.out, photos=args.photos, grids=args.grids, recipes=args.recipes,
+                   approaches=args.approach or args.approaches,
                    trials=args.trials, objects=args.objects, samples=args.samples, components=args.components, log=log)
     seconds = time.perf_counter() - t0
     md = "\n".join([HEADER, *map(_line, rows)])
