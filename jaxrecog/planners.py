@@ -397,52 +397,48 @@ class FixedPlanner(Planner):
         return jax.nn.one_hot(self.index, self.n_configs)
 
 
-def _mi(target: str):
+def _sampled(cls, **fixed):
+    """A registry builder for a Monte Carlo planner: ``cls.from_model`` with
+    the key, the sample counts, the entry's ``fixed`` options and the user's."""
     def build(model, *, key, samples, min_per_stratum, **options):
-        return MIPlanner.from_model(model, key=key, samples=samples, target=target, min_per_stratum=min_per_stratum, **options)
+        return cls.from_model(model, key=key, samples=samples, min_per_stratum=min_per_stratum, **fixed, **options)
     return build
+
+
+def _deterministic(cls, **fixed):
+    """A registry builder for a planner without samples (the key and sample counts are unused)."""
+    def build(model, *, key, samples, min_per_stratum, **options):
+        del key, samples, min_per_stratum  # deterministic: no samples
+        return cls.from_model(model, **fixed, **options)
+    return build
+
+
+def _mi(target: str):
+    return _sampled(MIPlanner, target=target)
 
 
 def _pairwise(target: str, divergence: str):
-    def build(model, *, key, samples, min_per_stratum, **options):
-        del key, samples, min_per_stratum  # deterministic: no samples
-        return PairwiseMIPlanner.from_model(model, target=target, divergence=divergence, **options)
-    return build
+    return _deterministic(PairwiseMIPlanner, target=target, divergence=divergence)
 
 
 def _tempered(target: str):
-    def build(model, *, key, samples, min_per_stratum, **options):
-        del key, samples, min_per_stratum  # deterministic: no samples
-        return TemperedPairwiseMIPlanner.from_model(model, target=target, **options)
-    return build
+    return _deterministic(TemperedPairwiseMIPlanner, target=target)
 
 
 def _lookahead(target: str):
-    def build(model, *, key, samples, min_per_stratum, **options):
-        return LookaheadMIPlanner.from_model(model, key=key, samples=samples, target=target,
-                                             min_per_stratum=min_per_stratum, **options)
-    return build
+    return _sampled(LookaheadMIPlanner, target=target)
 
 
 def _crlb(criterion: str):
-    def build(model, *, key, samples, min_per_stratum, **options):
-        return CRLBPlanner.from_model(model, key=key, samples=samples, criterion=criterion,
-                                      min_per_stratum=min_per_stratum, **options)
-    return build
+    return _sampled(CRLBPlanner, criterion=criterion)
 
 
 def _crlb_pairwise(criterion: str):
-    def build(model, *, key, samples, min_per_stratum, **options):
-        del key, samples, min_per_stratum  # deterministic: no samples
-        return PairwiseCRLBPlanner.from_model(model, criterion=criterion, **options)
-    return build
+    return _deterministic(PairwiseCRLBPlanner, criterion=criterion)
 
 
 def _crlb_qmc(criterion: str):
-    def build(model, *, key, samples, min_per_stratum, **options):
-        return QMCCRLBPlanner.from_model(model, key=key, samples=samples, criterion=criterion,
-                                         min_per_stratum=min_per_stratum, **options)
-    return build
+    return _sampled(QMCCRLBPlanner, criterion=criterion)
 
 
 def _random(model, *, key, samples, min_per_stratum):
