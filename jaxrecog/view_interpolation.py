@@ -74,21 +74,28 @@ def view_neighbours(train: np.ndarray) -> list[tuple[int, int]]:
     return [((v - 1) % V if right[(v - 1) % V] else -1, (v + 1) % V if right[v] else -1) for v in range(V)]
 
 
-def morph(a: np.ndarray, b: np.ndarray, ts, interpolation: str = "linear") -> np.ndarray:
+def flow_pair(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The dense optical flows ``a -> b`` and ``b -> a`` (Farnebäck), ``float32 [H, W, 2]`` each."""
+    return (cv2.calcOpticalFlowFarneback(a, b, None, *_FLOW, 0),
+            cv2.calcOpticalFlowFarneback(b, a, None, *_FLOW, 0))
+
+
+def morph(a: np.ndarray, b: np.ndarray, ts, interpolation: str = "linear", flows=None) -> np.ndarray:
     """The images ``t`` of the way from ``a`` to ``b`` (module doc), ``uint8 [len(ts), H, W]``.
 
     Args:
         a, b: ``uint8 [H, W]`` the two views.
         ts: fractions in [0, 1].
         interpolation: ``"linear"`` or ``"flow"``.
+        flows: ``"flow"`` only: :func:`flow_pair` ``(a, b)`` when already
+            computed (the way back from ``b`` to ``a`` uses the same two).
     """
     if interpolation not in INTERPOLATIONS:
         raise ValueError(f"interpolation must be one of {', '.join(INTERPOLATIONS)}, got {interpolation!r}")
     fa, fb = a.astype(np.float64), b.astype(np.float64)
     out = []
     if interpolation == "flow":
-        f_ab = cv2.calcOpticalFlowFarneback(a, b, None, *_FLOW, 0)
-        f_ba = cv2.calcOpticalFlowFarneback(b, a, None, *_FLOW, 0)
+        f_ab, f_ba = flow_pair(a, b) if flows is None else flows
         H, W = a.shape
         y, x = np.mgrid[:H, :W].astype(np.float32)
     for t in ts:
@@ -127,6 +134,17 @@ def interpolated_views(train: np.ndarray, neighbours: list[tuple[int, int]], n: 
     V, C = train.shape[:2]
     ts = np.arange(1, n + 1) / (2.0 * n)
     out = []
+    flows: dict[tuple[int, int, int], tuple[np.ndarray, np.ndarray]] = {}   # (v, s, c) -> flow_pair
+
+    def pair(v: int, s: int, c: int):
+        if interpolation != "flow":
+            return None
+        if (s, v, c) in flows:                 # the way back: the same two flows, swapped (each used twice)
+            f_sv, f_vs = flows.pop((s, v, c))
+            return f_vs, f_sv
+        flows[(v, s, c)] = flow_pair(train[v, c], train[s, c])
+        return flows[(v, s, c)]
+
     for v in range(V):
         left, right = neighbours[v]
         sides = [s for s in (left, right) if s >= 0] or [v]
@@ -134,7 +152,7 @@ def interpolated_views(train: np.ndarray, neighbours: list[tuple[int, int]], n: 
         imgs, cls = [], []
         for c in range(C):
             for s in sides:
-                imgs.append(morph(train[v, c], train[s, c], ts, interpolation) if s != v
+                imgs.append(morph(train[v, c], train[s, c], ts, interpolation, flows=pair(v, s, c)) if s != v
                             else np.repeat(train[v, c][None], n, axis=0))
                 cls += [c] * n
         out.append((np.concatenate(imgs), np.asarray(cls, np.int64)))

@@ -158,3 +158,24 @@ def test_flow_morph_moves_an_edge_where_a_cross_fade_draws_it_twice():
     np.testing.assert_allclose(lin[1], np.rint(0.5 * a.astype(float) + 0.5 * b), atol=0)
     with pytest.raises(ValueError, match="interpolation must be one of linear, flow"):
         morph(a, b, [0.5], "cubic")
+
+
+def test_flow_views_reuse_each_pairs_flows_and_match_morph(monkeypatch):
+    """interpolated_views computes each neighbouring pair's two flows once
+    (the way back swaps them) and gives exactly what morph computes alone."""
+    import jaxrecog.view_interpolation as vi
+
+    rng = np.random.default_rng(3)
+    train = np.stack([np.stack([_blob(20.0 + 6 * v + c) for c in range(2)]) for v in range(4)])
+    train = np.clip(train.astype(int) + rng.integers(0, 3, train.shape), 0, 255).astype(np.uint8)
+    neighbours = [((v - 1) % 4, (v + 1) % 4) for v in range(4)]
+    calls = []
+    real = vi.flow_pair
+    monkeypatch.setattr(vi, "flow_pair", lambda a, b: calls.append(1) or real(a, b))
+    views = vi.interpolated_views(train, neighbours, 2, "flow")
+    assert len(calls) == 4 * 2                    # 4 ring pairs x 2 classes, not 16
+    for v, (imgs, cls) in enumerate(views):
+        want = np.concatenate([morph(train[v, c], train[s, c], [0.25, 0.5], "flow")
+                               for c in range(2) for s in neighbours[v]])
+        np.testing.assert_array_equal(imgs, want)
+        np.testing.assert_array_equal(cls, [0, 0, 0, 0, 1, 1, 1, 1])
