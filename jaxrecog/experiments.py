@@ -242,6 +242,7 @@ class Settings:
     view_jitter: int = 0
     view_jitter_deg: float = 10.0
     interpolate: int = 0
+    interpolation: str = "linear"
 
     def __post_init__(self):
         from ._fieldtypes import check_settings
@@ -303,6 +304,8 @@ class Settings:
         object.__setattr__(self, "likelihood_options", tuple(sorted(opts.items())))
         if isinstance(self.interpolate, bool) or not isinstance(self.interpolate, int) or self.interpolate < 0:
             raise ValueError(f"interpolate must be an integer >= 0, got {self.interpolate!r}")
+        if self.interpolation not in ("linear", "flow"):
+            raise ValueError(f"interpolation must be 'linear' or 'flow', got {self.interpolation!r}")
         if self.interpolate and not family.view_components:
             raise ValueError(f"interpolate = {self.interpolate}: interpolated views are mixture components; "
                              f"likelihood {name!r} has none (use view-mixture or view-mixture-lowrank)")
@@ -364,7 +367,7 @@ _AUGMENT_FIELDS = ("max_rotation", "max_scale", "blur_sigma", "gain_amplitude", 
                    "max_shift")
 _LATER_AUGMENT_FIELDS = ("occluder_gray", "max_shift")
 _TRAINING_FIELDS = ("likelihood", "likelihood_options", *_AUGMENT_FIELDS, "view_jitter", "view_jitter_deg",
-                    "interpolate")
+                    "interpolate", "interpolation")
 
 
 def _training_defaults() -> dict:
@@ -395,8 +398,10 @@ def _training_params(settings: Settings, kind: str) -> dict:
         # a field added later counts only when set: model files from before it stay valid
         params["augment"] = {k: (list(aug[k]) if isinstance(aug[k], tuple) else aug[k])
                              for k in _AUGMENT_FIELDS if k in extra or k not in _LATER_AUGMENT_FIELDS}
-        if settings.interpolate:
-            params["interpolate"] = {"points_per_side": settings.interpolate}
+        if settings.interpolate:   # a linear model's key is what it was before 'interpolation' existed
+            params["interpolate"] = {"points_per_side": settings.interpolate,
+                                     **({} if settings.interpolation == "linear" else
+                                        {"interpolation": settings.interpolation})}
     return params
 
 
@@ -498,7 +503,7 @@ def _train(settings: Settings, db, kind: str, progress: bool):
                            samples_per_image=settings.samples_per_image, seed=settings.seed,
                            likelihood=settings.likelihood, likelihood_options=dict(settings.likelihood_options),
                            augment=settings.augment_params(), view_jitter=bool(settings.view_jitter),
-                           interpolate=settings.interpolate,
+                           interpolate=settings.interpolate, interpolation=settings.interpolation,
                            progress=lambda done, total: bar.update(done - bar.n), return_info=True)
 
 

@@ -291,3 +291,23 @@ def test_reproduce_thesis_flags_reach_settings(monkeypatch):
     assert ex.model_path(seen["settings"], "DB2") != ex.model_path(ex.Settings(workdir="w"), "DB2")
     with pytest.raises(SystemExit):
         mod.main(["--case", "i", "--likelihood", "student-t", "--rank", "2"])
+
+
+def test_interpolation_is_its_own_cache_key_and_linear_keeps_the_old_one(tmp_path):
+    """Settings.interpolation: a flow-interpolated model has its own training
+    key; a linear one keeps the key it had before the field existed; a bad
+    value is one line naming it."""
+    import pytest
+
+    from jaxrecog import experiments as ex
+
+    base = dict(workdir=tmp_path, likelihood="view-mixture", interpolate=2)
+    linear = ex._training_params(ex.Settings(**base), "DB1")
+    flow = ex._training_params(ex.Settings(**base, interpolation="flow"), "DB1")
+    assert linear["interpolate"] == {"points_per_side": 2}
+    assert flow["interpolate"] == {"points_per_side": 2, "interpolation": "flow"}
+    # a model file records both parts: the linear key matches a linear file, the flow key only a flow file
+    lin_file = {**linear, "interpolate": {"points_per_side": 2, "interpolation": "linear"}}
+    assert ex._params_match(lin_file, linear) and not ex._params_match(lin_file, flow)
+    with pytest.raises(ValueError, match="interpolation must be 'linear' or 'flow', got 'cubic'"):
+        ex.Settings(**base, interpolation="cubic")

@@ -75,6 +75,9 @@ def add_arguments(p) -> None:
     g.add_argument("--interpolate", type=nonneg, default=None, metavar="N",
                    help="N interpolated views per side toward each neighbouring position (view-mixture components "
                         "between the training views; default 0 = off, the thesis)")
+    g.add_argument("--interpolation", choices=("linear", "flow"), default=None,
+                   help="how --interpolate's views are made: 'linear' (cross-fade, the default here) or 'flow' "
+                        "(optical-flow morph, the robust recipe's)")
     render_jitter_options(g)
     capture_options(p, unset=True)
 
@@ -91,6 +94,8 @@ def _training_values(args, values: dict[str, Any]) -> dict[str, Any]:
         out["likelihood"] = default_likelihood(True)
     if args.interpolate is not None:
         out["interpolate"] = args.interpolate
+    if args.interpolation is not None:
+        out["interpolation"] = args.interpolation
     opts = given_likelihood_options(args)
     if opts:
         base = values.get("likelihood_options") or {}
