@@ -157,3 +157,30 @@ def test_runtime_failures_exit_1_with_one_line(moving, tmp_path):
     one_error_line(p, "gappy", "3 of 18 views have no 'test' image")
     assert "\n  camera 0, position 1, object 1, pose 0\n" in p.stderr, p.stderr  # one view per line
     assert not (tmp_path / "case_dataset.md").exists()
+
+
+def test_the_shipped_example_experiment_file_is_valid(tmp_path, monkeypatch):
+    """examples/my_experiment.toml (named in the README) reads into the case,
+    planners and Settings it says, with no unknown key."""
+    from pathlib import Path
+
+    from jaxrecog import cli
+    from jaxrecog import experiments as ex
+
+    seen = {}
+
+    class _Stop(Exception):
+        pass
+
+    def run_case(name, settings, planners=None, **kw):
+        seen.update(name=name, settings=settings, planners=planners)
+        raise _Stop
+
+    monkeypatch.setattr(ex, "run_case", run_case)
+    path = Path(__file__).resolve().parents[1] / "examples" / "my_experiment.toml"
+    assert cli.main(["--quiet", "experiment", str(path), "--out", str(tmp_path / "o"),
+                     "--workdir", str(tmp_path / "w")]) == 1          # _Stop: a runtime error, after parsing
+    s = seen["settings"]
+    assert seen["name"] == "ii" and list(seen["planners"]) == ["mi-class-pairwise", "random"]
+    assert (s.trials_per_object, s.stride, s.n_components, s.samples_per_image, s.min_views,
+            s.exclude_visited_positions) == (10, 4, 12, 30, 2, True)
