@@ -12,7 +12,7 @@ import jax.random as jr
 import numpy as np
 import pytest
 from builders import random_sensor_model, moving_database as _moving_database
-from compiles import count_compiles
+from compiles import assert_steps_never_recompile, count_compiles
 
 from jaxrecog import ImageDatabase, train_model
 from jaxrecog.campaign import plan_trials, run_campaign
@@ -288,22 +288,7 @@ def test_trials_are_reproducible_whatever_the_batch(tmp_path, moving_model):
 def test_pairwise_planners_run_and_do_not_recompile(planner, getkey):
     model = random_model()
     rec = Recognizer(model, make_planner(planner, model, key=getkey()), p_threshold=0.96788)
-    state = rec.init(getkey())
-
-    def images():
-        return jr.randint(getkey(), (2, 6, 8), 1, 255).astype(jnp.uint8)
-
-    images()
-    state, dec = rec.step(state, images(), getkey(), trace=True)
-    jax.block_until_ready(dec)
-    with count_compiles() as later:
-        for _ in range(12):
-            if bool(dec.stop):
-                state = rec.init(getkey())
-            state, dec = rec.step(state, images(), getkey(), trace=True)
-            assert bool(dec.valid) and 0 <= int(dec.next_index) < 12
-            assert not np.any(np.isnan(np.asarray(dec.trace.scores)))
-    assert sum(later.values()) == 0, dict(later)
+    assert_steps_never_recompile(rec, getkey, n_configs=12)
 
 
 @pytest.mark.parametrize("planner", ["mi", "random"])

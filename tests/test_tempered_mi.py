@@ -6,11 +6,10 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
-import jax.random as jr
 import numpy as np
 import pytest
 from builders import random_sensor_model
-from compiles import count_compiles
+from compiles import assert_steps_never_recompile
 from kernel_models import as_jax, random_belief, random_model
 from oracles import pairwise_mi_ref
 
@@ -98,18 +97,4 @@ def test_planner_runs_in_recognizer_and_does_not_recompile(getkey):
     model = random_sensor_model()
     rec = Recognizer(model, make_planner("mi-class-pairwise-robust", model, key=getkey()), p_threshold=0.96787,
                      min_views=2, exclude_visited_positions=True)
-    state = rec.init(getkey())
-
-    def images():
-        return jr.randint(getkey(), (2, 6, 8), 1, 255).astype(jnp.uint8)
-
-    state, dec = rec.step(state, images(), getkey(), trace=True)
-    jax.block_until_ready(dec)
-    with count_compiles() as later:
-        for _ in range(12):
-            if bool(dec.stop):
-                state = rec.init(getkey())
-            state, dec = rec.step(state, images(), getkey(), trace=True)
-            assert bool(dec.valid) and 0 <= int(dec.next_index) < 12
-            assert not np.any(np.isnan(np.asarray(dec.trace.scores)))
-    assert sum(later.values()) == 0, dict(later)
+    assert_steps_never_recompile(rec, getkey, n_configs=12)
