@@ -51,6 +51,27 @@ def test_full_covariance_matches_reference(rng, getkey, x64):
     np.testing.assert_allclose(fis, ref, rtol=1e-9, atol=1e-10)
 
 
+def vegas_fisher_entries(mus, vars, log_p, sigma, *, adapt=(6, 10000), final=(8, 10000)):
+    """VEGAS integrals of the smoothed Fisher information's entries (0, 0),
+    (0, 2), (2, 2) at each position of camera 0 of a two-position, one-pose
+    model: yields ``(v, r, c, result)`` (``result.mean``, ``result.sdev``).
+    One integral per entry: vegas adapts its grid to the first component only."""
+    import vegas
+
+    for v in range(2):
+        mu, var = mus[0][v], vars[0][v]
+        lo, hi = np.min(mu - 8 * np.sqrt(var)), np.max(mu + 8 * np.sqrt(var))
+        for idx, (r, c) in enumerate([(0, 0), (0, 2), (2, 2)]):
+            integ = vegas.Integrator([[-3.2, 4.2], [-3.2, 4.2], [lo, hi]])
+
+            @vegas.lbatchintegrand
+            def f(x, idx=idx, mu=mu, var=var):
+                return np.ascontiguousarray(_vegas_integrand(np.asarray(x), mu, var, log_p, sigma)[0][:, idx])
+
+            integ(f, nitn=adapt[0], neval=adapt[1])
+            yield v, r, c, integ(f, nitn=final[0], neval=final[1])
+
+
 def _vegas_integrand(x, mu, var, log_p, sigma):
     """p(g, s_obj, s_occ) * [Delta_obj^2, Delta_obj Delta_occ, Delta_occ^2] for a 1-camera,
     1-pose model (states d = (c, k)); x = [n, 3] rows (s_obj, s_occ, g)."""
@@ -75,8 +96,6 @@ def _vegas_integrand(x, mu, var, log_p, sigma):
 
 @pytest.mark.slow
 def test_against_vegas_within_error_bars(rng, getkey, x64):
-    import vegas
-
     sigma = 0.4
     mus, vars = random_model(rng, 2, (2,), (2,), (1,), spread=1.0)
     bn = random_belief(rng, 2, (2,), concentration=4.0)
@@ -93,25 +112,12 @@ def test_against_vegas_within_error_bars(rng, getkey, x64):
 
     tables = MI_TABLES(as_jax(mus), as_jax(vars), key=getkey(), samples_per_stratum=4000)
     fis, se = FISHER(tables, b, key=getkey(), n_objects=2, n_poses=1, sigma_s=sigma, with_stderr=True)
-    for v in range(2):
-        mu, var = mus[0][v], vars[0][v]
-        lo = np.min(mu - 8 * np.sqrt(var))
-        hi = np.max(mu + 8 * np.sqrt(var))
-        for idx, (r, c) in enumerate([(0, 0), (0, 2), (2, 2)]):
-            # one integral per entry: vegas adapts its grid to the first component only
-            integ = vegas.Integrator([[-3.2, 4.2], [-3.2, 4.2], [lo, hi]])
-
-            @vegas.lbatchintegrand
-            def f(x, idx=idx, mu=mu, var=var):
-                return np.ascontiguousarray(_vegas_integrand(np.asarray(x), mu, var, log_p, sigma)[0][:, idx])
-
-            integ(f, nitn=8, neval=20000)  # adapt
-            res = integ(f, nitn=10, neval=20000)
-            val, err = res.mean, res.sdev
-            tol = 4 * np.hypot(err, float(se[v, r, c])) + 1e-6
-            assert abs(float(fis[v, r, c]) - val) < tol, (v, r, c, float(fis[v, r, c]), val, err, float(se[v, r, c]))
-        # a single pose: no information on the pose coordinate
-        np.testing.assert_allclose(fis[v, 1], 0.0, atol=1e-12)
+    for v, r, c, res in vegas_fisher_entries(mus, vars, log_p, sigma, adapt=(8, 20000), final=(10, 20000)):
+        val, err = res.mean, res.sdev
+        tol = 4 * np.hypot(err, float(se[v, r, c])) + 1e-6
+        assert abs(float(fis[v, r, c]) - val) < tol, (v, r, c, float(fis[v, r, c]), val, err, float(se[v, r, c]))
+    # a single pose: no information on the pose coordinate
+    np.testing.assert_allclose(fis[:, 1], 0.0, atol=1e-12)
 
 
 def test_symmetric_psd_and_criteria(rng, getkey):

@@ -155,8 +155,7 @@ def test_against_vegas(rng, x64):
     0.47-1.44), the off-diagonal of the same sign and within 0.6 of the
     diagonal's scale sqrt(J_00 J_22) (measured 0.29 and 0.49: the coupling is
     the pairwise estimate's weakest part)."""
-    import vegas
-    from test_fisher import _vegas_integrand
+    from test_fisher import vegas_fisher_entries
 
     sigma = 0.4
     mus, vars = random_model(rng, 2, (2,), (2,), (1,), spread=1.0)
@@ -164,25 +163,14 @@ def test_against_vegas(rng, x64):
     log_p = np.asarray(K.log_joint(b))
     fis = np.asarray(PFI(PFT(as_jax(mus), as_jax(vars), sigma_s=sigma), b, n_objects=2, n_poses=1))
     np.testing.assert_allclose(fis[:, 1], 0.0, atol=1e-12)  # a single pose: no information on it
-    for v in range(2):
-        mu, var = mus[0][v], vars[0][v]
-        lo, hi = np.min(mu - 8 * np.sqrt(var)), np.max(mu + 8 * np.sqrt(var))
-        for idx, (r, c) in enumerate([(0, 0), (0, 2), (2, 2)]):
-            integ = vegas.Integrator([[-3.2, 4.2], [-3.2, 4.2], [lo, hi]])
-
-            @vegas.lbatchintegrand
-            def f(x, idx=idx, mu=mu, var=var):
-                return np.ascontiguousarray(_vegas_integrand(np.asarray(x), mu, var, log_p, sigma)[0][:, idx])
-
-            integ(f, nitn=6, neval=10000)  # adapt
-            res = integ(f, nitn=8, neval=10000)
-            got = float(fis[v, r, c])
-            if r == c:  # within the approximation's factor
-                assert 1 / 2.5 < got / res.mean < 2.5, (v, r, c, got, res.mean, res.sdev)
-            else:  # the same sign where VEGAS resolves it; small against the diagonal
-                scale = np.sqrt(fis[v, 0, 0] * fis[v, 2, 2])
-                assert abs(res.mean) < 5 * res.sdev or np.sign(got) == np.sign(res.mean), (v, got, res.mean)
-                assert abs(got - res.mean) < 0.6 * scale, (v, got, res.mean, scale)
+    for v, r, c, res in vegas_fisher_entries(mus, vars, log_p, sigma):
+        got = float(fis[v, r, c])
+        if r == c:  # within the approximation's factor
+            assert 1 / 2.5 < got / res.mean < 2.5, (v, r, c, got, res.mean, res.sdev)
+        else:  # the same sign where VEGAS resolves it; small against the diagonal
+            scale = np.sqrt(fis[v, 0, 0] * fis[v, 2, 2])
+            assert abs(res.mean) < 5 * res.sdev or np.sign(got) == np.sign(res.mean), (v, got, res.mean)
+            assert abs(got - res.mean) < 0.6 * scale, (v, got, res.mean, scale)
 
 
 def test_zero_recompiles_after_warm_up(rng):

@@ -84,28 +84,16 @@ def test_unbiased_against_high_j_monte_carlo(rng, getkey, x64):
 def test_against_vegas_within_error_bars(rng, x64):
     """The 1-camera, 1-pose case of tests/test_fisher.py: every entry within
     4 combined standard errors of VEGAS's integral of eq. 5.28."""
-    import vegas
-    from test_fisher import _vegas_integrand
+    from test_fisher import vegas_fisher_entries
 
     sigma = 0.4
     mus, vars = random_model(rng, 2, (2,), (2,), (1,), spread=1.0)
     b = as_jax_belief(random_belief(rng, 2, (2,), concentration=4.0))
     log_p = np.asarray(K.log_joint(b))
     q, q_se = _replicates(mus, vars, b, 2, 1, reps=8, j=1024, sigma=sigma)
-    for v in range(2):
-        mu, var = mus[0][v], vars[0][v]
-        lo, hi = np.min(mu - 8 * np.sqrt(var)), np.max(mu + 8 * np.sqrt(var))
-        for idx, (r, c) in enumerate([(0, 0), (0, 2), (2, 2)]):
-            integ = vegas.Integrator([[-3.2, 4.2], [-3.2, 4.2], [lo, hi]])
-
-            @vegas.lbatchintegrand
-            def f(x, idx=idx, mu=mu, var=var):
-                return np.ascontiguousarray(_vegas_integrand(np.asarray(x), mu, var, log_p, sigma)[0][:, idx])
-
-            integ(f, nitn=6, neval=10000)  # adapt
-            res = integ(f, nitn=8, neval=10000)
-            tol = 4 * np.hypot(res.sdev, q_se[v, r, c]) + 1e-6
-            assert abs(q[v, r, c] - res.mean) < tol, (v, r, c, q[v, r, c], res.mean, res.sdev, q_se[v, r, c])
+    for v, r, c, res in vegas_fisher_entries(mus, vars, log_p, sigma):
+        tol = 4 * np.hypot(res.sdev, q_se[v, r, c]) + 1e-6
+        assert abs(q[v, r, c] - res.mean) < tol, (v, r, c, q[v, r, c], res.mean, res.sdev, q_se[v, r, c])
 
 
 def test_zero_recompiles_after_warm_up(rng, getkey):
