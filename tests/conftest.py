@@ -193,3 +193,41 @@ def strided_workdir(strided_database):
         return Path(workdir)
 
     return seed
+
+
+def _timeline() -> None:
+    """``JAXRECOG_TEST_TIMELINE=FOLDER``: each worker appends one line per test
+    to ``FOLDER/<worker>.tsv``: start, stop, XLA backend-compile seconds and
+    the node id: to see where the suite's time goes (compile or run) and how
+    evenly the workers share it."""
+    folder = os.environ.get("JAXRECOG_TEST_TIMELINE")
+    if not folder:
+        return
+    import time
+
+    import jax.monitoring
+
+    compiled = [0.0]
+
+    def listen(event, duration, **_):
+        if event == "/jax/compilation_cache/compile_time_saved_sec":
+            return
+        if "backend_compile" in event:
+            compiled[0] += duration
+
+    jax.monitoring.register_event_duration_secs_listener(listen)
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "main")
+    out = Path(folder) / f"{worker}.tsv"
+    out.parent.mkdir(parents=True, exist_ok=True)
+
+    @pytest.hookimpl(hookwrapper=True)
+    def pytest_runtest_protocol(item, nextitem):
+        start, before = time.time(), compiled[0]
+        yield
+        with open(out, "a") as f:
+            f.write(f"{start:.3f}\t{time.time():.3f}\t{compiled[0] - before:.3f}\t{item.nodeid}\n")
+
+    globals()["pytest_runtest_protocol"] = pytest_runtest_protocol
+
+
+_timeline()

@@ -246,7 +246,7 @@ def test_sweep_script_writes_json_and_plot(strided_workdir, tmp_path):
 
     work = strided_workdir(tmp_path / "work")
     out = tmp_path / "out"
-    p = run_script("motion_cost_sweep", "--quick", "--stride", "8", "--trials", "1", "--lambdas", "0", "5",
+    p = run_script("motion_cost_sweep", "--quick", "--stride", "8", "--trials", "1", "--lambdas", "0", "5", "--batch", "4",
                    "--workdir", work, "--out", out)
     assert p.returncode == 0, p.stderr
     summary = json.loads((out / "motion_cost_sweep.json").read_text())

@@ -15,7 +15,7 @@ from jaxrecog.hardware.synthetic import OffGrid
 from jaxrecog.results import TrialResult, TrialStore
 
 #: small models on the stride-8 table (the session's rendered database)
-SMALL = dict(stride=8, trials_per_object=1, samples=64, min_per_stratum=2, samples_per_image=20, n_components=8)
+SMALL = dict(stride=8, trials_per_object=1, batch=4, samples=64, min_per_stratum=2, samples_per_image=20, n_components=8)
 
 
 def _capture(rig, seed=(0, 3, 1), config=(2, 0)):

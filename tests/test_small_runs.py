@@ -76,7 +76,7 @@ def test_demo_on_a_strided_table(tmp_path, strided_workdir):
 @pytest.mark.slow
 def test_reproduce_thesis_script_on_a_strided_table(tmp_path, strided_workdir):
     work = strided_workdir(tmp_path / "thesis")
-    p = run_script("reproduce_thesis", "--case", "i", "--trials", "1", "--stride", "8", "--workdir", work, "--quiet")
+    p = run_script("reproduce_thesis", "--case", "i", "--trials", "1", "--stride", "8", "--batch", "4", "--workdir", work, "--quiet")
     assert p.returncode == 0, p.stderr
     text = p.stdout
     assert "### Case (i)" in text and "Thesis" not in text
