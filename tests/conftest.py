@@ -203,6 +203,7 @@ def _timeline() -> None:
     folder = os.environ.get("JAXRECOG_TEST_TIMELINE")
     if not folder:
         return
+    import logging
     import time
 
     import jax.monitoring
@@ -219,10 +220,24 @@ def _timeline() -> None:
     worker = os.environ.get("PYTEST_XDIST_WORKER", "main")
     out = Path(folder) / f"{worker}.tsv"
     out.parent.mkdir(parents=True, exist_ok=True)
+    programs = open(Path(folder) / f"{worker}.programs.tsv", "a", buffering=1)
+    current = [""]
+
+    class Programs(logging.Handler):  # "Finished XLA compilation of NAME in S sec" (cache hits included)
+        def emit(self, record):
+            msg = record.getMessage()
+            if msg.startswith("Finished XLA compilation of "):
+                name, _, rest = msg[len("Finished XLA compilation of "):].rpartition(" in ")
+                programs.write(f"{rest.split()[0]}\t{name}\t{current[0]}\n")
+
+    log = logging.getLogger("jax._src.dispatch")
+    log.addHandler(Programs())
+    log.setLevel(logging.DEBUG)
 
     @pytest.hookimpl(hookwrapper=True)
     def pytest_runtest_protocol(item, nextitem):
         start, before = time.time(), compiled[0]
+        current[0] = item.nodeid
         yield
         with open(out, "a") as f:
             f.write(f"{start:.3f}\t{time.time():.3f}\t{compiled[0] - before:.3f}\t{item.nodeid}\n")
