@@ -222,6 +222,7 @@ class Settings:
     stride: int = 1
     min_views: int = 1
     exclude_visited_positions: bool = False
+    adaptive_scale: float = 1.0
     shared_view: bool = False
     motion_cost: float = 0.0
     devices: int = 1
@@ -446,6 +447,8 @@ def _run_id(settings: Settings, model_path: Path | str) -> str:
     for k in ("exclude_visited_positions", "shared_view", "motion_cost", *_OFF_GRID_FIELDS):
         if not fields[k]:
             del fields[k]
+    if fields["adaptive_scale"] == 1.0:
+        del fields["adaptive_scale"]
     if fields["min_views"] == 1:
         del fields["min_views"]
     defaults = _training_defaults()
@@ -638,7 +641,7 @@ def make_recognizer(model, planner_name: str, settings: Settings, travel=None):
     return Recognizer(model, planner, p_threshold=settings.p_threshold, max_steps=settings.max_steps,
                       min_views=settings.min_views, transition=settings.transition,
                       exclude_visited_positions=settings.exclude_visited_positions, motion=motion,
-                      shared_view=settings.shared_view)
+                      shared_view=settings.shared_view, adaptive_scale=settings.adaptive_scale)
 
 
 def case_model(prepared: Prepared, case: Case):

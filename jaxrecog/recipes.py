@@ -23,7 +23,9 @@ records the parts as they were used.
     interpolated components per side toward each neighbouring training view,
     made by optical-flow morphing (:mod:`jaxrecog.view_interpolation`), the database's jitter rows
     when it has them, calibration on its ``calib`` split when it has one,
-    a stop only after two image sets from different positions, and the
+    evidence weakened for a capture that no class explains (the adaptive
+    scale, :mod:`jaxrecog.kernels.adaptive_scale`), a stop only after two
+    explained image sets from different positions, and the
     planner ``mi-class-pairwise-robust`` (MI under the tempered class belief:
     the plain planner trusts an over-confident one-view belief and picks
     views where the model is worst, below random on the photos).
@@ -68,6 +70,10 @@ class Recipe:
         min_views: never stop on P_th before this many image sets.
         exclude_visited: never send a camera back to a position it took an
             image from.
+        adaptive_scale: the largest per-capture variance factor of the
+            adaptive scale (:mod:`jaxrecog.kernels.adaptive_scale`; 1 = off):
+            a capture no class explains weighs less, and only explained
+            image sets count toward ``min_views``.
         planner: the view planner ``recognize``, ``plan`` and ``experiment
             --rig dataset:`` use unless ``--planner(s)`` names one
             (:data:`jaxrecog.planners.PLANNERS`).
@@ -86,6 +92,7 @@ class Recipe:
     p_threshold: float = 0.95
     min_views: int = 1
     exclude_visited: bool = False
+    adaptive_scale: float = 1.0
     planner: str = "mi-class-pairwise"
 
     def __post_init__(self):
@@ -96,6 +103,10 @@ class Recipe:
             raise ValueError(f"recipe {self.name}: interpolate >= 0, min_views >= 1 and max_shift >= 0 needed")
         if self.interpolation not in ("linear", "flow"):
             raise ValueError(f"recipe {self.name}: interpolation must be 'linear' or 'flow', got {self.interpolation!r}")
+        if not (isinstance(self.adaptive_scale, (int, float)) and not isinstance(self.adaptive_scale, bool)
+                and 1.0 <= float(self.adaptive_scale) <= 1e6):
+            raise ValueError(f"recipe {self.name}: adaptive_scale must be a number in [1, 1e6] (1 = off), "
+                             f"got {self.adaptive_scale!r}")
         if not 0.0 < float(self.p_threshold) <= 1.0:
             raise ValueError(f"recipe {self.name}: p_threshold must lie in (0, 1], got {self.p_threshold}")
 
@@ -133,7 +144,7 @@ class Recipe:
 TRAIN_FIELDS = ("likelihood", "likelihood_options", "interpolate", "interpolation", "view_jitter", "calibrate",
                 "max_shift")
 #: the recipe parts a trial's stop reads
-STOP_FIELDS = ("p_threshold", "min_views", "exclude_visited")
+STOP_FIELDS = ("p_threshold", "min_views", "exclude_visited", "adaptive_scale")
 #: the recipe parts that choose where the cameras go next
 PLAN_FIELDS = ("planner",)
 
@@ -144,12 +155,14 @@ THESIS = Recipe(
 )
 
 # version 2: the planner part (mi-class-pairwise-robust); a version-1 file recorded no planner
+# version 3: the adaptive scale (32); a version-2 file recorded none (it loads with 1, off, as it ran)
 ROBUST = Recipe(
-    name="robust", version=2,
-    summary="the default: view mixture with optical-flow interpolated views, calibrated, stop after 2 views "
-            "from new positions, MI under a tempered class belief",
+    name="robust", version=3,
+    summary="the default: view mixture with optical-flow interpolated views, calibrated, evidence weakened "
+            "for captures no class explains, stop after 2 explained views from new positions, MI under a "
+            "tempered class belief",
     likelihood="view-mixture", interpolate=2, interpolation="flow", view_jitter=AUTO, calibrate=AUTO,
-    min_views=2, exclude_visited=True, planner="mi-class-pairwise-robust",
+    min_views=2, exclude_visited=True, adaptive_scale=32.0, planner="mi-class-pairwise-robust",
 )
 
 RECIPES: dict[str, Recipe] = {r.name: r for r in (ROBUST, THESIS)}

@@ -54,6 +54,9 @@ class RecognizerState(NamedTuple):
         visited_positions: per camera ``[V_i]``, the positions that camera
             already took an image from (read only with
             ``Recognizer.exclude_visited_positions``).
+        explained: image sets so far whose every capture the model explained
+            (:mod:`jaxrecog.kernels.adaptive_scale`; counted toward
+            ``min_views`` only with ``Recognizer.adaptive_scale > 1``).
     """
 
     prior: K.Belief
@@ -61,6 +64,7 @@ class RecognizerState(NamedTuple):
     steps: Int[Array, ""]
     visited: Bool[Array, " A"]
     visited_positions: tuple[Bool[Array, " _V"], ...] = ()
+    explained: Int[Array, ""] | None = None
 
 
 class StepTrace(NamedTuple):
@@ -187,6 +191,14 @@ class Recognizer(eqx.Module):
             the step (decisions, planner, trace) sees its marginal over ``m``
             (:meth:`belief`).  A ``ValueError`` for a model without view
             components.
+        adaptive_scale: the largest per-capture variance factor of the
+            adaptive scale (:mod:`jaxrecog.kernels.adaptive_scale`; default 1,
+            off: the thesis's evidence).  Above 1, each capture's evidence is
+            weakened by the factor ``s*`` under which its best class explains
+            it best, and only image sets whose every capture was explained
+            (``s* <= √2``) count toward ``min_views``: a trial whose captures
+            all fall between the training views looks again instead of
+            stopping sure and wrong.  *Not in the thesis.*
     """
 
     model: object
@@ -200,9 +212,14 @@ class Recognizer(eqx.Module):
     exclude_visited_positions: bool = eqx.field(static=True, default=False)
     motion: MotionCost | None = None
     shared_view: bool = eqx.field(static=True, default=False)
+    adaptive_scale: float = eqx.field(static=True, default=1.0)
 
     def __check_init__(self):
         check_min_views(self.min_views, self.max_steps)
+        K.adaptive_scale.scale_grid(self.adaptive_scale)   # a ValueError for a bad value
+        if self.adaptive_scale > 1.0 and self.shared_view:
+            raise ValueError("adaptive_scale and shared_view cannot be combined (the shared view component "
+                             "keeps per-component evidence; the adaptive scale rescales per capture)")
         if self.motion is not None and tuple(self.motion.positions) != tuple(self.positions):
             raise ValueError(f"motion cost tables have positions {self.motion.positions}, the model {tuple(self.positions)}")
         if self.shared_view:
@@ -252,7 +269,7 @@ class Recognizer(eqx.Module):
             log_pm = K.shared_latent.prior_log_weights(self.model.likelihoods[0]).astype(dtype)
             prior = K.shared_latent.extend(prior, log_pm)
         return RecognizerState(prior, config, jnp.zeros((), jnp.int32), jnp.zeros((self.n_configs,), bool),
-                               tuple(jnp.zeros((v,), bool) for v in positions))
+                               tuple(jnp.zeros((v,), bool) for v in positions), jnp.zeros((), jnp.int32))
 
     @eqx.filter_jit
     def step(self, state: RecognizerState, images: Real[ArrayLike, "n H W"], key: PRNGKeyArray, *,
@@ -272,8 +289,12 @@ class Recognizer(eqx.Module):
         model = self.model
         positions = self.positions
         gs, ok = image_features(model, state.config, jnp.asarray(images))
+        explained = jnp.ones((), bool)
         if self.shared_view:
             logliks = K.shared_latent.component_log_likelihoods(gs, state.config, model.likelihoods)
+        elif self.adaptive_scale > 1.0:
+            logliks, explained = K.adaptive_scale.adaptive_camera_log_likelihoods(
+                gs, state.config, model.likelihoods, K.adaptive_scale.scale_grid(self.adaptive_scale))
         else:
             logliks = K.camera_log_likelihoods(gs, state.config, model.likelihoods)
         # the state's own belief (over (c, m, k) with shared_view), and its
@@ -285,8 +306,12 @@ class Recognizer(eqx.Module):
         best = jnp.argmax(pc)
         prob = pc[best]
         steps = state.steps + 1
+        n_explained = (jnp.zeros((), jnp.int32) if state.explained is None else state.explained) \
+            + (explained & info.ok).astype(jnp.int32)
         reached = prob >= self.p_threshold
-        stop = (reached & (steps >= self.min_views)) | (steps >= self.max_steps)
+        # with the adaptive scale only explained image sets count toward min_views
+        views = n_explained if self.adaptive_scale > 1.0 else steps
+        stop = (reached & (views >= self.min_views)) | (steps >= self.max_steps)
 
         here = index_from_config(state.config, positions)
         visited = state.visited.at[here].set(True)
@@ -325,7 +350,7 @@ class Recognizer(eqx.Module):
 
         # the prior for the next images: the predicted prior at the chosen positions
         next_prior = K.Belief(state_predicted.log_pc, tuple(lp[v] for lp, v in zip(state_predicted.log_pk, next_config)))
-        new_state = RecognizerState(next_prior, next_config, steps, visited, seen)
+        new_state = RecognizerState(next_prior, next_config, steps, visited, seen, n_explained)
         step_trace = None
         if trace:
             step_trace = StepTrace(

@@ -43,7 +43,12 @@ def _one_error(p, needle):
 def test_registry_and_thesis_is_todays_defaults():
     assert list(RECIPES) == ["robust", "thesis"] and get_recipe("thesis") is THESIS
     assert (THESIS.likelihood, THESIS.interpolate, THESIS.calibrate, THESIS.view_jitter) == ("gaussian-diag", 0, False, False)
-    assert THESIS.stop_rule() == {"p_threshold": 0.95, "min_views": 1, "exclude_visited": False}
+    assert THESIS.stop_rule() == {"p_threshold": 0.95, "min_views": 1, "exclude_visited": False, "adaptive_scale": 1.0}
+    # a robust file of version 2 (before the adaptive scale) loads as it ran: the scale off
+    v2 = {k: v for k, v in ROBUST.to_dict().items() if k != "adaptive_scale"} | {"version": 2}
+    assert recipe_from_meta({"recipe": v2}).adaptive_scale == 1.0 and ROBUST.adaptive_scale == 32.0
+    with pytest.raises(ValueError, match="adaptive_scale must be a number in"):
+        ROBUST.replace(adaptive_scale=0.5)
     assert recipe_from_meta({}) is THESIS                       # a file written before recipes
     assert recipe_from_meta({"recipe": ROBUST.to_dict()}) == ROBUST
     with pytest.raises(ValueError, match="unknown recipe 'fast'; choose robust, thesis"):
@@ -57,7 +62,7 @@ def test_registry_and_thesis_is_todays_defaults():
 def test_recipes_command_lists_them():
     p = run_cli("recipes")
     assert p.returncode == 0
-    assert p.stdout.startswith("robust (default), version 2:") and "\nthesis, version 1:" in p.stdout
+    assert p.stdout.startswith("robust (default), version 3:") and "\nthesis, version 1:" in p.stdout
     assert "  interpolate = 2" in p.stdout and "  min_views = 1" in p.stdout
     assert "  planner = 'mi-class-pairwise-robust'" in p.stdout and "  planner = 'mi-class-pairwise'" in p.stdout
     p = run_cli("recipes", "fast")
@@ -74,7 +79,7 @@ def test_train_records_the_resolved_recipe_and_inspect_shows_it(photo_db, robust
     assert meta["calibrated"] and meta["training"]["interpolate"]["points_per_side"] == 2
     assert load_model(robust_model).cameras[0].likelihood.mu.shape[3] == 5   # 1 training view + 2 x 2 blends
     p = run_cli("inspect", robust_model)
-    assert "recipe: robust (version 2): likelihood = 'view-mixture'" in p.stdout
+    assert "recipe: robust (version 3): likelihood = 'view-mixture'" in p.stdout
     assert "interpolated views: 2 per side; neighbouring positions found per camera: [18] of [18]" in p.stdout
     # the thesis recipe: today's defaults; a flag overrides one part and the file records it
     out = photo_db / "thesis.npz"
@@ -134,19 +139,20 @@ def test_recognize_and_experiment_take_the_stop_rule_from_the_model(photo_db, ro
     db = photo_db / "db"
     p = run_cli("recognize", robust_model, "--rig", f"dataset:{db}", "--object", "1", "--pose", "2", "--samples", "16")
     assert p.returncode == 0, p.stderr
-    assert "recipe robust: at least 2 views from new positions" in p.stdout
+    assert "recipe robust: at least 2 explained views from new positions (adaptive scale up to 32)" in p.stdout
     assert "planner mi-class-pairwise-robust" in p.stdout       # the recipe's planner
     steps = [l for l in p.stdout.splitlines() if l.strip()[:1].isdigit()]
     assert len(steps) >= 2                      # robust never stops on one view
     p = run_cli("recognize", robust_model, "--rig", f"dataset:{db}", "--object", "1", "--pose", "2", "--samples", "16",
-                "--min-views", "1", "--no-exclude-visited")
+                "--min-views", "1", "--no-exclude-visited", "--adaptive-scale", "1")
     assert p.returncode == 0 and "recipe robust" not in p.stdout
     out = tmp_path / "exp"
     p = run_cli("experiment", "--rig", f"dataset:{db}", "--model", robust_model, "--trials", "2", "--out", out,
                 "--planners", "random")
     assert p.returncode == 0, p.stderr
     s = json.loads((out / "case_dataset.json").read_text())
-    assert (s["settings"]["min_views"], s["settings"]["exclude_visited_positions"]) == (2, True)
+    assert (s["settings"]["min_views"], s["settings"]["exclude_visited_positions"], s["settings"]["adaptive_scale"]) \
+        == (2, True, 32.0)
     assert s["tables"]["random"][-1]["views"] >= 2.0
     p = run_cli("experiment", "--rig", f"dataset:{db}", "--model", robust_model, "--trials", "2", "--out", out,
                 "--planners", "random", "--min-views", "1", "--threshold", "0.9")

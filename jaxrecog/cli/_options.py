@@ -9,7 +9,7 @@ from ..planners import DEFAULT_MIN_PER_STRATUM, planner_names
 __all__ = [
     "PLANNERS", "Formatter", "config_tuple", "int_at_least", "positive", "nonneg", "object_choice", "probability",
     "global_options", "table_options", "planner_size_options", "skip_invalid_option",
-    "motion_weight", "choice_options", "render_workers_option", "likelihood_options", "capture_options", "view_jitter_option",
+    "motion_weight", "adaptive_scale", "choice_options", "render_workers_option", "likelihood_options", "capture_options", "view_jitter_option",
     "render_jitter_options", "render_jitter_values",
     "likelihood_choice", "given_likelihood_options", "default_likelihood", "capture_params", "nu_value",
     "sigma_range", "bounded",
@@ -97,6 +97,18 @@ def motion_weight(text: str) -> float:
         raise argparse.ArgumentTypeError(str(e)) from None
 
 
+def adaptive_scale(text: str) -> float:
+    """``--adaptive-scale S``: a finite number >= 1 (1 = off)."""
+    from ..kernels.adaptive_scale import scale_grid
+
+    try:
+        s = float(text)
+        scale_grid(s)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a finite number >= 1 (1 = off), got {text!r}") from None
+    return s
+
+
 def choice_options(p: argparse.ArgumentParser, *, unset: bool = False) -> None:
     """How the next configuration is chosen beyond the planner's scores
     and when to stop (``experiment`` and ``recognize``): ``--exclude-visited``,
@@ -119,6 +131,10 @@ def choice_options(p: argparse.ArgumentParser, *, unset: bool = False) -> None:
                    help="never stop on the probability threshold before N image sets: a decision is confirmed "
                         "by N - 1 more views (the thesis stops at the first step that reaches it: 1; at most "
                         "the step limit)")
+    g.add_argument("--adaptive-scale", type=adaptive_scale, metavar="S", default=None if unset else 1.0,
+                   help="weaken the evidence of a capture that no class explains by the variance factor (up to "
+                        "S) under which its best class explains it best, and count only explained image sets "
+                        "toward --min-views (jaxrecog.kernels.adaptive_scale; 1 = off, the thesis)")
 
 
 def model_recipe(path: str):

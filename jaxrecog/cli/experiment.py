@@ -182,7 +182,7 @@ def run(args) -> int:
             "stride": args.stride, "devices": args.devices,
             "render_workers": args.render_workers, "exclude_visited_positions": args.exclude_visited,
             "shared_view": args.shared_view, "motion_cost": args.motion_cost, "min_views": args.min_views,
-            "p_threshold": args.threshold}
+            "p_threshold": args.threshold, "adaptive_scale": args.adaptive_scale}
     values.update({k: v for k, v in over.items() if v is not None})
     if dataset:  # the stop rule: the model's recipe unless an option or the experiment file gives it
         try:
@@ -190,7 +190,7 @@ def run(args) -> int:
         except (ModelFileError, ValueError):
             recipe = None   # the campaign's own load of the model reports it, after the usage checks
         for part, field in (("p_threshold", "p_threshold"), ("min_views", "min_views"),
-                            ("exclude_visited", "exclude_visited_positions")):
+                            ("exclude_visited", "exclude_visited_positions"), ("adaptive_scale", "adaptive_scale")):
             if recipe is not None:
                 values.setdefault(field, getattr(recipe, part))
     values.update(_training_values(args, values))

@@ -135,7 +135,7 @@ def run(args) -> int:
         raise UsageError(f"--min-views {args.min_views} is above --max-steps {args.max_steps}")
     recipe = model_recipe(args.model)   # the stop rule: the model's recipe unless an option gives it
     for opt, part in (("threshold", "p_threshold"), ("min_views", "min_views"), ("exclude_visited", "exclude_visited"),
-                      ("planner", "planner")):
+                      ("adaptive_scale", "adaptive_scale"), ("planner", "planner")):
         if getattr(args, opt) is None:
             setattr(args, opt, getattr(recipe, part))
     args.min_views = min(args.min_views, args.max_steps)  # a recipe's rule within a shorter --max-steps
@@ -167,15 +167,19 @@ def run(args) -> int:
         motion = None if travel is None else MotionCost(travel, args.motion_cost)
         rec = Recognizer(model, planner, p_threshold=args.threshold, max_steps=args.max_steps,
                          min_views=args.min_views, exclude_visited_positions=args.exclude_visited, motion=motion,
-                         shared_view=args.shared_view)
+                         shared_view=args.shared_view, adaptive_scale=args.adaptive_scale)
         state = rec.init(key=None if args.start is not None else k_init, config=args.start)
         probs, rows, dec, res = _trial(args, model, rig, rec, state, k_run)
     finally:
         rig.close()
     print(f"object {args.object}, pose {args.pose} on rig {args.rig}; planner {args.planner}, "
-          f"P_th {args.threshold}" + (f", recipe {recipe.name}: at least {args.min_views} views"
+          f"P_th {args.threshold}" + (f", recipe {recipe.name}: at least {args.min_views} "
+                                      + ("explained " if args.adaptive_scale > 1 else "") + "views"
                                       + (" from new positions" if args.exclude_visited else "")
-                                      if args.min_views > 1 or args.exclude_visited else ""))
+                                      + (f" (adaptive scale up to {args.adaptive_scale:g})"
+                                         if args.adaptive_scale > 1 else "")
+                                      if args.min_views > 1 or args.exclude_visited or args.adaptive_scale > 1
+                                      else ""))
     print_table(["step", "config", "object", "pose", "P", "occluded", "next"], rows)
     ok = int(dec.object) == args.object and int(dec.pose) == args.pose
     print(f"result: object {int(dec.object)}, pose {int(dec.pose)} with P = {float(dec.probability):.3f} after "

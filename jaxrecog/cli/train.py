@@ -13,7 +13,7 @@ from .._progress import bar
 from ..recipes import AUTO, DEFAULT_RECIPE, RECIPES, Recipe, get_recipe
 from ..train import train_model
 from ._common import UsageError
-from ._options import (PLANNERS, capture_options, capture_params, default_likelihood, given_likelihood_options,
+from ._options import (PLANNERS, adaptive_scale, capture_options, capture_params, default_likelihood, given_likelihood_options,
                        likelihood_choice, likelihood_options, nonneg, positive, probability)
 
 NAME = "train"
@@ -64,6 +64,9 @@ def add_arguments(p) -> None:
                    help="stop rule recorded in the model: never stop on P_th before N image sets")
     g.add_argument("--exclude-visited", action=argparse.BooleanOptionalAction, default=None,
                    help="stop rule recorded in the model: never send a camera back to a visited position")
+    g.add_argument("--adaptive-scale", type=adaptive_scale, default=None, metavar="S",
+                   help="recorded in the model: the largest per-capture variance factor of the adaptive scale "
+                        "(1 = off; jaxrecog.kernels.adaptive_scale)")
     g.add_argument("--planner", choices=PLANNERS, default=None,
                    help="view planner recorded in the model (recognize, plan and experiment --rig dataset: use it)")
     capture_options(p, unset=True)
@@ -95,7 +98,8 @@ def resolve_recipe(args, db=None) -> Recipe:
         parts["likelihood_options"] = {**recipe.options, **given}
     for opt, part in (("interpolate", "interpolate"), ("interpolation", "interpolation"), ("calibrate", "calibrate"), ("view_jitter", "view_jitter"),
                       ("threshold", "p_threshold"), ("min_views", "min_views"),
-                      ("exclude_visited", "exclude_visited"), ("max_shift", "max_shift"), ("planner", "planner")):
+                      ("exclude_visited", "exclude_visited"), ("adaptive_scale", "adaptive_scale"),
+                      ("max_shift", "max_shift"), ("planner", "planner")):
         if getattr(args, opt, None) is not None:
             parts[part] = getattr(args, opt)
     try:
