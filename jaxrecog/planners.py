@@ -52,6 +52,7 @@ __all__ = [
     "MIPlanner",
     "PairwiseMIPlanner",
     "TemperedPairwiseMIPlanner",
+    "StableViewMIPlanner",
     "LookaheadMIPlanner",
     "CRLBPlanner",
     "PairwiseCRLBPlanner",
@@ -226,6 +227,40 @@ class TemperedPairwiseMIPlanner(PairwiseMIPlanner):
         del key  # deterministic
         return _tempered_mi.tempered_pairwise_mutual_information(self.tables, prior, self.temper,
                                                                  target=self.target, levels=self.levels)
+
+
+class StableViewMIPlanner(TemperedPairwiseMIPlanner):
+    """The tempered pairwise MI minus ``stability`` times the expected view
+    instability of the configuration under the class belief
+    (:mod:`~jaxrecog.kernels.view_stability`, issue 28)::
+
+        score(a) = I_D^tau(c; g | a) - stability * sum_i E_{c ~ P(c)} d_i[v_i, c]
+
+    ``d`` (mean 1 per camera) is large where a class's appearance changes
+    fast between training views, so a capture there is modelled worst; with
+    the adaptive scale such a capture weighs little and does not count
+    toward the stop, so the planner prefers views the likely classes are
+    stable at.  ``stability = 0`` is :class:`TemperedPairwiseMIPlanner`; a
+    model without view components has ``d = 0`` (the same)."""
+
+    instability: tuple[Float[Array, "_V C"], ...] = ()
+    stability: float = eqx.field(static=True, default=1.0)
+
+    @classmethod
+    def from_model(cls, model, *, target: str = "class", divergence: str = "bhattacharyya",
+                   levels: str = "belief", temper: float = 0.0, stability: float = 1.0) -> "StableViewMIPlanner":
+        if isinstance(stability, bool) or not isinstance(stability, (int, float)) or not 0.0 <= stability < math.inf:
+            raise ValueError(f"stability must be a finite number >= 0, got {stability!r}")
+        base = TemperedPairwiseMIPlanner.from_model(model, target=target, divergence=divergence, levels=levels,
+                                                    temper=temper)
+        inst = tuple(K.view_stability.view_instability(lik) for lik in model.likelihoods)
+        return cls(base.n_configs, base.tables, base.target, base.levels, base.temper, inst, float(stability))
+
+    def scores(self, prior, key):
+        mi = super().scores(prior, key)
+        if self.stability == 0.0:
+            return mi
+        return mi - self.stability * K.view_stability.expected_instability(self.instability, prior.log_pc)
 
 
 class LookaheadMIPlanner(Planner):
@@ -425,6 +460,10 @@ def _tempered(target: str):
     return _deterministic(TemperedPairwiseMIPlanner, target=target)
 
 
+def _stable(target: str):
+    return _deterministic(StableViewMIPlanner, target=target)
+
+
 def _lookahead(target: str):
     return _sampled(LookaheadMIPlanner, target=target)
 
@@ -483,6 +522,10 @@ PLANNERS: dict[str, PlannerSpec] = {
     "mi-class-pairwise-robust": PlannerSpec(_tempered("class"), "mi",
                                             "pairwise I(c; g | a) under the tempered class belief P(c)^tau (option temper, default 0: "
                                             "the uniform class prior; does not chase an over-confident belief, issue 28)"),
+    "mi-class-pairwise-stable": PlannerSpec(_stable("class"), "mi",
+                                            "mi-class-pairwise-robust minus option stability (default 1) times the expected "
+                                            "view instability under the belief: prefers views the likely classes look alike "
+                                            "at from either side (a view-mixture model's interpolated components; issue 28)"),
     "mi-lookahead": PlannerSpec(_lookahead("state"), "mi",
                                 "two-step lookahead: pairwise I(s; g_1 | a_1) + E max_a2 I(s; g_2 | a_2, g_1), top-k first moves (options top_k, outcomes)"),
     "mi-class-lookahead": PlannerSpec(_lookahead("class"), "mi",

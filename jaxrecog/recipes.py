@@ -26,9 +26,11 @@ records the parts as they were used.
     evidence weakened for a capture that no class explains (the adaptive
     scale, :mod:`jaxrecog.kernels.adaptive_scale`), a stop only after two
     explained image sets from different positions, and the
-    planner ``mi-class-pairwise-robust`` (MI under the tempered class belief:
+    planner ``mi-class-pairwise-stable`` (MI under the tempered class belief:
     the plain planner trusts an over-confident one-view belief and picks
-    views where the model is worst, below random on the photos).
+    views where the model is worst, below random on the photos; minus the
+    expected view instability, so the next view is one the likely classes
+    are modelled well at and the stop comes sooner).
 
 The registry :data:`RECIPES` maps names to recipes; :func:`get_recipe`
 looks one up (an unknown name is one line listing the known ones).
@@ -155,14 +157,15 @@ THESIS = Recipe(
 )
 
 # version 2: the planner part (mi-class-pairwise-robust); a version-1 file recorded no planner
-# version 3: the adaptive scale (32); a version-2 file recorded none (it loads with 1, off, as it ran)
+# version 3: the adaptive scale (32; a version-2 file recorded none: it loads with 1, off, as it ran)
+# and the planner mi-class-pairwise-stable
 ROBUST = Recipe(
     name="robust", version=3,
     summary="the default: view mixture with optical-flow interpolated views, calibrated, evidence weakened "
             "for captures no class explains, stop after 2 explained views from new positions, MI under a "
-            "tempered class belief",
+            "tempered class belief, preferring stable views",
     likelihood="view-mixture", interpolate=2, interpolation="flow", view_jitter=AUTO, calibrate=AUTO,
-    min_views=2, exclude_visited=True, adaptive_scale=32.0, planner="mi-class-pairwise-robust",
+    min_views=2, exclude_visited=True, adaptive_scale=32.0, planner="mi-class-pairwise-stable",
 )
 
 RECIPES: dict[str, Recipe] = {r.name: r for r in (ROBUST, THESIS)}

@@ -51,7 +51,7 @@ from .likelihood import (
 from .lookahead import LookaheadDraws, lookahead_draws, lookahead_information, outcome_strata
 from .mutual_information import MITables, mi_tables, mutual_information, samples_per_configuration
 from .pairwise_mi import DIVERGENCES, PairwiseTables, pairwise_mutual_information, pairwise_tables
-from . import adaptive_scale, shared_latent
+from . import adaptive_scale, shared_latent, view_stability
 from .student_t import StudentT
 from .view_mixture import LowRankViewMixture, ViewMixture
 

@@ -62,6 +62,7 @@ APPROACHES: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     # the adaptive scale (recipe robust version 3): off = recipe robust version 2; one explained view
     "robust, adaptive scale off": (("--recipe", "robust",), ("--adaptive-scale", "1")),
     "robust, 1 explained view": (("--recipe", "robust",), ("--min-views", "1")),
+    "robust, tempered MI planner (no stability)": (("--recipe", "robust",), ("--planners", "mi-class-pairwise-robust")),
 }
 QUICK = {"grids": [40], "objects": 2, "trials": 3, "samples": 10, "components": 6}
 

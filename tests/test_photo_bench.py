@@ -17,7 +17,7 @@ def test_quick_benchmark_writes_its_table_json_and_figure(tmp_path):
     rows = summary["rows"]
     # every recipe, each with its own planner (from the model file) and random, on the same trials
     assert [(r["variant"], r["planner"]) for r in rows] == [
-        ("recipe robust", "mi-class-pairwise-robust"), ("recipe robust", "random"),
+        ("recipe robust", "mi-class-pairwise-stable"), ("recipe robust", "random"),
         ("recipe thesis", "mi-class-pairwise"), ("recipe thesis", "random")]
     for r in rows:
         assert (r["grid"], r["offset"], r["trials"]) == (40, 20.0, 2 * 3)

@@ -64,7 +64,7 @@ def test_recipes_command_lists_them():
     assert p.returncode == 0
     assert p.stdout.startswith("robust (default), version 3:") and "\nthesis, version 1:" in p.stdout
     assert "  interpolate = 2" in p.stdout and "  min_views = 1" in p.stdout
-    assert "  planner = 'mi-class-pairwise-robust'" in p.stdout and "  planner = 'mi-class-pairwise'" in p.stdout
+    assert "  planner = 'mi-class-pairwise-stable'" in p.stdout and "  planner = 'mi-class-pairwise'" in p.stdout
     p = run_cli("recipes", "fast")
     assert p.returncode == 2
     _one_error(p, "unknown recipe 'fast'")
@@ -91,7 +91,7 @@ def test_train_records_the_resolved_recipe_and_inspect_shows_it(photo_db, robust
     # the planner part: recorded, and what a dataset campaign compares with random by default
     from jaxrecog.experiments import dataset_planners
 
-    assert dataset_planners(robust_model) == ("mi-class-pairwise-robust", "random")
+    assert dataset_planners(robust_model) == ("mi-class-pairwise-stable", "random")
     assert dataset_planners(out) == ("mi-class-pairwise", "random")
     out2 = photo_db / "thesis-random.npz"
     p = run_cli("train", photo_db / "db", "--out", out2, *FAST, "--recipe", "thesis", "--planner", "random")
@@ -140,7 +140,7 @@ def test_recognize_and_experiment_take_the_stop_rule_from_the_model(photo_db, ro
     p = run_cli("recognize", robust_model, "--rig", f"dataset:{db}", "--object", "1", "--pose", "2", "--samples", "16")
     assert p.returncode == 0, p.stderr
     assert "recipe robust: at least 2 explained views from new positions (adaptive scale up to 32)" in p.stdout
-    assert "planner mi-class-pairwise-robust" in p.stdout       # the recipe's planner
+    assert "planner mi-class-pairwise-stable" in p.stdout       # the recipe's planner
     steps = [l for l in p.stdout.splitlines() if l.strip()[:1].isdigit()]
     assert len(steps) >= 2                      # robust never stops on one view
     p = run_cli("recognize", robust_model, "--rig", f"dataset:{db}", "--object", "1", "--pose", "2", "--samples", "16",
