@@ -195,7 +195,7 @@ class Recognizer(eqx.Module):
             adaptive scale (:mod:`jaxrecog.kernels.adaptive_scale`; default 1,
             off: the thesis's evidence).  Above 1, each capture's evidence is
             weakened by the factor ``s*`` under which its best class explains
-            it best, and only image sets whose every capture was explained
+            it best, and only image sets with some capture explained
             (``s* <= √2``) count toward ``min_views``: a trial whose captures
             all fall between the training views looks again instead of
             stopping sure and wrong.  *Not in the thesis.*

@@ -118,3 +118,14 @@ def test_steps_never_recompile(getkey):
     model = random_sensor_model()
     rec = Recognizer(model, RandomPlanner(12), adaptive_scale=16.0, min_views=2, p_threshold=0.9312)
     assert_steps_never_recompile(rec, getkey, 12)
+
+
+def test_an_image_set_is_explained_when_some_camera_explains_its_capture():
+    rng = np.random.default_rng(5)
+    mu = rng.normal(size=(2, 3, 1, 4)).astype(np.float32)
+    lik = K.DiagonalGaussian(jnp.asarray(mu), jnp.full(mu.shape, 0.01, jnp.float32))
+    near, far = jnp.asarray(mu[0, 1, 0]), jnp.asarray(mu[0, 1, 0] + 5.0)
+    f = jax.jit(K.adaptive_scale.adaptive_camera_log_likelihoods, static_argnums=3)
+    for gs, want in (((near, near), True), ((near, far), True), ((far, near), True), ((far, far), False)):
+        _, ok = f(gs, jnp.zeros(2, jnp.int32), (lik, lik), scale_grid(32))
+        assert bool(ok) == want
