@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["unit_energy", "Eigenspace", "position_eigenspace", "choose_n_components"]
+__all__ = ["unit_energy", "Eigenspace", "position_eigenspace", "choose_n_components", "ComponentsError"]
 
 # eigenvalues below this fraction of the largest count as zero (rank deficiency)
 RANK_TOL = 1e-10
@@ -81,26 +81,38 @@ def position_eigenspace(images: np.ndarray) -> Eigenspace:
     return Eigenspace(mean, V, lam)
 
 
-def choose_n_components(spectra: list[np.ndarray], n_components: int | float) -> int:
+class ComponentsError(ValueError):
+    """K (``n_components``) above the smallest eigenspace rank: ``k`` and ``min_rank``."""
+
+    def __init__(self, k: int, min_rank: int):
+        super().__init__(f"n_components={k} but the smallest eigenspace rank is {min_rank} "
+                         f"(at most one less than the number of training images per position)")
+        self.k, self.min_rank = k, min_rank
+
+
+def choose_n_components(spectra: list[np.ndarray], n_components: int | float, *, at_most: bool = False) -> int:
     """K shared by all positions.
 
-    ``n_components`` an ``int``: that K.  A ``float`` in ``(0, 1]``: the
+    ``n_components`` an ``int``: that K (with ``at_most``: at most that K,
+    ``min(n_components, smallest rank)``).  A ``float`` in ``(0, 1]``: the
     smallest K such that every position captures at least that fraction of its
     energy, ``sum_{i<=K} λ_i / sum_i λ_i``.  K never exceeds the smallest rank.
 
     Raises:
-        ValueError: K larger than some position's rank, or a bad fraction.
+        ComponentsError: an int K larger than some position's rank (not with ``at_most``).
+        ValueError: a K below 1, or a bad fraction.
     """
     min_rank = min(len(s) for s in spectra)
     if isinstance(n_components, (bool, np.bool_)):
         raise TypeError("n_components must be an int (K) or a float energy fraction")
     if isinstance(n_components, (int, np.integer)):
         k = int(n_components)
-        if not 1 <= k <= min_rank:
-            raise ValueError(
-                f"n_components={k} but the smallest eigenspace rank is {min_rank} "
-                f"(at most one less than the number of training images per position)"
-            )
+        if k < 1:
+            raise ValueError(f"n_components={k}: K must be at least 1")
+        if k > min_rank:
+            if not at_most:
+                raise ComponentsError(k, min_rank)
+            k = min_rank
         return k
     frac = float(n_components)
     if not 0.0 < frac <= 1.0:

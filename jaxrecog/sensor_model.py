@@ -12,6 +12,8 @@ turns the moments into its parameters (``Likelihood.fit``).
 
 from __future__ import annotations
 
+from typing import Any
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -145,6 +147,20 @@ class SensorModel(eqx.Module):
         kinds = set(self.likelihood_kinds)
         return kinds.pop() if len(kinds) == 1 else "mixed"
 
+    def camera_stats(self) -> list[dict[str, Any]]:
+        """Per camera: ``eigenspaces`` (its positions), ``eigenvalue_sum`` and
+        ``feature_sd`` (``(min, max)`` over its positions of the eigenvalues'
+        sum, and of the likelihood's feature standard deviations): what
+        :meth:`summary` prints (``jaxrecog inspect --json``)."""
+        out = []
+        for cam in self.cameras:
+            energy = np.asarray(cam.eigenvalues).sum(axis=1)
+            sd = np.sqrt(np.asarray(jax.vmap(lambda lik: lik.variance())(cam.likelihood)))
+            out.append({"eigenspaces": int(cam.n_positions),
+                        "eigenvalue_sum": (float(energy.min()), float(energy.max())),
+                        "feature_sd": (float(sd.min()), float(sd.max()))})
+        return out
+
     def summary(self) -> str:
         """A few human-readable lines: sizes, levels and feature statistics."""
         H, W = self.image_shape
@@ -157,14 +173,11 @@ class SensorModel(eqx.Module):
             # the thesis's Gaussians keep their old wording (make demo's output is unchanged)
             f"{'covariance' if gaussian else 'likelihood'} {self.covariance}",
         ]
-        for i, cam in enumerate(self.cameras):
-            lam = np.asarray(cam.eigenvalues)
-            energy = lam.sum(axis=1)
-            sd = np.sqrt(np.asarray(jax.vmap(lambda lik: lik.variance())(cam.likelihood)))
+        for i, st in enumerate(self.camera_stats()):
             lines.append(
-                f"  camera {i}: {cam.n_positions} eigenspaces, eigenvalue sum "
-                f"{energy.min():.3g}..{energy.max():.3g}, feature sd "
-                f"{sd.min():.3g}..{sd.max():.3g}"
+                f"  camera {i}: {st['eigenspaces']} eigenspaces, eigenvalue sum "
+                f"{st['eigenvalue_sum'][0]:.3g}..{st['eigenvalue_sum'][1]:.3g}, feature sd "
+                f"{st['feature_sd'][0]:.3g}..{st['feature_sd'][1]:.3g}"
             )
         for i, cam in enumerate(self.cameras):
             if cam.calibration is not None:

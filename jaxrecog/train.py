@@ -82,6 +82,7 @@ def train_model(
     view_jitter: bool = False,
     interpolate: int = 0,
     interpolation: str = "linear",
+    components_at_most: bool = False,
     return_info: bool = False,
 ) -> SensorModel | tuple[SensorModel, TrainingInfo]:
     """Train the sensor model of a database (thesis ch. 4, §7.1).
@@ -141,6 +142,11 @@ def train_model(
             neighbours found).
         interpolation: ``"linear"`` (cross-fade) or ``"flow"`` (optical-flow
             morph), :mod:`jaxrecog.view_interpolation`.
+        components_at_most: an ``int`` ``n_components`` is an upper bound:
+            K is ``min(n_components, smallest eigenspace rank)`` instead of a
+            :class:`~jaxrecog.eigenspace.ComponentsError` when the database
+            has too few training images per position (the info's
+            ``params["K"]`` says the K used).
         return_info: also return a :class:`TrainingInfo`.
 
     Returns:
@@ -194,7 +200,7 @@ def train_model(
     # eigenspaces of every position (clean images), then one K for all
     train = [db.train_images(i) for i in range(db.n_cameras)]        # [V, C, H, W] each
     spaces = [[position_eigenspace(t[v]) for v in range(t.shape[0])] for t in train]
-    K = choose_n_components([s.eigenvalues for cam in spaces for s in cam], n_components)
+    K = choose_n_components([s.eigenvalues for cam in spaces for s in cam], n_components, at_most=components_at_most)
     bank = occluder_bank(levels, (H, W), params, seed)
 
     total = sum(len(s) for s in spaces)

@@ -1,5 +1,6 @@
-"""Write docs/cli.md from the ``--help`` of ``jaxrecog`` and its subcommands, and
-docs/planners.md from the planner registry.
+"""Write docs/cli.md from the ``--help`` of ``jaxrecog`` and its subcommands and
+the ``--json`` schemas (``jaxrecog.cli._json.SCHEMAS``), and docs/planners.md
+from the planner registry.
 
     python scripts/gen_cli_docs.py            # rewrite both
     python scripts/gen_cli_docs.py --check    # exit 1 if either is stale
@@ -20,6 +21,7 @@ PLANNERS_DOC = ROOT / "docs" / "planners.md"
 def render() -> str:
     os.environ["COLUMNS"] = "100"  # argparse wraps help at the terminal width: fix it
     from jaxrecog.cli import build_parser, subparsers
+    from jaxrecog.cli._json import schema_markdown
 
     parser = build_parser()
     parser.prog = "jaxrecog"
@@ -30,6 +32,8 @@ def render() -> str:
         "",
         "Every subcommand also takes the global options `--quiet`, `--debug` and",
         "`--config FILE.TOML`.  Exit codes: 0 success, 2 usage error, 1 runtime failure.",
+        "`plan`, `recognize`, `inspect` and `experiment` write one JSON document with `--json`",
+        "([JSON output](#json-output)).",
         "",
         "## jaxrecog",
         "",
@@ -40,6 +44,7 @@ def render() -> str:
     ]
     for name, sp in subparsers(parser).items():
         parts += [f"## jaxrecog {name}", "", "```text", sp.format_help().rstrip(), "```", ""]
+    parts += schema_markdown()
     return "\n".join(parts)
 
 

@@ -91,3 +91,14 @@ def script(name: str, folder: str = "scripts"):
 def run_script(name: str, *args, cwd=None) -> Ran:
     """``python scripts/<name>.py ARGS`` in this process."""
     return run_main(script(name).main, args, cwd=cwd)
+
+
+def one_error_line(proc, *needles: str) -> str:
+    """The one ``jaxrecog: error:`` line on a run's stderr (a :class:`Ran` or a
+    ``subprocess.CompletedProcess``; no traceback), holding every needle."""
+    lines = [l for l in proc.stderr.splitlines() if l.startswith("jaxrecog: error:")]
+    assert len(lines) == 1, proc.stderr
+    assert "Traceback" not in proc.stderr
+    for n in needles:
+        assert n in lines[0], lines[0]
+    return lines[0]

@@ -1,8 +1,9 @@
 """Strict test settings (STYLE.md §11): rank promotion raises, strict dtype
 promotion for the numerics modules, a ``getkey`` fixture, an ``x64`` fixture
 for numerics tests that need double precision, and the session's shared
-end-to-end inputs: one trained model of the moving database and one rendered
-database of the strided thesis table."""
+end-to-end inputs: one trained model of the moving database, one rendered
+database of the strided thesis table, and the CLI tests' tiny database and
+model (with a stub of the thesis campaigns)."""
 
 from __future__ import annotations
 
@@ -193,6 +194,66 @@ def strided_workdir(strided_database):
         return Path(workdir)
 
     return seed
+
+
+@pytest.fixture(scope="session")
+def tiny(tmp_path_factory):
+    """The CLI tests' inputs (tests/test_cli.py, tests/test_cli_json.py): a
+    2-object, 2-pose, (3, 2)-position database of 30 x 40 images with a test
+    split, and its DB2 model (K = 3), written once per session (only read)."""
+    from builders import write_synthetic_database
+
+    from jaxrecog.modelfile import save_model
+    from jaxrecog.train import train_model
+
+    root = tmp_path_factory.mktemp("tiny")
+    db = write_synthetic_database(root / "db", positions=(3, 2), n_objects=2, n_poses=2,
+                                  image_shape=(30, 40), n_test=1)
+    db = db if db.is_dir() else db.parent
+    model, info = train_model(db, kind="DB2", n_components=3, samples_per_image=6, return_info=True)
+    path = save_model(root / "model.npz", model, training=info.params, manifest_sha256=info.manifest_sha256)
+    return {"root": root, "db": db, "model": Path(path)}
+
+
+def _fake_results(M=2, n=3):
+    from jaxrecog.results import TrialResult
+
+    out = []
+    for m in range(M):
+        for t in range(n):
+            out.append(TrialResult(m * n + t, m, 0, m if t else 1 - m, 0, 0.97, 2 + t, True,
+                                   object_probs=((0.5, 0.5), (0.9, 0.1))))
+    return out
+
+
+@pytest.fixture
+def fake_experiments(monkeypatch, tiny):
+    """Stub ``experiments.prepare/run_case/run_trace`` (the real ones render the
+    1248-image thesis database); the CLI's wiring, files and plots are real.
+    The stubs' arguments are recorded in the returned dict."""
+    from jaxrecog import experiments as ex
+    from jaxrecog.results import summarize
+
+    calls = {}
+
+    def prepare(settings, **kw):
+        calls["prepare"] = settings
+        return ex.Prepared(tiny["db"], {"DB2": tiny["model"], "DB1": tiny["model"]})
+
+    def run_case(name, settings, planners=None, **kw):
+        calls["run_case"] = (name, settings, planners)
+        planners = list(planners or ex.CASES[name].planners)
+        res = {p: _fake_results() for p in planners}
+        return ex.CaseReport(ex.CASES[name], settings, {p: summarize(r, 2) for p, r in res.items()}, res,
+                             {p: 1.0 for p in planners})
+
+    def run_trace(settings, *, object=5, planner="mi", prepared=None, **kw):
+        return _fake_results()[1]
+
+    monkeypatch.setattr(ex, "prepare", prepare)
+    monkeypatch.setattr(ex, "run_case", run_case)
+    monkeypatch.setattr(ex, "run_trace", run_trace)
+    return calls
 
 
 def _timeline() -> None:

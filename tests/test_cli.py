@@ -14,7 +14,7 @@ import cv2
 import numpy as np
 import pytest
 from builders import write_synthetic_database
-from clirun import run_cli
+from clirun import one_error_line, run_cli
 from PIL import Image
 
 from jaxrecog import cli
@@ -45,27 +45,6 @@ def png_size(path) -> tuple[int, int]:
     assert Path(path).stat().st_size > 1000
     with Image.open(path) as im:
         return im.size
-
-
-def one_error_line(proc, *needles):
-    lines = [l for l in proc.stderr.splitlines() if l.startswith("jaxrecog: error:")]
-    assert len(lines) == 1, proc.stderr
-    assert "Traceback" not in proc.stderr
-    for n in needles:
-        assert n in lines[0], lines[0]
-    return lines[0]
-
-
-@pytest.fixture(scope="module")
-def tiny(tmp_path_factory):
-    """A 2-object, 2-pose, (3, 2)-position database with a test split, and its DB2 model."""
-    root = tmp_path_factory.mktemp("tiny")
-    db = write_synthetic_database(root / "db", positions=(3, 2), n_objects=2, n_poses=2,
-                                  image_shape=(30, 40), n_test=1)
-    db = db if db.is_dir() else db.parent
-    model, info = train_model(db, kind="DB2", n_components=3, samples_per_image=6, return_info=True)
-    path = save_model(root / "model.npz", model, training=info.params, manifest_sha256=info.manifest_sha256)
-    return {"root": root, "db": db, "model": Path(path)}
 
 
 # -- usage errors -----------------------------------------------------------
@@ -291,46 +270,6 @@ def test_render_train_recognize_synthetic(tmp_path):
 
 
 # -- experiment and demo, with the campaign replaced by a stub ---------------------
-
-def _fake_results(M=2, n=3):
-    from jaxrecog.results import TrialResult
-
-    out = []
-    for m in range(M):
-        for t in range(n):
-            out.append(TrialResult(m * n + t, m, 0, m if t else 1 - m, 0, 0.97, 2 + t, True,
-                                   object_probs=((0.5, 0.5), (0.9, 0.1))))
-    return out
-
-
-@pytest.fixture
-def fake_experiments(monkeypatch, tiny):
-    """Stub ``experiments.prepare/run_case/run_trace`` (the real ones render the
-    1248-image thesis database); the CLI's wiring, files and plots are real."""
-    from jaxrecog import experiments as ex
-    from jaxrecog.results import summarize
-
-    calls = {}
-
-    def prepare(settings, **kw):
-        calls["prepare"] = settings
-        return ex.Prepared(tiny["db"], {"DB2": tiny["model"], "DB1": tiny["model"]})
-
-    def run_case(name, settings, planners=None, **kw):
-        calls["run_case"] = (name, settings, planners)
-        planners = list(planners or ex.CASES[name].planners)
-        res = {p: _fake_results() for p in planners}
-        return ex.CaseReport(ex.CASES[name], settings, {p: summarize(r, 2) for p, r in res.items()}, res,
-                             {p: 1.0 for p in planners})
-
-    def run_trace(settings, *, object=5, planner="mi", prepared=None, **kw):
-        return _fake_results()[1]
-
-    monkeypatch.setattr(ex, "prepare", prepare)
-    monkeypatch.setattr(ex, "run_case", run_case)
-    monkeypatch.setattr(ex, "run_trace", run_trace)
-    return calls
-
 
 def test_experiment_case_and_toml(fake_experiments, tmp_path, capsys):
     out = tmp_path / "exp"

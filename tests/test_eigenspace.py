@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from builders import make_database
 
-from jaxrecog.eigenspace import choose_n_components, position_eigenspace, unit_energy
+from jaxrecog.eigenspace import ComponentsError, choose_n_components, position_eigenspace, unit_energy
 
 
 def _full_svd(images):
@@ -43,8 +43,15 @@ def test_choose_by_count_and_energy():
     assert choose_n_components(spectra, 0.8) == 2          # 8/10 vs 9/10: max over positions
     assert choose_n_components(spectra, 0.9) == 3
     assert choose_n_components(spectra, 1.0) == 4
-    with pytest.raises(ValueError, match="rank is 4"):
+    with pytest.raises(ComponentsError, match="rank is 4") as e:
         choose_n_components(spectra, 5)
+    assert (e.value.k, e.value.min_rank) == (5, 4)
+    # at_most: K is an upper bound, the smallest rank where that is less
+    assert choose_n_components(spectra, 5, at_most=True) == 4
+    assert choose_n_components(spectra, 20, at_most=True) == 4
+    assert choose_n_components(spectra, 3, at_most=True) == 3
+    with pytest.raises(ValueError, match="at least 1"):
+        choose_n_components(spectra, 0, at_most=True)
     with pytest.raises(ValueError, match="fraction"):
         choose_n_components(spectra, 1.5)
 

@@ -11,9 +11,8 @@ from pathlib import Path
 
 import pytest
 from builders import moving_database, write_synthetic_database
-from clirun import run_cli
+from clirun import one_error_line, run_cli
 from PIL import Image
-from test_cli import one_error_line
 
 from jaxrecog import cli
 from jaxrecog.database import write_database
@@ -94,6 +93,19 @@ def test_campaign_on_an_image_database(moving, tmp_path):
     assert q.returncode == 0, q.stderr
     mi_table = text[text.index("**MI"):text.index("**RANDOM")].split("\n", 1)[1]
     assert mi_table.strip() in q.stdout and "RANDOM" not in q.stdout
+    # --json: the same table as one document (the stored trials again), the keys of docs/cli.md
+    from jaxrecog.cli._json import SCHEMAS, check
+
+    q = run("--quiet", "experiment", toml, "--out", out, "--json")
+    assert q.returncode == 0, q.stderr
+    doc = json.loads(q.stdout)
+    assert check(doc, SCHEMAS["experiment"]) == []
+    assert (doc["case"], doc["rig"], doc["model"]) == ("dataset", f"dataset:{moving['db']}", str(moving["model"]))
+    (mi_doc,) = doc["planners"]
+    as_json = {k: None if v != v else v for k, v in js["tables"]["mi"][-1].items()}  # NaN (no travel) is null
+    assert mi_doc["planner"] == "mi" and mi_doc["rows"][-1] == {**as_json, "thesis": None}
+    assert mi_doc["rows"][-1]["travel_s"] is None
+    assert str(out / "case_dataset.json") in doc["written"] and doc["settings"]["trials_per_object"] == trials
 
 
 @pytest.mark.parametrize("argv,needle", [

@@ -1,7 +1,8 @@
 """jaxrecog: active multi-camera object recognition (render, train, plan, recognize, experiment).
 
 Exit codes: 0 success, 2 usage error, 1 runtime failure (one line
-"jaxrecog: error: ..."; run with --debug for the traceback).
+"jaxrecog: error: ..."; run with --debug for the traceback), 141 when the
+reader of the output went away (a pipe into head), as for any Unix tool.
 Settings may come from a TOML file (--config FILE): one table per subcommand
 with the long option names as keys; command-line options override the file.
 Indices (objects, poses, positions) are 0-based everywhere.
@@ -18,7 +19,9 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import pkgutil
+import select
 import sys
 import types
 from typing import Any, Callable, Sequence
@@ -93,7 +96,57 @@ def _apply_config(parser: argparse.ArgumentParser, path: str) -> dict[str, Any]:
     return glob
 
 
+#: The exit code when stdout's reader went away: 128 + SIGPIPE, what a shell
+#: reports for a Unix tool that the signal ended.
+BROKEN_PIPE = 141
+
+
 def main(argv: Sequence[str] | None = None) -> int:
+    try:
+        code = _main(argv)
+        sys.stdout.flush()  # a reader that went away shows here, not as a complaint at exit
+        return code
+    except BrokenPipeError:
+        if not _stdout_gone():
+            raise
+        return _quiet_after_broken_pipe()
+
+
+def _stdout_gone() -> bool:
+    """Whether stdout's reader went away (``jaxrecog plan ... | head``): a
+    pipe without a reader (poll says so), or a stream that cannot be flushed
+    for a broken pipe."""
+    try:
+        poller = select.poll()
+        poller.register(sys.stdout.fileno(), select.POLLOUT)
+        if any(ev & select.POLLERR for _, ev in poller.poll(0)):
+            return True
+    except (AttributeError, OSError, ValueError):  # no poll (Windows), no file descriptor
+        pass
+    try:
+        sys.stdout.flush()
+    except BrokenPipeError:
+        return True
+    except (OSError, ValueError):
+        return False
+    return False
+
+
+def _quiet_after_broken_pipe() -> int:
+    """Stop quietly: stdout points at the null device from here on, so that
+    the interpreter's last flush at exit finds nothing to complain about."""
+    try:
+        null = os.open(os.devnull, os.O_WRONLY)
+        try:
+            os.dup2(null, sys.stdout.fileno())
+        finally:
+            os.close(null)
+    except (OSError, ValueError):  # a stdout without a file descriptor (io.UnsupportedOperation is both)
+        pass
+    return BROKEN_PIPE
+
+
+def _main(argv: Sequence[str] | None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     parser = build_parser()
     debug = "--debug" in argv
@@ -126,6 +179,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         print("jaxrecog: interrupted", file=sys.stderr)
         return 130
     except Exception as e:  # noqa: BLE001 - the one place that turns failures into exit code 1
+        if isinstance(e, BrokenPipeError) and _stdout_gone():
+            raise  # main: quiet, not an error
         if args.debug:
             for problem in getattr(e, "problems", None) or ():  # the full list, then the traceback
                 print(problem, file=sys.stderr)

@@ -13,8 +13,8 @@ from ..hardware.positions import CameraTable, default_table
 from ..modelfile import load_model, load_model_meta
 from ..recipes import recipe_from_meta
 
-__all__ = ["CLIError", "UsageError", "fmt_cfg", "key", "model_positions", "model_report", "print_table",
-           "synthetic_rig"]
+__all__ = ["CLIError", "UsageError", "fmt_cfg", "format_table", "key", "model_doc", "model_positions", "model_report",
+           "print_table", "synthetic_rig"]
 
 
 class CLIError(Exception):
@@ -37,13 +37,16 @@ def fmt_cfg(cfg: Sequence[SupportsInt]) -> str:  # ints or NumPy integers
     return ",".join(str(int(v)) for v in cfg)
 
 
-def print_table(headers: Sequence[str], rows: Sequence[Sequence[Any]]) -> None:
+def format_table(headers: Sequence[str], rows: Sequence[Sequence[Any]]) -> str:
+    """The rows under the headers, right-aligned columns, a rule under the headers."""
     cells = [[str(h) for h in headers]] + [[str(c) for c in r] for r in rows]
     widths = [max(len(r[i]) for r in cells) for i in range(len(headers))]
-    for j, r in enumerate(cells):
-        print("  ".join(c.rjust(w) for c, w in zip(r, widths)))
-        if j == 0:
-            print("  ".join("-" * w for w in widths))
+    lines = ["  ".join(c.rjust(w) for c, w in zip(r, widths)) for r in cells]
+    return "\n".join([lines[0], "  ".join("-" * w for w in widths), *lines[1:]])
+
+
+def print_table(headers: Sequence[str], rows: Sequence[Sequence[Any]]) -> None:
+    print(format_table(headers, rows))
 
 
 def _table(cameras: int, stride: int) -> CameraTable:
@@ -101,6 +104,25 @@ def _augment_line(aug: dict) -> str:
     gray = aug.get("occluder_gray") or (0.0, 0.0)
     occluders = (f"; occluders gray {float(gray[0]):g}..{float(gray[1]):g}" if float(gray[1]) > 0 else "")
     return ", ".join(parts) + "; capture " + (", ".join(capture) if on else "off") + occluders
+
+
+def model_doc(path, model=None) -> dict:
+    """What ``inspect --json`` reports of a model file (the ``model`` object
+    of :data:`jaxrecog.cli._json.SCHEMAS` ``["inspect"]``)."""
+    model = load_model(str(path)) if model is None else model
+    meta = load_model_meta(path)
+    recipe = recipe_from_meta(meta)
+    H, W = model.image_shape
+    per_camera = [{"camera": i, **stats,
+                   "variance_factors": None if cam.calibration is None else np.asarray(cam.calibration, dtype=float)}
+                  for i, (cam, stats) in enumerate(zip(model.cameras, model.camera_stats()))]
+    training = meta.get("training")
+    return {"cameras": model.n_cameras, "positions": list(model_positions(model)), "objects": model.n_objects,
+            "poses": model.n_poses, "classes": model.n_classes, "image_shape": [int(H), int(W)],
+            "components": model.n_components, "levels": [float(x) for x in model.levels],
+            "likelihood": model.covariance, "per_camera": per_camera,
+            "recipe": {**recipe.to_dict(), "recorded": "recipe" in meta},
+            "training": training if isinstance(training, dict) else None}
 
 
 def model_report(path, model=None) -> str:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import time
 from pathlib import Path
 from typing import Any
@@ -16,6 +17,7 @@ from ..planners import DEFAULT_MIN_PER_STRATUM
 from .._progress import enabled as progress_bars
 from ..hardware.problems import one_line
 from ._common import UsageError
+from ._json import SCHEMA_VERSION, json_option, run_reporting
 from ._options import (PLANNERS, capture_options, capture_params, choice_options, default_likelihood, model_recipe,
                        nonneg, probability,
                        given_likelihood_options, likelihood_options, positive, render_jitter_options,
@@ -80,6 +82,7 @@ def add_arguments(p) -> None:
                         "(optical-flow morph, the robust recipe's)")
     render_jitter_options(g)
     capture_options(p, unset=True)
+    json_option(p)
 
 
 def _training_values(args, values: dict[str, Any]) -> dict[str, Any]:
@@ -128,7 +131,7 @@ def _dataset_folder(rig: str) -> str:
     return folder
 
 
-def run(args) -> int:
+def _report(args) -> tuple[dict, str]:
     values: dict[str, Any] = {}
     planners = args.planners
     name = args.case
@@ -217,16 +220,39 @@ def run(args) -> int:
         t0 = time.perf_counter()
         if dataset:
             report = ex.run_dataset(folder, model, settings, planners=planners, progress=progress_bars())
-            print(report.markdown())
             written = write_report(report, "dataset", out, title=f"Database {Path(folder).name}")
-            print(f"campaign on {folder} in {time.perf_counter() - t0:.0f} s; wrote:")
+            done = f"campaign on {folder}"
         else:
             report = ex.run_case(name, settings, planners=planners, progress=progress_bars())
-            print(report.markdown())
             written = write_report(report, name, out)
             if args.trace:
                 written += trace_plot(settings, out, planner=(planners or ["mi"])[0], case=name)
-            print(f"case {name} in {time.perf_counter() - t0:.0f} s; wrote:")
-        for p in written:
-            print(f"  {p}")
-    return 0
+            done = f"case {name}"
+        seconds = time.perf_counter() - t0
+    doc = {"command": NAME, "schema_version": SCHEMA_VERSION, "case": "dataset" if dataset else name,
+           "title": report.case.title, "rig": str(rig) if dataset else "synthetic",
+           "model": str(model) if dataset else None, "settings": _settings_doc(report.settings),
+           "planners": [_planner_doc(report, p) for p in report.rows], "seconds": seconds, "out": str(out),
+           "written": [str(p) for p in written]}
+    text = "\n".join([report.markdown(), f"{done} in {seconds:.0f} s; wrote:", *(f"  {p}" for p in written)])
+    return doc, text
+
+
+def _settings_doc(settings) -> dict[str, Any]:
+    return {f.name: getattr(settings, f.name) for f in dataclasses.fields(settings)}
+
+
+def _planner_doc(report, planner: str) -> dict[str, Any]:
+    """One planner's results table (``--json``'s ``planners[]``), with the thesis's rows where it has them."""
+    ref = report.reference(planner) or []
+    rows = []
+    for i, r in enumerate(report.rows[planner]):
+        thesis = ref[i] if i < len(ref) else None
+        rows.append({**dataclasses.asdict(r),
+                     "thesis": None if thesis is None else dict(zip(("rate", "exit_prob", "views"), thesis))})
+    return {"planner": planner, "trials_per_object": report.settings.trials_per_object,
+            "seconds": report.seconds.get(planner), "rows": rows}
+
+
+def run(args) -> int:
+    return run_reporting(args, _report)

@@ -7,9 +7,10 @@ from pathlib import Path
 import numpy as np
 
 from .. import plots
-from ..database import SPLITS, load_database, notes
+from ..database import SPLITS, load_database, notes, shared_files
 from ..modelfile import load_model
-from ._common import CLIError, UsageError, model_positions, model_report
+from ._common import CLIError, UsageError, model_doc, model_positions, model_report
+from ._json import SCHEMA_VERSION, json_option, run_reporting
 from ._options import nonneg
 
 NAME = "inspect"
@@ -26,26 +27,40 @@ def add_arguments(p) -> None:
                    help="write figures here: eigenimages (model) or occlusion examples (database)")
     p.add_argument("--camera", type=nonneg, default=0, help="camera of the eigenimage / example figure")
     p.add_argument("--position", type=nonneg, default=0, help="position of the eigenimage / example figure")
+    json_option(p)
+
+
+def _splits(db) -> dict[str, int]:
+    split = np.asarray(db.split)
+    return {s: int((split == s).sum()) for s in SPLITS if s != "jitter" or (split == s).any()}
+
+
+def _database_doc(db) -> dict:
+    H, W = db.image_shape
+    return {"root": str(db.root), "images": int(db.n_rows), "image_shape": [int(H), int(W)],
+            "cameras": int(db.n_cameras), "positions": [int(n) for n in db.positions], "objects": int(db.n_objects),
+            "poses": int(db.n_poses), "splits": _splits(db), "shared_files": int(shared_files(db.paths))}
 
 
 def _database_summary(db) -> str:
-    splits = {s: int((np.asarray(db.split) == s).sum()) for s in SPLITS if s != "jitter" or (np.asarray(db.split) == s).any()}
     H, W = db.image_shape
     return "\n".join([
         f"ImageDatabase {db.root}: {db.n_rows} images {H}x{W}",
         f"  cameras {db.n_cameras}, positions {db.positions}, {db.n_objects} objects x {db.n_poses} poses",
-        "  splits: " + ", ".join(f"{k} {v}" for k, v in splits.items()),
+        "  splits: " + ", ".join(f"{k} {v}" for k, v in _splits(db).items()),
     ])
 
 
-def run(args) -> int:
+def _report(args) -> tuple[dict, str]:
     path = Path(args.path)
     written = []
     if not path.exists() and path.suffix != ".npz":
         raise CLIError(f"{path}: no such model file or database folder")
+    summary = {"model": None, "database": None}
     if path.is_dir():
         db = load_database(path)
-        print("\n".join([_database_summary(db), *notes(db)]))
+        summary["database"] = _database_doc(db)
+        text = [_database_summary(db), *notes(db)]
         if args.plot_dir:
             rows = np.flatnonzero((np.asarray(db.camera) == args.camera) & (np.asarray(db.position) == args.position)
                                   & (np.asarray(db.split) == "train"))
@@ -55,7 +70,8 @@ def run(args) -> int:
                                                 title=f"DB2 occluders on camera {args.camera}, position {args.position}")
     else:
         model = load_model(str(path))
-        print(model_report(path, model))
+        summary["model"] = model_doc(path, model)
+        text = [model_report(path, model)]
         if args.plot_dir:
             if args.camera >= len(model.cameras) or args.position >= model.cameras[args.camera].basis.shape[0]:
                 raise UsageError(f"the model has no camera {args.camera} position {args.position} "
@@ -65,6 +81,11 @@ def run(args) -> int:
                                          model.image_shape, Path(args.plot_dir) / "eigenimages",
                                          eigenvalues=np.asarray(cam.eigenvalues[args.position]),
                                          title=f"Camera {args.camera}, position {args.position}")
-    for p in written:
-        print(f"wrote {p}")
-    return 0
+    doc = {"command": NAME, "schema_version": SCHEMA_VERSION, "path": str(path),
+           "kind": "database" if summary["database"] is not None else "model", **summary,
+           "written": [str(p) for p in written]}
+    return doc, "\n".join(text + [f"wrote {p}" for p in doc["written"]])
+
+
+def run(args) -> int:
+    return run_reporting(args, _report)

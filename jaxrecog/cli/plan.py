@@ -10,8 +10,9 @@ from ..hardware.rig import config_from_index
 from ..modelfile import load_model
 from ..planners import DEFAULT_PLANNER, make_planner
 from ..recognizer import Recognizer
-from ._common import UsageError, fmt_cfg, key, model_positions, print_table
+from ._common import UsageError, fmt_cfg, format_table, key, model_positions
 from ._images import read_gray, usable
+from ._json import SCHEMA_VERSION, json_option, run_reporting
 from ._options import PLANNERS, config_tuple, model_recipe, planner_size_options, positive, skip_invalid_option
 
 NAME = "plan"
@@ -35,16 +36,27 @@ def add_arguments(p) -> None:
     p.add_argument("--top", type=positive, default=10, help="how many configurations to list")
     p.add_argument("--plot", metavar="PNG", help="also write the scores as a heat map (PNG + SVG)")
     p.add_argument("--seed", type=int, default=0, help="PRNG seed")
+    json_option(p)
 
 
-def _scores_report(scores, positions, top: int) -> tuple[int, list]:
+def shown_scores(scores) -> np.ndarray:
+    """The scores as reported: float, with round-off below 1e-6 of the
+    largest finite ``|score|`` set to 0 (an MI of ``-2.2e-08`` is 0)."""
     s = np.asarray(scores, dtype=float)
+    finite = np.isfinite(s)
+    scale = float(np.max(np.abs(s[finite]))) if finite.any() else 0.0
+    return np.where(finite & (np.abs(s) <= 1e-6 * scale), 0.0, s)
+
+
+def _ranking(scores, positions, top: int) -> list[dict]:
+    """The ``top`` best configurations, best first (a non-finite score last)."""
+    s = shown_scores(scores)
     order = np.argsort(np.where(np.isfinite(s), -s, np.inf), kind="stable")[:top]
-    rows = [(r + 1, fmt_cfg(config_from_index(int(a), positions)), int(a), f"{s[a]:.4g}") for r, a in enumerate(order)]
-    return int(order[0]), rows
+    return [{"rank": r + 1, "config": [int(v) for v in config_from_index(int(a), positions)], "index": int(a),
+             "score": float(s[a])} for r, a in enumerate(order)]
 
 
-def run(args) -> int:
+def _report(args) -> tuple[dict, str]:
     if args.planner is None:
         args.planner = model_recipe(args.model).planner
     model = load_model(args.model)
@@ -65,26 +77,51 @@ def run(args) -> int:
     planner = make_planner(args.planner, model, key=k_plan, samples=args.samples,
                            min_per_stratum=args.min_per_stratum)
     rec = Recognizer(model, planner)
+    images = None
     if imgs is not None:
         state = rec.init(config=args.at)
         _, dec = rec.step(state, imgs, k_score, trace=True)
         scores = np.asarray(dec.trace.scores)
-        unused = "" if bool(dec.valid) else " (not used)"
-        print(f"after the images at {fmt_cfg(args.at)}{unused}: best (object, pose) = ({int(dec.object)}, "
-              f"{int(dec.pose)}), P = {float(dec.probability):.3f}")
-        what = f"belief after images at ({fmt_cfg(args.at)}){unused}"
+        images = {"paths": [str(p) for p in args.images], "at": [int(v) for v in args.at], "used": bool(dec.valid),
+                  "object": int(dec.object), "pose": int(dec.pose), "probability": float(dec.probability)}
     else:
         state = rec.init(config=(0,) * len(positions))
         scores = np.asarray(planner.scores(rec.belief(state.prior), k_score))
-        what = "uniform belief"
-    best, rows = _scores_report(scores, positions, args.top)
-    cfg = config_from_index(int(best), positions)
-    print(f"{args.planner} scores of {scores.size} configurations ({what}); best: ({fmt_cfg(cfg)}) "
-          f"index {best}, score {scores[best]:.4g}")
-    print_table(["rank", "config", "index", "score"], rows)
+    ranking = _ranking(scores, positions, args.top)
+    written = []
     if args.plot:
-        for p in plots.score_heatmap(scores, positions, args.plot, chosen=cfg,
-                                     title=f"{args.planner.upper()} scores, {what}",
-                                     label=f"{args.planner} score (higher = better)"):
-            print(f"wrote {p}")
-    return 0
+        what = _belief_words(images)
+        written = plots.score_heatmap(scores, positions, args.plot, chosen=tuple(ranking[0]["config"]),
+                                      title=f"{args.planner.upper()} scores, {what}",
+                                      label=f"{args.planner} score (higher = better)")
+    doc = {"command": NAME, "schema_version": SCHEMA_VERSION, "model": str(args.model), "planner": args.planner,
+           "samples": args.samples, "min_per_stratum": args.min_per_stratum, "seed": args.seed,
+           "positions": list(positions), "belief": "uniform" if images is None else "images", "images": images,
+           "configurations": int(np.asarray(scores).size), "best": ranking[0], "ranking": ranking,
+           "written": [str(p) for p in written]}
+    return doc, _text(doc)
+
+
+def _belief_words(images: dict | None) -> str:
+    if images is None:
+        return "uniform belief"
+    return f"belief after images at ({fmt_cfg(images['at'])})" + ("" if images["used"] else " (not used)")
+
+
+def _text(doc: dict) -> str:
+    lines = []
+    images = doc["images"]
+    if images is not None:
+        lines.append(f"after the images at {fmt_cfg(images['at'])}{'' if images['used'] else ' (not used)'}: best "
+                     f"(object, pose) = ({images['object']}, {images['pose']}), P = {images['probability']:.3f}")
+    best = doc["best"]
+    lines.append(f"{doc['planner']} scores of {doc['configurations']} configurations ({_belief_words(images)}); "
+                 f"best: ({fmt_cfg(best['config'])}) index {best['index']}, score {best['score']:.4g}")
+    lines.append(format_table(["rank", "config", "index", "score"],
+                              [(r["rank"], fmt_cfg(r["config"]), r["index"], f"{r['score']:.4g}")
+                               for r in doc["ranking"]]))
+    return "\n".join(lines + [f"wrote {p}" for p in doc["written"]])
+
+
+def run(args) -> int:
+    return run_reporting(args, _report)

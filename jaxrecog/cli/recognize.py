@@ -16,8 +16,9 @@ from ..modelfile import load_model
 from ..motion import MotionCost, rig_travel_times
 from ..planners import DEFAULT_PLANNER, make_planner
 from ..recognizer import Recognizer
-from ._common import CLIError, UsageError, fmt_cfg, key, model_positions, print_table, synthetic_rig
+from ._common import CLIError, UsageError, fmt_cfg, format_table, key, model_positions, synthetic_rig
 from ._images import usable
+from ._json import SCHEMA_VERSION, json_option, run_reporting
 from ._options import (PLANNERS, choice_options, model_recipe, config_tuple, nonneg, planner_size_options, positive, probability,
                        skip_invalid_option, table_options)
 
@@ -51,6 +52,7 @@ def add_arguments(p) -> None:
     p.add_argument("--seed", type=int, default=0, help="PRNG seed (start, planner, rig noise)")
     choice_options(p, unset=True)  # the stop rule's parts default to the model's recipe
     table_options(p)
+    json_option(p)
 
 
 def _make_rig(args, model):
@@ -107,30 +109,42 @@ class _CheckedRig:
         self.rig.close()
 
 
+#: (object, pose) states listed per step in ``--json`` (``belief``)
+BELIEF_TOP = 5
+
+
+def _step_doc(r: StepRecord, n_poses: int) -> dict:
+    """One step of the trial (``--json``'s ``steps[]``)."""
+    dec = r.decision
+    pc = np.asarray(dec.trace.class_probs, dtype=float)
+    top = np.argsort(-pc, kind="stable")[:BELIEF_TOP]
+    return {"step": r.step + 1, "config": [int(v) for v in r.config], "object": int(dec.object),
+            "pose": int(dec.pose), "probability": float(dec.probability), "valid": bool(dec.valid),
+            "occluded": [float(x) for x in r.capture.occluded], "stop": bool(dec.stop),
+            "next": None if bool(dec.stop) else [int(v) for v in np.asarray(dec.next_config)],
+            "belief": [{"object": int(c) // n_poses, "pose": int(c) % n_poses, "probability": float(pc[c])}
+                       for c in top],
+            "object_probabilities": [float(x) for x in np.asarray(dec.trace.object_probs)]}
+
+
 def _trial(args, model, rig, rec, state, k_run):
     """The trial on ``rig``, through the one trial driver (:func:`jaxrecog.driver.run_trials`).
-    Returns the object probabilities per step (prior first), the printed rows
-    and the last decision."""
+    Returns the steps (:func:`_step_doc`), the last decision and the trial's result."""
     start = tuple(int(v) for v in np.asarray(state.config))
     occl = occluder_factory(rig)(np.random.default_rng(args.seed), start) if args.occluders else None
-    probs = [np.full(model.n_objects, 1.0 / model.n_objects)]
-    rows, last = [], []
+    steps, last = [], []
 
     def row(r: StepRecord) -> None:
-        dec = r.decision
-        probs.append(np.asarray(dec.trace.object_probs, dtype=float))
-        rows.append((r.step + 1, fmt_cfg(r.config), int(dec.object), int(dec.pose), f"{float(dec.probability):.3f}",
-                     " ".join(f"{100 * x:.0f}%" for x in r.capture.occluded) or "-",
-                     "stop" if bool(dec.stop) else fmt_cfg(tuple(int(v) for v in np.asarray(dec.next_config)))))
-        last[:] = [dec]
+        steps.append(_step_doc(r, model.n_poses))
+        last[:] = [r.decision]
 
     spec = TrialSpec(0, args.object, args.pose, start, occl)
     (res,) = run_trials(rec, _CheckedRig(rig, model.image_shape, args.skip_invalid), [spec], key=k_run, batch=1,
                         seed=args.seed, trace=True, on_step=row)
-    return probs, rows, last[0], res
+    return steps, last[0], res
 
 
-def run(args) -> int:
+def _report(args) -> tuple[dict, str]:
     if args.min_views is not None and args.min_views > args.max_steps:  # before the model, the rig and the planner
         raise UsageError(f"--min-views {args.min_views} is above --max-steps {args.max_steps}")
     recipe = model_recipe(args.model)   # the stop rule: the model's recipe unless an option gives it
@@ -169,26 +183,50 @@ def run(args) -> int:
                          min_views=args.min_views, exclude_visited_positions=args.exclude_visited, motion=motion,
                          shared_view=args.shared_view, adaptive_scale=args.adaptive_scale)
         state = rec.init(key=None if args.start is not None else k_init, config=args.start)
-        probs, rows, dec, res = _trial(args, model, rig, rec, state, k_run)
+        start = [int(v) for v in np.asarray(state.config)]
+        steps, dec, res = _trial(args, model, rig, rec, state, k_run)
     finally:
         rig.close()
-    print(f"object {args.object}, pose {args.pose} on rig {args.rig}; planner {args.planner}, "
-          f"P_th {args.threshold}" + (f", recipe {recipe.name}: at least {args.min_views} "
-                                      + ("explained " if args.adaptive_scale > 1 else "") + "views"
-                                      + (" from new positions" if args.exclude_visited else "")
-                                      + (f" (adaptive scale up to {args.adaptive_scale:g})"
-                                         if args.adaptive_scale > 1 else "")
-                                      if args.min_views > 1 or args.exclude_visited or args.adaptive_scale > 1
-                                      else ""))
-    print_table(["step", "config", "object", "pose", "P", "occluded", "next"], rows)
-    ok = int(dec.object) == args.object and int(dec.pose) == args.pose
-    print(f"result: object {int(dec.object)}, pose {int(dec.pose)} with P = {float(dec.probability):.3f} after "
-          f"{len(rows)} step(s) -- {'correct' if ok else 'WRONG'}")
-    if res.travel_s == res.travel_s:
-        print(f"travel: {res.travel_s:.2f} s of rig motion (motion cost {args.motion_cost:g} per s)")
+    written = []
     if args.plot:
-        for p in plots.belief_lines(np.stack(probs), args.plot, true_object=args.object,
-                                    title=f"Belief per step: object {args.object + 1} (index {args.object}), "
-                                          f"pose {args.pose}, {args.planner.upper()}"):
-            print(f"wrote {p}")
-    return 0
+        probs = np.stack([np.full(model.n_objects, 1.0 / model.n_objects)]
+                         + [np.asarray(s["object_probabilities"], dtype=float) for s in steps])
+        written = plots.belief_lines(probs, args.plot, true_object=args.object,
+                                     title=f"Belief per step: object {args.object + 1} (index {args.object}), "
+                                           f"pose {args.pose}, {args.planner.upper()}")
+    result = {"object": int(dec.object), "pose": int(dec.pose), "probability": float(dec.probability),
+              "steps": len(steps), "correct": int(dec.object) == args.object and int(dec.pose) == args.pose,
+              "travel_s": float(res.travel_s)}
+    doc = {"command": NAME, "schema_version": SCHEMA_VERSION, "model": str(args.model), "rig": str(args.rig),
+           "object": args.object, "pose": args.pose, "planner": args.planner, "threshold": float(args.threshold),
+           "max_steps": args.max_steps, "min_views": int(args.min_views),
+           "exclude_visited": bool(args.exclude_visited), "adaptive_scale": float(args.adaptive_scale),
+           "shared_view": args.shared_view,
+           "motion_cost": float(args.motion_cost), "recipe": recipe.name, "seed": args.seed, "start": start,
+           "steps": steps, "result": result, "written": [str(p) for p in written]}
+    return doc, _text(doc)
+
+
+def _text(doc: dict) -> str:
+    rule = ""
+    adaptive = doc["adaptive_scale"] > 1
+    if doc["min_views"] > 1 or doc["exclude_visited"] or adaptive:
+        rule = (f", recipe {doc['recipe']}: at least {doc['min_views']} " + ("explained " if adaptive else "")
+                + "views" + (" from new positions" if doc["exclude_visited"] else "")
+                + (f" (adaptive scale up to {doc['adaptive_scale']:g})" if adaptive else ""))
+    lines = [f"object {doc['object']}, pose {doc['pose']} on rig {doc['rig']}; planner {doc['planner']}, "
+             f"P_th {doc['threshold']}" + rule]
+    lines.append(format_table(["step", "config", "object", "pose", "P", "occluded", "next"],
+                              [(s["step"], fmt_cfg(s["config"]), s["object"], s["pose"], f"{s['probability']:.3f}",
+                                " ".join(f"{100 * x:.0f}%" for x in s["occluded"]) or "-",
+                                "stop" if s["stop"] else fmt_cfg(s["next"])) for s in doc["steps"]]))
+    r = doc["result"]
+    lines.append(f"result: object {r['object']}, pose {r['pose']} with P = {r['probability']:.3f} after "
+                 f"{r['steps']} step(s) -- {'correct' if r['correct'] else 'WRONG'}")
+    if r["travel_s"] == r["travel_s"]:
+        lines.append(f"travel: {r['travel_s']:.2f} s of rig motion (motion cost {doc['motion_cost']:g} per s)")
+    return "\n".join(lines + [f"wrote {p}" for p in doc["written"]])
+
+
+def run(args) -> int:
+    return run_reporting(args, _report)

@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import argparse
+import sys
 
 from ..augment import AugmentParams
 from ..calibration import calibrate_model
 from ..database import load_database
+from ..eigenspace import ComponentsError
 from ..kernels import likelihood_class
 from ..modelfile import check_writable, save_model
 from .._progress import bar
@@ -29,6 +31,9 @@ DESCRIPTION = ("Train the eigenspace + likelihood sensor model of an image datab
                "view-mixture and view-mixture-lowrank (--rank; one component per rendered view near each\n"
                "training view: needs --view-jitter and a database with 'jitter' rows).")
 
+#: K when ``--components`` is not given (or less: the database's smallest eigenspace rank)
+DEFAULT_COMPONENTS = 20
+
 #: ``--covariance`` (the older option) -> the ``--likelihood`` it stands for
 _COVARIANCE = {"diag": "gaussian-diag", "full": "gaussian-full"}
 
@@ -39,8 +44,10 @@ def add_arguments(p) -> None:
     p.add_argument("--recipe", choices=tuple(RECIPES), default=DEFAULT_RECIPE,
                    help=f"training and stop-rule recipe (default {DEFAULT_RECIPE}; 'thesis' = the thesis's protocol)")
     p.add_argument("--kind", choices=("DB1", "DB2"), default="DB2", help="augmentation kind")
-    p.add_argument("--components", type=float, default=20,
-                   help="eigenvectors K per position (integer), or the energy fraction to keep (0..1)")
+    p.add_argument("--components", type=float, default=None,
+                   help=f"eigenvectors K per position (an integer), or the energy fraction to keep, in (0, 1] "
+                        f"(default: {DEFAULT_COMPONENTS}, or the database's smallest eigenspace rank where that is "
+                        f"less)")
     p.add_argument("--samples", type=positive, default=100,
                    help="augmented samples per training image and occlusion level")
     likelihood_options(p)
@@ -141,7 +148,8 @@ def resolve_recipe(args, db=None) -> Recipe:
 
 
 def run(args) -> int:
-    comps: int | float = args.components
+    default_k = args.components is None  # the default fits the data; a K the user gives must
+    comps: int | float = DEFAULT_COMPONENTS if default_k else args.components
     if float(comps).is_integer() and comps >= 1:
         comps = int(comps)
     elif not 0 < comps <= 1:
@@ -159,12 +167,21 @@ def run(args) -> int:
     except (ValueError, argparse.ArgumentTypeError) as e:
         raise UsageError(f"capture augmentation: {e}") from None
     with bar(sum(db.positions), f"train {args.kind}", "pos") as b:
-        model, info = train_model(db, kind=args.kind, n_components=comps, samples_per_image=args.samples,
-                                  likelihood=recipe.likelihood, likelihood_options=recipe.options, seed=args.seed,
-                                  progress=b.set, augment=augment, view_jitter=bool(recipe.view_jitter),
-                                  interpolate=recipe.interpolate, interpolation=recipe.interpolation,
-                                  return_info=True)
+        try:
+            model, info = train_model(db, kind=args.kind, n_components=comps, samples_per_image=args.samples,
+                                      likelihood=recipe.likelihood, likelihood_options=recipe.options,
+                                      seed=args.seed, progress=b.set, augment=augment,
+                                      view_jitter=bool(recipe.view_jitter), interpolate=recipe.interpolate,
+                                      interpolation=recipe.interpolation, components_at_most=default_k,
+                                      return_info=True)
+        except ComponentsError as e:
+            raise UsageError(f"--components {e.k}: the database's smallest eigenspace rank is {e.min_rank} (at "
+                             f"most one less than its training images per position): give at most {e.min_rank}, "
+                             f"or leave --components out to fit the data") from None
     params = dict(info.params)
+    if default_k and params["K"] < comps:
+        print(f"jaxrecog: K = {params['K']} components, the database's smallest eigenspace rank (the default "
+              f"--components {comps} is more than the data holds)", file=sys.stderr)
     calibration = None
     if recipe.calibrate:
         model, cal = calibrate_model(model, db)
