@@ -68,7 +68,7 @@ from jaxtyping import ArrayLike, Bool, Int, PRNGKeyArray, Shaped
 from .hardware.motion import path_travel_s
 from .hardware.rig import Capture, Rig
 from .hardware.rig_pool import CaptureJob, RigPool, SceneSpec, as_rig_pool
-from .recognizer import Decision, Recognizer, RecognizerState
+from .recognizer import Decision, Recognizer, RecognizerState, _Static
 from .results import TrialResult
 
 __all__ = ["TrialSpec", "StepRecord", "run_trials", "batched_step", "trial_mesh", "TRIALS_AXIS"]
@@ -130,27 +130,6 @@ def _map_slots(recognizer: Recognizer, states, fresh, configs, images, key, tria
     if vectorize:
         return jax.vmap(lambda *a: one(a))(*xs)
     return jax.lax.map(one, xs)
-
-
-class _Static:
-    """The recognizer's non-array part as a static jit argument: hashed and
-    compared by its tree structure and leaves (a leaf is equal to itself even
-    where ``==`` says otherwise, e.g. a NaN setting), so an equal recognizer
-    built afresh finds the compiled step."""
-
-    def __init__(self, tree):
-        self.tree = tree
-        self._leaves, self._treedef = jax.tree.flatten(tree)
-        self._hash = hash((self._treedef, tuple(self._leaves)))
-
-    def __hash__(self) -> int:
-        return self._hash
-
-    def __eq__(self, other) -> bool:
-        if not isinstance(other, _Static):
-            return NotImplemented
-        return (self._treedef == other._treedef and len(self._leaves) == len(other._leaves)
-                and all(a is b or bool(a == b) for a, b in zip(self._leaves, other._leaves)))
 
 
 @functools.partial(jax.jit, static_argnames=("static", "vectorize", "trace", "mesh"))

@@ -156,6 +156,11 @@ def test_uniform_levels_equal_belief_path_with_uniform_rows(rng, x64):
         np.testing.assert_allclose(PMI(t, b, target, levels="uniform"), PMI(t, uni, target), rtol=1e-12, atol=1e-12)
 
 
+def _uniform_class(b):
+    """``b`` with the uniform class prior (the level rows kept)."""
+    return K.Belief(jnp.full_like(b.log_pc, -np.log(b.log_pc.shape[0])), b.log_pk)
+
+
 def _transition_beliefs(rng, n_c, levels, positions):
     """Predicted priors of the recognizer's form (transition_per_position, both
     kinds, several current positions) from random posteriors."""
@@ -179,6 +184,9 @@ def test_fast_path_equals_general_path(rng, x64, levels, positions, dims, target
     mus, vars = random_model(rng, 3, levels, positions, dims, spread=1.5)
     t = PT(as_jax(mus), as_jax(vars), kind="bhattacharyya")
     cases = _transition_beliefs(rng, 3, levels, positions)
+    # the same priors under the uniform class prior (the tempered planner's
+    # tau = 0): the uniform-class path, offline values off the current positions
+    cases += [(f"{kind}, uniform class", current, _uniform_class(b)) for kind, current, b in cases]
     rows = [np.stack([random_belief(rng, 3, levels).log_pk[i] for _ in range(v)]) for i, v in enumerate(positions)]
     general = K.Belief(jnp.asarray(random_belief(rng, 3, levels).log_pc), as_jax(rows))
     cases.append(("general", None, general))
@@ -191,8 +199,12 @@ def test_fast_path_equals_general_path(rng, x64, levels, positions, dims, target
         fast = np.asarray(PMI(t, b, target, fast=True))
         slow = np.asarray(PMI(t, b, target, fast=False))
         np.testing.assert_allclose(fast, slow, rtol=1e-12, atol=1e-12, err_msg=f"{kind} {current}")
-    # one transition belief and the general one against enumeration
-    for _, _, b in (cases[1], cases[-1]):
+        if "uniform class" in kind:  # the offline values are read exactly where no camera is at its current position
+            shifted = t._replace(u_state=t.u_state + 1.0, u_class=t.u_class + 1.0)
+            off = np.array([all(v != c for v, c in zip(cfg, current)) for cfg in np.ndindex(*positions)])
+            np.testing.assert_allclose(np.asarray(PMI(shifted, b, target)) - fast, off.astype(float), atol=1e-12)
+    # one transition belief, its uniform-class form and the general one against enumeration
+    for _, _, b in (cases[1], cases[7], cases[-1]):
         mi = np.asarray(PMI(t, b, target))
         for a, cfg in enumerate(np.ndindex(*positions)):
             single = K.Belief(b.log_pc, tuple(r[v] for r, v in zip(b.log_pk, cfg)))
@@ -212,7 +224,8 @@ def test_fast_path_float32_thesis_like(rng):
         vars = tuple((v * 0.1).astype(np.float32) for v in vars)
         for kind in K.DIVERGENCES:
             t = PT(as_jax(mus), as_jax(vars), kind=kind)
-            for _, _, b in _transition_beliefs(rng, 8, levels, positions):
+            beliefs = [b for _, _, b in _transition_beliefs(rng, 8, levels, positions)]
+            for b in beliefs + [_uniform_class(b) for b in beliefs[:3]]:
                 b = K.Belief(b.log_pc.astype(jnp.float32), tuple(x.astype(jnp.float32) for x in b.log_pk))
                 for target in ("state", "class"):
                     fast = np.asarray(PMI(t, b, target, fast=True))
