@@ -55,7 +55,7 @@ class RecognizerState(NamedTuple):
         visited_positions: per camera ``[V_i]``, the positions that camera
             already took an image from (read only with
             ``Recognizer.exclude_visited_positions``).
-        explained: image sets so far whose every capture the model explained
+        explained: image sets so far with some capture the model explained
             (:mod:`jaxrecog.kernels.adaptive_scale`; counted toward
             ``min_views`` only with ``Recognizer.adaptive_scale > 1``).
     """
