@@ -388,8 +388,9 @@ def add_objects(
     cameras = []
     for i, cam in enumerate(model.cameras):
         liks = []
+        eigen = [np.asarray(x, np.float64) for x in (cam.mean_image, cam.basis, cam.eigenvalues)]
         for v in range(cam.n_positions):
-            mean, basis, lam = (np.asarray(x[v], np.float64) for x in (cam.mean_image, cam.basis, cam.eigenvalues))
+            mean, basis, lam = (x[v] for x in eigen)
             images, labels = new_train[i][v], None
             if jitter is not None and (i, v) in jitter:
                 extra, extra_cls = jitter[i, v]
