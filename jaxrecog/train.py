@@ -33,6 +33,7 @@ levels.
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import os
 import time
 from typing import Callable
@@ -43,13 +44,15 @@ import numpy as np
 
 from .augment import (AugmentParams, SamplePlan, ShiftWindows, apply_geometry, capture_rng, draw_plan, levels_for,
                       occluder_bank, plan_rng)
+from .counts import CountsMismatchError, check_counts
 from .database import ImageDatabase, load_database
 from .view_interpolation import INTERPOLATIONS, interpolated_views, view_neighbours
 from .eigenspace import choose_n_components, position_eigenspace
 from .kernels import Likelihood, likelihood_class
 from .sensor_model import CameraModel, GaussianAccumulator, SensorModel
 
-__all__ = ["train_model", "TrainingInfo"]
+__all__ = ["train_model", "TrainingInfo", "add_objects", "AddObjectsError", "added_calibration_features",
+           "train_image_fingerprints"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -250,6 +253,7 @@ def train_model(
             "n_objects": db.n_objects,
             "n_poses": db.n_poses,
             "image_shape": [H, W],
+            "train_image_sha256": train_image_fingerprints(db),
             **({} if neighbours is None else {"interpolate": {
                 "points_per_side": n_interp,
                 "interpolation": interpolation,
@@ -266,6 +270,204 @@ def train_model(
         seconds=time.perf_counter() - t0,
     )
     return model, info
+
+
+#: hex digits kept of each training image's sha256 (:func:`train_image_fingerprints`)
+_FINGERPRINT_HEX = 16
+
+
+def train_image_fingerprints(db: ImageDatabase) -> list[list[str]]:
+    """Per object of ``db``, the sha256 (first 16 hex digits) of each of its
+    ``train`` images, in manifest order: what the model file records
+    (``training["train_image_sha256"]``) so that :func:`add_objects` can tell
+    an object the model already has (identical training images)."""
+    rows = db.rows("train")
+    out: list[list[str]] = [[] for _ in range(db.n_objects)]
+    for r in rows:
+        out[int(db.object[r])].append(hashlib.sha256(np.ascontiguousarray(db.images[r]).tobytes())
+                                      .hexdigest()[:_FINGERPRINT_HEX])
+    return out
+
+
+class AddObjectsError(ValueError):
+    """A database whose objects cannot be added to a model (one line naming why)."""
+
+
+def add_objects(
+    model: SensorModel,
+    database: ImageDatabase | str | os.PathLike,
+    training: dict,
+    *,
+    progress: Callable[[int, int], None] | None = None,
+    batch_size: int = 256,
+    return_info: bool = False,
+) -> SensorModel | tuple[SensorModel, TrainingInfo]:
+    """Add the objects of ``database`` to a trained ``model`` without
+    retraining its classes (``jaxrecog train --add NEW_DB --to MODEL``).
+
+    The model's eigenspaces stay as they are: the new objects' augmented
+    images are projected into each position's existing eigenspace (its
+    basis was built from the old objects' training images only), and only the
+    new classes' likelihood components are fitted, exactly as
+    :func:`train_model` fits a class (same augmentation, samples, seed,
+    likelihood family and options, variance floor, view jitter, and
+    interpolated views toward the neighbouring positions the model recorded),
+    all read from ``training`` (the model file's ``training`` metadata).
+    The old classes' arrays are copied bit for bit; a family's parameters
+    shared by all classes (the Student-t's ``nu``) stay the model's.  A
+    calibrated model's variance factors are applied to the new classes too, so
+    the result is calibrated as the model was; recalibrating on the new
+    objects' ``calib`` views is the caller's choice
+    (:func:`~jaxrecog.calibration.calibrate_model`, as ``train --add`` does).
+
+    Object ``m`` of ``database`` becomes object ``M_old + m`` of the result
+    (classes ``(M_old + m) * n_poses + pose``).
+
+    Raises:
+        AddObjectsError: one line: another number of cameras, other positions,
+            poses or image size than the model; an object whose training image
+            is identical to one of the model's (the model file records the
+            sha256 of every training image, ``train_image_fingerprints``;
+            a model written before that records none and is not checked); a
+            model whose metadata lacks the training parameters; a view-jitter
+            model and a database without ``jitter`` rows (or with another
+            number of them per view).
+    """
+    t0 = time.perf_counter()
+    db = database if isinstance(database, ImageDatabase) else load_database(database)
+    where = f"database {db._where()}"
+    train = training.get("params") if isinstance(training.get("params"), dict) else training
+    need = ("kind", "K", "samples_per_image", "seed", "var_floor", "augment", "likelihood")
+    lacking = [k for k in need if k not in train]
+    if lacking:
+        raise AddObjectsError(f"the model's metadata records no training parameter {lacking[0]!r}: objects cannot be "
+                              f"added to it the way it was trained (retrain it with jaxrecog train)")
+    if db.n_cameras != model.n_cameras:
+        raise AddObjectsError(f"{where} has {db.n_cameras} camera(s), the model {model.n_cameras}: "
+                              f"new objects need the model's cameras")
+    try:
+        check_counts(model, db, other_name=where, only=("positions", "poses", "image"))
+    except CountsMismatchError as e:
+        raise AddObjectsError(f"{e} (new objects need the model's cameras, positions, poses and image size)") from None
+    known = {h: m for m, hs in enumerate(train.get("train_image_sha256") or ()) for h in hs}
+    if known:
+        for r in db.rows("train"):
+            h = hashlib.sha256(np.ascontiguousarray(db.images[r]).tobytes()).hexdigest()[:_FINGERPRINT_HEX]
+            if h in known:
+                raise AddObjectsError(
+                    f"object {db.object[r]} of {where} is already in the model: its train image {db.paths[r]} "
+                    f"(camera {db.camera[r]} position {db.position[r]} pose {db.pose[r]}) is identical to a "
+                    f"training image of the model's object {known[h]}")
+
+    family = type(model.cameras[0].likelihood)
+    options = family.with_defaults(**dict(train.get("likelihood_options") or {}))
+    holdout = float(family.holdout_fraction(**options))
+    kind, K, seed = str(train["kind"]), int(train["K"]), int(train["seed"])
+    levels = levels_for(kind)
+    if tuple(float(x) for x in levels) != tuple(model.levels) or K != model.n_components:
+        raise AddObjectsError(f"the model's metadata (kind {kind}, K {K}) does not match its arrays "
+                              f"(levels {model.levels}, K {model.n_components})")
+    aug = {k: tuple(x) if isinstance(x, list) else x for k, x in dict(train["augment"]).items()}
+    params = dataclasses.replace(AugmentParams(**aug), samples_per_image=int(train["samples_per_image"]))
+    H, W = db.image_shape
+    C_old, C = model.n_classes, db.n_classes
+    ip = train.get("interpolate") or {}
+    n_interp = int(ip.get("points_per_side", 0))
+    try:
+        jitter = _jitter_images(db) if train.get("view_jitter") else None
+    except ValueError as e:
+        raise AddObjectsError(f"{where}: the model was trained with view jitter; {e}") from None
+    new_train = [db.train_images(i) for i in range(db.n_cameras)]        # [V, C, H, W] each
+    if n_interp:
+        neighbours = [[tuple(int(x) for x in pair) for pair in cam] for cam in ip["neighbours"]]
+        jitter = _merge_views(jitter, {(i, v): x for i in range(db.n_cameras) for v, x in enumerate(
+            interpolated_views(new_train[i], neighbours[i], n_interp, str(ip.get("interpolation", "linear"))))})
+    if family.view_components:
+        missing = [(i, v) for i in range(db.n_cameras) for v in range(db.positions[i]) if (i, v) not in jitter]
+        if missing:
+            raise AddObjectsError(f"{where}: (camera, position) {missing[0]} and {len(missing) - 1} more have no "
+                                  f"jitter images; the model's mixture needs them at every view")
+    bank = occluder_bank(levels, (H, W), params, seed)
+    # the floor of train_model, var_floor * sum(λ) / (K * C), with the model's own C
+    var_floor = float(train["var_floor"]) * C / C_old
+    total, done = sum(model.positions), 0
+    cameras = []
+    for i, cam in enumerate(model.cameras):
+        liks = []
+        eigen = [np.asarray(x, np.float64) for x in (cam.mean_image, cam.basis, cam.eigenvalues)]
+        for v in range(cam.n_positions):
+            mean, basis, lam = (x[v] for x in eigen)
+            images, labels = new_train[i][v], None
+            if jitter is not None and (i, v) in jitter:
+                extra, extra_cls = jitter[i, v]
+                images = np.concatenate([images, extra])
+                labels = np.concatenate([np.arange(C), extra_cls])
+            try:
+                liks.append(_fit_position(
+                    images, mean, basis, lam, levels, params, bank, seed, i, v, labels=labels, n_classes=C,
+                    family=family, var_floor=var_floor, batch_size=batch_size, options=options, holdout=holdout))
+            except ValueError as e:
+                raise AddObjectsError(f"{where}: {e}") from None
+            done += 1
+            if progress is not None:
+                progress(done, total)
+        new = _stack_likelihoods(liks)
+        if cam.calibration is not None:   # the new classes on the old ones' footing
+            new = jax.vmap(lambda lik, s: lik.scaled(s))(new, jnp.asarray(cam.calibration, new.dtype))
+        cameras.append(dataclasses.replace(cam, likelihood=_append_classes(cam.likelihood, new, where)))
+    out = SensorModel(cameras=tuple(cameras), n_objects=model.n_objects + db.n_objects, n_poses=model.n_poses,
+                      levels=model.levels, image_shape=model.image_shape)
+    if not return_info:
+        return out
+    seconds = time.perf_counter() - t0
+    fingerprints = train.get("train_image_sha256")
+    info = TrainingInfo(
+        params={**train, "n_objects": out.n_objects,
+                **({} if fingerprints is None else {"train_image_sha256": [*fingerprints,
+                                                                           *train_image_fingerprints(db)]}),
+                "added": [*train.get("added", []), {
+                    "objects": [model.n_objects, out.n_objects - 1], "manifest_sha256": db.manifest_sha256,
+                    "seconds": seconds}]},
+        manifest_sha256=db.manifest_sha256,
+        seconds=seconds,
+    )
+    return out, info
+
+
+def added_calibration_features(model: SensorModel, database: ImageDatabase, split: str = "calib"):
+    """The ``split`` views of the objects :func:`add_objects` added from
+    ``database`` (the model's last ``database.n_objects`` objects), projected
+    with ``model`` and labelled with their classes in the model:
+    :class:`~jaxrecog.calibration.CalibrationFeatures` for
+    :func:`~jaxrecog.calibration.calibrate_model`."""
+    from .calibration import CalibrationFeatures, features_from_database
+
+    first = model.n_objects - database.n_objects
+    if first < 0:
+        raise AddObjectsError(f"the model has {model.n_objects} objects, fewer than the database's {database.n_objects}")
+    view = SensorModel(model.cameras, database.n_objects, model.n_poses, model.levels, model.image_shape)
+    feats = features_from_database(view, database, split)
+    return CalibrationFeatures(tuple(f._replace(cls=f.cls + first * model.n_poses) for f in feats.cameras))
+
+
+def _append_classes(old: Likelihood, new: Likelihood, where: str) -> Likelihood:
+    """``old`` with the classes of ``new`` after its own: every field with a
+    class axis ``C`` concatenated along it (``old``'s values bit for bit), every
+    field without one (shared by the classes) ``old``'s."""
+    arrays = {}
+    for f, spec in type(old).field_shapes.items():
+        a = np.asarray(getattr(old, f))
+        if "C" not in spec.split():
+            arrays[f] = a
+            continue
+        b = np.asarray(getattr(new, f), a.dtype)
+        ax = spec.split().index("C")
+        if a.shape[:ax] + a.shape[ax + 1:] != b.shape[:ax] + b.shape[ax + 1:]:
+            raise AddObjectsError(f"{where}: the new classes' {f} has shape {b.shape[:ax] + b.shape[ax + 1:]} "
+                                  f"without the class axis, the model's {a.shape[:ax] + a.shape[ax + 1:]} (another "
+                                  f"number of view-jitter images per view than the model was trained with?)")
+        arrays[f] = np.concatenate([a, b], axis=ax)
+    return type(old).from_arrays({f: jnp.asarray(x) for f, x in arrays.items()})
 
 
 def _jitter_images(db: ImageDatabase) -> dict[tuple[int, int], tuple[np.ndarray, np.ndarray]]:

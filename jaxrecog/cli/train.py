@@ -10,10 +10,10 @@ from ..calibration import calibrate_model
 from ..database import load_database
 from ..eigenspace import ComponentsError
 from ..kernels import likelihood_class
-from ..modelfile import check_writable, save_model
+from ..modelfile import check_writable, load_model, load_model_meta, save_model
 from .._progress import bar
-from ..recipes import AUTO, DEFAULT_RECIPE, RECIPES, Recipe, get_recipe
-from ..train import train_model
+from ..recipes import AUTO, DEFAULT_RECIPE, RECIPES, Recipe, get_recipe, recipe_from_meta
+from ..train import add_objects, added_calibration_features, train_model
 from ._common import UsageError
 from ._options import (PLANNERS, adaptive_scale, capture_options, capture_params, default_likelihood, given_likelihood_options,
                        likelihood_choice, likelihood_options, nonneg, positive, probability)
@@ -29,7 +29,14 @@ DESCRIPTION = ("Train the eigenspace + likelihood sensor model of an image datab
                "Likelihoods: gaussian-diag (the thesis), gaussian-full, gaussian-lowrank (--rank),\n"
                "student-t (--nu; heavy tails, so one unmodelled deviation cannot drive a belief to 1),\n"
                "view-mixture and view-mixture-lowrank (--rank; one component per rendered view near each\n"
-               "training view: needs --view-jitter and a database with 'jitter' rows).")
+               "training view: needs --view-jitter and a database with 'jitter' rows).\n"
+               "--add NEW_DB --to MODEL adds the objects of NEW_DB to a trained model without retraining\n"
+               "its classes: the model's eigenspaces stay, only the new classes are fitted, by the model's\n"
+               "own training settings and recipe (no other training option applies), then the model is\n"
+               "recalibrated on NEW_DB's 'calib' split if it was calibrated (--no-calibrate: keep its\n"
+               "factors).  NEW_DB needs the model's cameras, positions, poses and image size; its object m\n"
+               "becomes object M_old + m of the result (M_old = the model's objects).  An object whose\n"
+               "training image is identical to one of the model's is already in it: an error.")
 
 #: K when ``--components`` is not given (or less: the database's smallest eigenspace rank)
 DEFAULT_COMPONENTS = 20
@@ -39,8 +46,14 @@ _COVARIANCE = {"diag": "gaussian-diag", "full": "gaussian-full"}
 
 
 def add_arguments(p) -> None:
-    p.add_argument("database", metavar="DATABASE", help="image database folder (with manifest.csv)")
+    p.add_argument("database", metavar="DATABASE", nargs="?", default=None,
+                   help="image database folder (with manifest.csv); not with --add")
     p.add_argument("--out", required=True, metavar="MODEL.NPZ", help="model file to write")
+    p.add_argument("--add", default=None, metavar="NEW_DB",
+                   help="add the objects of this image database to the model --to (its object m becomes object "
+                        "M_old + m); the model's training settings are used")
+    p.add_argument("--to", default=None, metavar="MODEL.NPZ",
+                   help="with --add: the trained model to add to (read only; --out may name it to replace it)")
     p.add_argument("--recipe", choices=tuple(RECIPES), default=DEFAULT_RECIPE,
                    help=f"training and stop-rule recipe (default {DEFAULT_RECIPE}; 'thesis' = the thesis's protocol)")
     p.add_argument("--kind", choices=("DB1", "DB2"), default="DB2", help="augmentation kind")
@@ -148,6 +161,8 @@ def resolve_recipe(args, db=None) -> Recipe:
 
 
 def run(args) -> int:
+    if args.add is not None or args.to is not None or args.database is None:
+        return _run_add(args)
     default_k = args.components is None  # the default fits the data; a K the user gives must
     comps: int | float = DEFAULT_COMPONENTS if default_k else args.components
     if float(comps).is_integer() and comps >= 1:
@@ -192,6 +207,68 @@ def run(args) -> int:
                       calibration=calibration, recipe=recipe.to_dict())
     print(f"trained {args.kind} (K={params['K']}, recipe {recipe.name}) in {info.seconds:.1f} s -> {path}")
     print(model.summary())
+    return 0
+
+
+#: the options ``--add`` honours besides its own (every other training option is the model's)
+_ADD_OPTIONS = ("database", "out", "add", "to", "calibrate")
+
+
+def _given_options(args) -> list[str]:
+    """The options of ``args`` that differ from the parser's defaults, as ``--name``
+    (a TOML ``[train]`` table's settings count as given)."""
+    p = argparse.ArgumentParser(add_help=False)
+    add_arguments(p)
+    defaults = vars(p.parse_args(["--out", "-"]))
+    return [f"--{k.replace('_', '-')}" for k, v in vars(args).items()
+            if k in defaults and k not in _ADD_OPTIONS and v != defaults[k]]
+
+
+def _run_add(args) -> int:
+    """``train --add NEW_DB --to MODEL --out OUT`` (:func:`jaxrecog.train.add_objects`)."""
+    if args.add is None or args.to is None:
+        if args.add is None and args.to is None:
+            raise UsageError("give the image database to train on (DATABASE), or --add NEW_DB --to MODEL")
+        if args.add is None and args.database is not None:
+            raise UsageError("--to MODEL goes with --add NEW_DB (not with DATABASE)")
+        raise UsageError("--add NEW_DB and --to MODEL go together")
+    if args.database is not None:
+        raise UsageError(f"DATABASE {args.database} and --add {args.add}: give one (--add NEW_DB --to MODEL adds "
+                         f"NEW_DB's objects to MODEL)")
+    given = _given_options(args)
+    if given:
+        raise UsageError(f"{given[0]} does not apply with --add: the new objects are trained with the model's own "
+                         f"settings and recipe (only --calibrate / --no-calibrate may be given)")
+    check_writable(args.out)
+    meta = load_model_meta(args.to)
+    model = load_model(args.to)
+    db = load_database(args.add)
+    recipe = recipe_from_meta(meta)
+    has_calib = bool((db.split == "calib").sum())
+    calibrate = bool(meta.get("calibrated")) if args.calibrate is None else args.calibrate
+    if calibrate and not has_calib:
+        if args.calibrate:
+            raise UsageError(f"--calibrate needs a 'calib' split; database {db.root or ''} has none "
+                             f"(add 'calib' rows, or --no-calibrate)")
+        print(f"database {args.add} has no 'calib' split: the new objects take the model's calibration factors, "
+              f"the model is not recalibrated")
+        calibrate = False
+    with bar(sum(model.positions), "add objects", "pos") as b:
+        out, info = add_objects(model, db, meta.get("training") or {}, progress=b.set, return_info=True)
+    params = dict(info.params)
+    calibration = meta.get("calibration") or {}
+    if calibrate:
+        out, cal = calibrate_model(out, added_calibration_features(out, db))
+        params["calibrated"] = True
+        calibration = {**cal.to_dict(), "previous": calibration}
+        print(cal.summary())
+    path = save_model(args.out, out, training=params, manifest_sha256=meta.get("manifest_sha256"),
+                      calibration=calibration, recipe=meta.get("recipe") or recipe.to_dict())
+    first = model.n_objects
+    print(f"added {db.n_objects} object(s) of {args.add} as objects {first}..{out.n_objects - 1} to {args.to} "
+          f"({'recalibrated' if calibrate else 'not recalibrated'}, recipe {recipe.name}) in "
+          f"{info.seconds:.1f} s -> {path}")
+    print(out.summary())
     return 0
 
 

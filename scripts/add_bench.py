@@ -1,0 +1,172 @@
+#!/usr/bin/env python
+"""Adding objects (``train --add``, issue 31) against training at once, on the real turntable photos.
+
+On one grid (default 30°) the script builds three one-camera turntable
+databases from the photos (:func:`jaxrecog.photo_turntable.build_photo_database`:
+training views on the grid, 4 poses 90° apart, ``test`` views halfway between,
+``calib`` views 5° off): ALL (objects 1..OLD+NEW), OLD (objects 1..OLD) and
+NEW (objects OLD+1..OLD+NEW alone).  Then, through the CLI as a user would::
+
+    jaxrecog train ALL --out full.npz --kind DB1 --samples 100 --components 20
+    jaxrecog train OLD --out old.npz  --kind DB1 --samples 100 --components 20
+    jaxrecog train --add NEW --to old.npz --out add.npz [--no-calibrate]
+    jaxrecog experiment --rig dataset:ALL --model M --trials 30
+
+It times each training command two ways, each the median of ``--repeats``
+runs: *cold*, a fresh ``python -m jaxrecog.cli`` process (start-up, imports
+and XLA compilation included), and *warm*, the command run again in this
+process after a first run (what the work itself costs once JAX is up and its
+programs are compiled).
+It prints one markdown table (the docs/results.md one) and writes it with the
+numbers as JSON into ``--out``.  ``--quick`` is the CI form (2 + 1 objects on
+the 40° grid, small models, one trial per object, no cold runs).
+
+Example (the docs/results.md table)::
+
+    python scripts/add_bench.py --out out/add-bench
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import json
+import math
+import shutil
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from jaxrecog.cli import main as cli_main
+from jaxrecog.metrics import campaign_metrics
+from jaxrecog.photo_turntable import PHOTOS, PhotoSet, build_photo_database, scan_photos
+from jaxrecog.results import TrialStore
+
+QUICK = {"grid": 40, "old": 2, "new": 1, "trials": 1, "samples": 10, "components": 4, "repeats": 0}
+
+
+def _cli(*args) -> float:
+    """``jaxrecog --quiet ARGS`` in this process; its wall time in seconds."""
+    argv = ["--quiet", *map(str, args)]
+    out, err = io.StringIO(), io.StringIO()
+    t0 = time.perf_counter()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        rc = cli_main(argv)
+    seconds = time.perf_counter() - t0
+    if rc:
+        raise SystemExit(f"add_bench: command failed ({rc}): jaxrecog {' '.join(argv)}\n{err.getvalue()}")
+    return seconds
+
+
+def _cold(*args) -> float:
+    """``python -m jaxrecog.cli --quiet ARGS`` in a fresh process; its wall time."""
+    t0 = time.perf_counter()
+    subprocess.run([sys.executable, "-m", "jaxrecog.cli", "--quiet", *map(str, args)], check=True,
+                   stdout=subprocess.DEVNULL)
+    return time.perf_counter() - t0
+
+
+def _rate(exp: Path) -> dict:
+    """The model recipe's planner's metrics of an ``experiment --out EXP`` (rate and
+    confident errors in % of trials, each with its standard error)."""
+    report = json.loads((exp / "case_dataset.json").read_text())
+    planner = next(iter(report["tables"]))
+    files = sorted((exp / "work" / "trials").glob(f"dataset-{planner}-*.jsonl"))
+    results = list(TrialStore(files[0]).load().values())
+    m = campaign_metrics(results, report["settings"]["p_threshold"])
+    n = m["trials"]
+    out = {"planner": planner, "trials": n}
+    for k in ("recognition_rate", "confident_error_pct_of_trials"):
+        p = m[k] / 100.0
+        out[k], out[k + "_se"] = m[k], 100.0 * math.sqrt(p * (1 - p) / n)
+    return out
+
+
+def run(out: Path, *, photos: Path, grid: int, old: int, new: int, trials: int, samples: int, components: int,
+        repeats: int) -> list[dict]:
+    ps = scan_photos(photos)
+    if old + new > ps.n_objects:
+        raise SystemExit(f"add_bench: {old} + {new} objects, the photos have {ps.n_objects}")
+    dbs = {"all": out / "db-all", "old": out / "db-old", "new": out / "db-new"}
+    for d in dbs.values():
+        if d.exists():
+            shutil.rmtree(d)
+    build_photo_database(dbs["all"], grid, photos=ps, objects=old + new)
+    build_photo_database(dbs["old"], grid, photos=ps, objects=old)
+    build_photo_database(dbs["new"], grid, photos=PhotoSet(ps.folder, ps.files[old:old + new], ps.step))
+    fit = ("--kind", "DB1", "--samples", samples, "--components", components)
+    commands = {
+        "train at once": ("train", dbs["all"], "--out", out / "full.npz", *fit),
+        f"train objects 1-{old}": ("train", dbs["old"], "--out", out / "old.npz", *fit),
+        "train --add (recalibrates)": ("train", "--add", dbs["new"], "--to", out / "old.npz", "--out", out / "add.npz"),
+        "train --add --no-calibrate": ("train", "--add", dbs["new"], "--to", out / "old.npz", "--out",
+                                       out / "add-nc.npz", "--no-calibrate"),
+    }
+    models = {"train at once": "full.npz", "train --add (recalibrates)": "add.npz",
+              "train --add --no-calibrate": "add-nc.npz"}
+    rows = []
+    for name, cmd in commands.items():
+        cold = statistics.median([_cold(*cmd) for _ in range(repeats)]) if repeats else math.nan
+        _cli(*cmd)                       # the first run in this process compiles
+        warm = statistics.median([_cli(*cmd) for _ in range(repeats)]) if repeats else math.nan
+        row = {"variant": name, "command": "jaxrecog " + " ".join(map(str, cmd)), "cold_s": cold, "warm_s": warm}
+        if name in models:
+            exp = out / f"exp-{Path(models[name]).stem}"
+            if exp.exists():
+                shutil.rmtree(exp)
+            _cli("experiment", "--rig", f"dataset:{dbs['all']}", "--model", out / models[name], "--trials", trials,
+                 "--out", exp)
+            row.update(_rate(exp))
+        rows.append(row)
+        print(_line(row, rows[0]), flush=True)
+    return rows
+
+
+HEADER = ("| command | cold s (share of at once) | warm s (share of at once) | rate % ± SE | confident errors % ± SE |\n"
+          "|---|---:|---:|---:|---:|")
+
+
+def _line(r: dict, full: dict) -> str:
+    def share(k):
+        return f"{r[k]:.2f} ({100 * r[k] / full[k]:.0f} %)" if math.isfinite(r[k]) else "-"
+
+    rate = (f"{r['recognition_rate']:.1f} ± {r['recognition_rate_se']:.1f} | "
+            f"{r['confident_error_pct_of_trials']:.1f} ± {r['confident_error_pct_of_trials_se']:.1f}"
+            if "recognition_rate" in r else "- | -")
+    return f"| {r['variant']} | {share('cold_s')} | {share('warm_s')} | {rate} |"
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--out", type=Path, default=Path("out/add-bench"))
+    ap.add_argument("--photos", type=Path, default=PHOTOS, help="folder of objM__I.png turntable photos")
+    ap.add_argument("--grid", type=int, default=30, help="grid step in degrees")
+    ap.add_argument("--old", type=int, default=8, help="objects of the model added to")
+    ap.add_argument("--new", type=int, default=2, help="objects added")
+    ap.add_argument("--trials", type=int, default=30, help="trials per object")
+    ap.add_argument("--samples", type=int, default=100, help="augmented samples per training image")
+    ap.add_argument("--components", type=int, default=20, help="eigenvectors K")
+    ap.add_argument("--repeats", type=int, default=3, help="cold and warm runs of each training command (median)")
+    ap.add_argument("--quick", action="store_true", help="the CI form: " + ", ".join(f"{k} {v}" for k, v in QUICK.items()))
+    args = ap.parse_args(argv)
+    if args.quick:
+        for k, v in QUICK.items():
+            setattr(args, k, v)
+    args.out.mkdir(parents=True, exist_ok=True)
+    print(HEADER, flush=True)
+    rows = run(args.out, photos=args.photos, grid=args.grid, old=args.old, new=args.new, trials=args.trials,
+               samples=args.samples, components=args.components, repeats=args.repeats)
+    md = "\n".join([HEADER, *(_line(r, rows[0]) for r in rows)])
+    (args.out / "add_bench.md").write_text(md + "\n")
+    (args.out / "add_bench.json").write_text(json.dumps(
+        {"rows": rows, "settings": {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()}},
+        indent=2))
+    print(f"wrote {args.out / 'add_bench.md'}, {args.out / 'add_bench.json'}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
