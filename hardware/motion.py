@@ -34,6 +34,7 @@ from typing import Sequence
 
 import numpy as np
 
+from ..kernels.config_grid import ConfigGrid
 from .positions import CameraTable
 
 __all__ = ["MotionSpeeds", "DEFAULT_PTU_DEG_S", "DEFAULT_LINEAR_M_S", "camera_travel_times",
@@ -128,16 +129,11 @@ def camera_travel_times(table: CameraTable, speeds: MotionSpeeds | None = None,
 def configuration_travel_times(times: Sequence[np.ndarray]) -> np.ndarray:
     """``[A, A]``: seconds from configuration ``a`` (row) to ``b`` (column),
     ``max_i T_i[a_i, b_i]`` (the cameras move in parallel); configurations
-    are flat row-major indices as everywhere (:func:`.rig.index_from_config`)."""
-    positions = tuple(t.shape[0] for t in times)
-    n = len(positions)
-    full = np.zeros(positions + positions)
-    for i, t in enumerate(times):
-        shape = [1] * (2 * n)
-        shape[i], shape[n + i] = positions[i], positions[i]
-        full = np.maximum(full, t.reshape(shape))
-    a = int(np.prod(positions))
-    return full.reshape(a, a)
+    are flat row-major indices as everywhere (:class:`~jaxrecog.kernels.config_grid.ConfigGrid`)."""
+    grid = ConfigGrid(tuple(t.shape[0] for t in times))
+    start = grid.configurations()  # [A, n]: row a's configuration
+    rows = [t[start[:, i]] for i, t in enumerate(times)]  # [A, V_i]: from a's position of camera i
+    return grid.combine(np.maximum, rows, np.zeros((grid.size,) + grid.positions))
 
 
 def path_travel_s(times: Sequence[np.ndarray], configurations: Sequence[Sequence[int]]) -> float:

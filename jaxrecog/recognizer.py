@@ -35,7 +35,7 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Int, PRNGKeyArray, Real
 
 from . import kernels as K
 from .features import project_at
-from .hardware.rig import config_from_index, index_from_config
+from .kernels.config_grid import ConfigGrid
 from .motion import MotionCost
 from .planners import Planner
 
@@ -134,12 +134,8 @@ def excluded_by_positions(seen: Sequence[Bool[Array, " _V"]], positions: tuple[i
     """``[A]``: configurations in which some camera i is at a position of
     ``seen[i]``; a camera that has used all its positions excludes nothing
     (so the product of the cameras' remaining positions is never empty)."""
-    n = len(positions)
-    out = jnp.zeros(positions, bool)
-    for i, s in enumerate(seen):
-        s = s & ~jnp.all(s)
-        out = out | s.reshape((1,) * i + (positions[i],) + (1,) * (n - 1 - i))
-    return out.reshape(-1)
+    lapsed = [s & ~jnp.all(s) for s in seen]
+    return ConfigGrid(positions).combine(jnp.logical_or, lapsed, jnp.zeros(positions, bool))
 
 
 def check_min_views(min_views: int, max_steps: int) -> int:
@@ -242,7 +238,7 @@ class Recognizer(eqx.Module):
                 config = (0,) * len(positions)
             else:
                 a = jr.randint(key, (), 0, self.n_configs)
-                config = jnp.stack(config_from_index(a, positions)).astype(jnp.int32)
+                config = jnp.stack(ConfigGrid(positions).configuration(a)).astype(jnp.int32)
         config = jnp.asarray(config, jnp.int32)
         if config.shape != (len(positions),):
             raise ValueError(f"config must give one position per camera ({len(positions)}), got shape {config.shape}")
@@ -288,7 +284,7 @@ class Recognizer(eqx.Module):
         reached = prob >= self.p_threshold
         stop = (reached & (steps >= self.min_views)) | (steps >= self.max_steps)
 
-        here = index_from_config(state.config, positions)
+        here = ConfigGrid(positions).index(state.config)
         visited = state.visited.at[here].set(True)
         seen = state.visited_positions or tuple(jnp.zeros((v,), bool) for v in positions)
         seen = tuple(s.at[state.config[i]].set(True) for i, s in enumerate(seen))
@@ -321,7 +317,7 @@ class Recognizer(eqx.Module):
             # configurations never used): then revisit, as before
             scores_for_choice = jnp.where(jnp.all(excluded), usable, masked)
         nxt = jnp.argmax(scores_for_choice)
-        next_config = jnp.stack(config_from_index(nxt, positions)).astype(jnp.int32)
+        next_config = jnp.stack(ConfigGrid(positions).configuration(nxt)).astype(jnp.int32)
 
         # the prior for the next images: the predicted prior at the chosen positions
         next_prior = K.Belief(state_predicted.log_pc, tuple(lp[v] for lp, v in zip(state_predicted.log_pk, next_config)))
