@@ -28,7 +28,7 @@ from .datagram import SharedKey
 from .motion import MotionSpeeds
 from .pan_tilt import DEFAULT_PAN_TILT, pan_tilt_driver, ptu_angles
 from .positions import CameraTable, default_table
-from .problems import one_line
+from ..problems import one_line
 
 __all__ = [
     "ConfigError",

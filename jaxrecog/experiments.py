@@ -65,7 +65,7 @@ import jax.random as jr
 from .campaign import TrialSpec, plan_trials, run_campaign
 from .hardware.occluders import OCCLUDER_OFFSET, OCCLUDER_SIZE
 from .kernels import DEFAULT_LIKELIHOOD
-from .hardware.problems import problem_message
+from .problems import problem_message
 from .planners import DEFAULT_MIN_PER_STRATUM, DEFAULT_PLANNER, make_planner, planner_spec
 from .results import ObjectRow, TrialResult, TrialStore, summarize, table_json, table_markdown
 from .thesis import ThesisTable, published
