@@ -7,6 +7,12 @@ thesis's 32 x 7 grid has ``a = 7 * v1 + v2``.  The mapping is written once,
 in :class:`jaxrecog.kernels.config_grid.ConfigGrid`; :func:`index_from_config`
 and :func:`config_from_index` are its functional form for rig code (plain
 integer arithmetic: Python ints, NumPy arrays and traced JAX arrays alike).
+
+This module is the whole interface between the recognition core and the rigs:
+:class:`Rig` and :class:`Capture`, and the pool the trial driver captures
+through (:class:`RigPool`, :class:`CaptureJob`, :class:`SceneSpec`; the pools
+themselves are in :mod:`.rig_pool`).  It is the one hardware module the core
+imports at module level (``docs/architecture.md``, Layers).
 """
 
 from __future__ import annotations
@@ -18,7 +24,8 @@ import numpy as np
 
 from ..kernels.config_grid import ConfigGrid
 
-__all__ = ["Capture", "Rig", "RigError", "SeededCaptures", "config_from_index", "index_from_config"]
+__all__ = ["Capture", "CaptureJob", "Rig", "RigError", "RigPool", "SceneSpec", "SeededCaptures", "config_from_index",
+           "index_from_config"]
 
 
 class RigError(RuntimeError):
@@ -136,3 +143,57 @@ def config_from_index(a, positions: Sequence[int]):
     An ``int`` gives a tuple of ints (``ValueError`` outside ``0 .. A-1``); a
     traced JAX scalar gives a tuple of traced scalars."""
     return ConfigGrid(positions).configuration(a)
+
+
+# ---- rig pools: what the trial driver captures through (implementations: .rig_pool) ----
+
+
+@dataclasses.dataclass(frozen=True)
+class SceneSpec:
+    """What a rig must show before a capture: :meth:`Rig.reset`'s arguments.
+    ``yaw_offset`` None = on the training grid (``reset`` is called without it,
+    as every rig allows)."""
+
+    object: int
+    pose: int
+    occluders: Any = None
+    yaw_offset: float | None = None
+
+
+@dataclasses.dataclass(frozen=True)
+class CaptureJob:
+    """One capture of one rig of the pool.
+
+    Attributes:
+        rig: index of the rig in the pool (``0 <= rig < n_rigs``).
+        scene: set the rig up for this scene first (``reset``), or ``None`` to
+            keep the scene it shows.
+        seed: the rig's ``reseed`` value for this capture.
+        config: the configuration to ``move`` to before capturing.
+    """
+
+    rig: int
+    scene: SceneSpec | None
+    seed: Any
+    config: tuple[int, ...]
+
+
+@runtime_checkable
+class RigPool(Protocol):
+    """``n_rigs`` identical rigs that capture a batch of jobs at once."""
+
+    @property
+    def n_rigs(self) -> int: ...
+
+    @property
+    def positions(self) -> tuple[int, ...]: ...
+
+    @property
+    def image_shape(self) -> tuple[int, int]: ...
+
+    def capture_batch(self, jobs: Sequence[CaptureJob]) -> list[Capture]:
+        """The captures of ``jobs``, in their order; the jobs of one rig run in
+        their order (several slots may share a rig)."""
+        ...
+
+    def close(self) -> None: ...

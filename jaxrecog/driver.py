@@ -65,9 +65,7 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from jaxtyping import ArrayLike, Bool, Int, PRNGKeyArray, Shaped
 
-from .hardware.motion import path_travel_s
-from .hardware.rig import Capture, Rig
-from .hardware.rig_pool import CaptureJob, RigPool, SceneSpec, as_rig_pool
+from .hardware.rig import Capture, CaptureJob, Rig, RigPool, SceneSpec  # the rig interface: all the driver needs
 from .recognizer import Decision, Recognizer, RecognizerState
 from .results import TrialResult
 
@@ -332,6 +330,9 @@ def run_trials(
             steps one half while the host captures the other's images (the
             results are the same; off with one slot or several devices).
     """
+    from .hardware.motion import path_travel_s
+    from .hardware.rig_pool import as_rig_pool
+
     pool = as_rig_pool(rigs)
     positions = tuple(recognizer.positions)
     from .counts import check_counts  # the one model-vs-rig check (positions, image size, ...)
