@@ -228,7 +228,7 @@ def test_importing_the_core_loads_no_device_renderer_or_plotting_library(module)
     code = ("import sys, json; import {m}; "
             "print(json.dumps(sorted(k for k in sys.modules if k.split('.')[0] in {heavy!r} "
             "or k.startswith('jaxrecog.hardware.'))))").format(m=module, heavy=HEAVY)
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT)
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert json.loads(out.stdout.splitlines()[-1]) == ["jaxrecog.hardware.rig"]
 
 
