@@ -30,7 +30,7 @@ _CHILD = r"""
 import resource, sys, time
 from pathlib import Path
 base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-from jaxrecog.hardware.dbformat import DatabaseError, check_rows, parse_manifest, read_folder
+from jaxrecog.dbformat import DatabaseError, check_rows, parse_manifest, read_folder
 case, folder = sys.argv[1], Path(sys.argv[2])
 t0 = time.perf_counter()
 note = ""

@@ -26,9 +26,10 @@ from typing import Any
 from .controller_sim import LinkFaults
 from .datagram import SharedKey
 from .motion import MotionSpeeds
-from .pan_tilt import DEFAULT_PAN_TILT, pan_tilt_driver, ptu_angles
+from .kinematics import DEFAULT_MOUNTS, ptu_angles
+from .pan_tilt import DEFAULT_PAN_TILT, pan_tilt_driver
 from .positions import CameraTable, default_table
-from .problems import one_line
+from ..problems import one_line
 
 __all__ = [
     "ConfigError",
@@ -268,8 +269,8 @@ def default_mounts(n_cameras: int) -> tuple[PTUConfig, ...]:
     """Mounts that keep the default table inside the PTU-D46-17.5 limits (+/-159 deg pan,
     -46.6..+31.1 deg tilt): camera 1 looks along azimuth -22.5 deg, 45 deg down at
     (0, 0); camera 2 along azimuth -90 deg (towards -x), level, pan mirrored."""
-    mounts = (PTUConfig(pan_zero_deg=-22.5, tilt_zero_deg=-45.0), PTUConfig(pan_zero_deg=-90.0, pan_sign=-1))
-    return mounts[:n_cameras]
+    return tuple(PTUConfig(pan_zero_deg=m.pan_zero_deg, tilt_zero_deg=m.tilt_zero_deg, pan_sign=m.pan_sign)
+                 for m in DEFAULT_MOUNTS[:n_cameras])
 
 
 def load_config(path: str | os.PathLike) -> RigConfig:

@@ -12,7 +12,7 @@ from typing import Sequence
 
 import numpy as np
 
-from .dbformat import read_folder
+from ..dbformat import read_folder
 from .rig import Capture, RigError, SeededCaptures
 
 __all__ = ["DatasetRig"]
@@ -22,7 +22,7 @@ class DatasetRig(SeededCaptures):
     """Replay one split of an image database through the ``Rig`` interface.
 
     Args:
-        database: a :class:`~.dbformat.ImageDatabase` (or anything with the
+        database: a :class:`~jaxrecog.dbformat.ImageDatabase` (or anything with the
             same ``images``, ``camera``, ``position``, ``object``, ``pose``,
             ``split`` arrays and ``positions``).
         split: which rows to replay (``"test"`` by default).
@@ -50,7 +50,7 @@ class DatasetRig(SeededCaptures):
 
     @classmethod
     def from_folder(cls, folder, **kwargs) -> "DatasetRig":
-        """Read and validate the folder (:func:`~.dbformat.read_folder`) and replay it."""
+        """Read and validate the folder (:func:`~jaxrecog.dbformat.read_folder`) and replay it."""
         return cls(read_folder(folder), **kwargs)
 
     @property

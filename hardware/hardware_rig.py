@@ -53,7 +53,8 @@ import numpy as np
 
 from .camera import CameraError, CameraLostError, ImageSequenceCamera, VideoCamera
 from .config import CameraConfig, ConfigError, RigConfig, load_config
-from .pan_tilt import PanTilt, PanTiltConnectionError, PanTiltError, open_pan_tilt, ptu_angles
+from .kinematics import line_of_sight, ptu_angles  # re-exported: the angle functions used to live here
+from .pan_tilt import PanTilt, PanTiltConnectionError, PanTiltError, open_pan_tilt
 from .positions import CameraTable
 from .rig import Capture, RigError
 from .udp_link import ControllerLink, LinkError, MoveResult
@@ -97,13 +98,6 @@ class Renderer(Protocol):
     def reset(self, object: int, pose: int, occluders: Any = None) -> None: ...
 
     def render_at(self, camera: int, eye: tuple[float, float, float]) -> tuple[np.ndarray, float]: ...
-
-
-def line_of_sight(pan: float, tilt: float, mount) -> np.ndarray:
-    """Unit vector [3] the camera looks along at PTU (pan, tilt) degrees (inverse of :func:`ptu_angles`)."""
-    az = math.radians(mount.pan_sign * pan + mount.pan_zero_deg)
-    el = math.radians(tilt + mount.tilt_zero_deg)
-    return np.array([math.cos(el) * math.sin(az), math.cos(el) * math.cos(az), math.sin(el)])
 
 
 def _check_config(configuration: Sequence[int], positions: tuple[int, ...]) -> tuple[int, ...]:

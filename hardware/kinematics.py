@@ -27,17 +27,26 @@ Camera 2 (eq. C.34-C.40) has fixed ``x_c2`` and ``z_c2``; with
     y_c2 = y_o + dx tan(theta2),   nu2 = atan(dz / sqrt(dx^2 + dy^2))
 
 Angles are in radians throughout this module (its error messages give them in
-degrees, the unit of rig files).  Positions are in metres.
+degrees, the unit of rig files), except the pan-tilt unit's own angles of
+:func:`ptu_angles` / :func:`line_of_sight`, which are in degrees like the
+rig file's mounts (:class:`Mount`).  Positions are in metres.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
+from typing import Iterable
+
+import numpy as np
 
 __all__ = [
+    "DEFAULT_MOUNTS",
+    "Mount",
     "WorkspaceError",
     "Workspace",
+    "line_of_sight",
+    "ptu_angles",
     "camera1_position",
     "camera1_angles",
     "camera2_position",
@@ -131,3 +140,49 @@ def camera2_angles(ws: Workspace, y: float) -> tuple[float, float]:
     xo, yo, zo = ws.object_xyz
     dx, dy, dz = ws.cam2_x - xo, y - yo, ws.cam2_z - zo
     return math.atan2(dy, dx), math.atan2(dz, math.hypot(dx, dy))
+
+
+# ---- the pan-tilt unit's own angles (degrees) for a line of sight -----------------
+
+
+@dataclasses.dataclass(frozen=True)
+class Mount:
+    """How a pan-tilt unit is mounted (the angle part of a rig file's ``[[ptu]]``
+    entry, :class:`~jaxrecog.hardware.config.PTUConfig`): ``pan_zero_deg`` /
+    ``tilt_zero_deg`` are the azimuth / elevation the camera looks along at
+    PTU position (0, 0), ``pan_sign`` = -1 for a unit whose pan turns the
+    other way.  :func:`ptu_angles` reads only these three attributes, so a
+    ``PTUConfig`` serves as well."""
+
+    pan_zero_deg: float = 0.0
+    tilt_zero_deg: float = 0.0
+    pan_sign: int = 1
+
+
+#: Mounts that keep the default table inside the PTU-D46-17.5 limits (+/-159 deg
+#: pan, -46.6..+31.1 deg tilt): camera 1 looks along azimuth -22.5 deg, 45 deg
+#: down at (0, 0); camera 2 along azimuth -90 deg (towards -x), level, pan mirrored.
+DEFAULT_MOUNTS = (Mount(pan_zero_deg=-22.5, tilt_zero_deg=-45.0), Mount(pan_zero_deg=-90.0, pan_sign=-1))
+
+
+def _wrap_deg(a: float) -> float:
+    return (a + 180.0) % 360.0 - 180.0
+
+
+def ptu_angles(eye: Iterable[float], target: Iterable[float], mount) -> tuple[float, float]:
+    """PTU (pan, tilt) in degrees that point a camera at ``eye`` towards ``target``.
+
+    ``pan = pan_sign * wrap(az - pan_zero)``, ``tilt = el - tilt_zero`` with
+    ``az = atan2(dx, dy)``, ``el = atan2(dz, hypot(dx, dy))``, ``d = target - eye``
+    (``mount``: a :class:`Mount` or anything with its three attributes)."""
+    dx, dy, dz = (float(t) - float(e) for t, e in zip(target, eye))
+    az = math.degrees(math.atan2(dx, dy))
+    el = math.degrees(math.atan2(dz, math.hypot(dx, dy)))
+    return mount.pan_sign * _wrap_deg(az - mount.pan_zero_deg), el - mount.tilt_zero_deg
+
+
+def line_of_sight(pan: float, tilt: float, mount) -> np.ndarray:
+    """Unit vector [3] the camera looks along at PTU (pan, tilt) degrees (inverse of :func:`ptu_angles`)."""
+    az = math.radians(mount.pan_sign * pan + mount.pan_zero_deg)
+    el = math.radians(tilt + mount.tilt_zero_deg)
+    return np.array([math.cos(el) * math.sin(az), math.cos(el) * math.cos(az), math.sin(el)])

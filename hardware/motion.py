@@ -12,7 +12,7 @@ position in the table (appendix-C kinematics, :mod:`.kinematics`): camera 1's
 gantry moves x and y (two motors, thesis §6.1; z is fixed), camera 2's track
 moves y only (x and z are fixed, §6.2), so the unused axes contribute 0.
 ``pan_ptu, tilt_ptu`` are the pan-tilt unit's own angles for the line of
-sight from that eye to the object (:func:`.hardware_rig.ptu_angles` with the
+sight from that eye to the object (:func:`.kinematics.ptu_angles` with the
 unit's mount): the PTU-D46's pan range is +/-159 deg, so it cannot take the
 short way across +/-180 deg and the difference is taken without wrapping.
 
@@ -34,6 +34,8 @@ from typing import Sequence
 
 import numpy as np
 
+from ..kernels.config_grid import ConfigGrid
+from .kinematics import DEFAULT_MOUNTS, ptu_angles
 from .positions import CameraTable
 
 __all__ = ["MotionSpeeds", "DEFAULT_PTU_DEG_S", "DEFAULT_LINEAR_M_S", "camera_travel_times",
@@ -106,12 +108,10 @@ def camera_travel_times(table: CameraTable, speeds: MotionSpeeds | None = None,
     (row) to ``w`` (column) (module doc); the diagonal is 0.
 
     ``mounts``: one PTU mount per camera (``pan_zero_deg``, ``tilt_zero_deg``,
-    ``pan_sign``; default :func:`~.config.default_mounts`)."""
-    from .config import default_mounts
-    from .hardware_rig import ptu_angles
-
+    ``pan_sign``; default :data:`~.kinematics.DEFAULT_MOUNTS`, the angles of
+    :func:`~.config.default_mounts`)."""
     speeds = speeds or MotionSpeeds()
-    mounts = tuple(mounts) if mounts is not None else default_mounts(table.n_cameras)
+    mounts = tuple(mounts) if mounts is not None else DEFAULT_MOUNTS[:table.n_cameras]
     if len(mounts) != table.n_cameras:
         raise ValueError(f"{len(mounts)} PTU mounts for {table.n_cameras} cameras")
     target = table.workspace.object_xyz
@@ -128,16 +128,11 @@ def camera_travel_times(table: CameraTable, speeds: MotionSpeeds | None = None,
 def configuration_travel_times(times: Sequence[np.ndarray]) -> np.ndarray:
     """``[A, A]``: seconds from configuration ``a`` (row) to ``b`` (column),
     ``max_i T_i[a_i, b_i]`` (the cameras move in parallel); configurations
-    are flat row-major indices as everywhere (:func:`.rig.index_from_config`)."""
-    positions = tuple(t.shape[0] for t in times)
-    n = len(positions)
-    full = np.zeros(positions + positions)
-    for i, t in enumerate(times):
-        shape = [1] * (2 * n)
-        shape[i], shape[n + i] = positions[i], positions[i]
-        full = np.maximum(full, t.reshape(shape))
-    a = int(np.prod(positions))
-    return full.reshape(a, a)
+    are flat row-major indices as everywhere (:class:`~jaxrecog.kernels.config_grid.ConfigGrid`)."""
+    grid = ConfigGrid(tuple(t.shape[0] for t in times))
+    start = grid.configurations()  # [A, n]: row a's configuration
+    rows = [t[start[:, i]] for i, t in enumerate(times)]  # [A, V_i]: from a's position of camera i
+    return grid.combine(np.maximum, rows, np.zeros((grid.size,) + grid.positions))
 
 
 def path_travel_s(times: Sequence[np.ndarray], configurations: Sequence[Sequence[int]]) -> float:

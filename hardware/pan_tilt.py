@@ -36,8 +36,7 @@ from __future__ import annotations
 
 import importlib
 import importlib.metadata
-import math
-from typing import TYPE_CHECKING, Iterable, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
 if TYPE_CHECKING:
     from .config import PTUConfig
@@ -48,7 +47,6 @@ __all__ = [
     "PanTiltConnectionError",
     "DEFAULT_PAN_TILT",
     "ENTRY_POINT_GROUP",
-    "ptu_angles",
     "register_pan_tilt",
     "pan_tilt_driver",
     "pan_tilt_drivers",
@@ -174,18 +172,3 @@ def pan_tilt_driver(name: str) -> type:
 def open_pan_tilt(config: "PTUConfig", port: str | None = None) -> PanTilt:
     """Build the unit of one ``[[ptu]]`` entry with the driver its ``driver`` key names."""
     return pan_tilt_driver(config.driver).from_config(config, port)
-
-
-def _wrap_deg(a: float) -> float:
-    return (a + 180.0) % 360.0 - 180.0
-
-
-def ptu_angles(eye: Iterable[float], target: Iterable[float], mount) -> tuple[float, float]:
-    """PTU (pan, tilt) in degrees that point a camera at ``eye`` towards ``target``.
-
-    ``pan = pan_sign * wrap(az - pan_zero)``, ``tilt = el - tilt_zero`` with
-    ``az = atan2(dx, dy)``, ``el = atan2(dz, hypot(dx, dy))``, ``d = target - eye``."""
-    dx, dy, dz = (float(t) - float(e) for t, e in zip(target, eye))
-    az = math.degrees(math.atan2(dx, dy))
-    el = math.degrees(math.atan2(dz, math.hypot(dx, dy)))
-    return mount.pan_sign * _wrap_deg(az - mount.pan_zero_deg), el - mount.tilt_zero_deg

@@ -20,7 +20,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from .dbformat import COLUMNS, SPLITS, manifest_text, write_image
+from ..dbformat import COLUMNS, SPLITS, manifest_text, write_image
 from .occluders import random_occluders
 from .positions import CameraTable
 from .scene import ObjectSpec
@@ -28,7 +28,7 @@ from .synthetic import Noise, Perturb, SyntheticRig
 
 __all__ = ["MANIFEST_COLUMNS", "render_database", "alternating_offsets", "contact_sheet", "jitter_offsets", "lookalike_distances"]
 
-MANIFEST_COLUMNS = COLUMNS  # the format lives in .dbformat
+MANIFEST_COLUMNS = COLUMNS  # the format lives in jaxrecog.dbformat
 
 
 def render_database(

@@ -3,22 +3,29 @@
 A *configuration* is one position index per camera, ``(v1, v2, ...)``.  The flat
 configuration index used by the planners is row-major over the cameras
 (camera 1 slowest): ``a = index_from_config(config, rig.positions)``, so the
-thesis's 32 x 7 grid has ``a = 7 * v1 + v2``.  :func:`index_from_config` and
-:func:`config_from_index` are the one place that mapping is written; they are
-plain integer arithmetic, so the same functions serve Python ints, NumPy
-arrays and traced JAX arrays (the recognizer's jitted step).
+thesis's 32 x 7 grid has ``a = 7 * v1 + v2``.  The mapping is written once,
+in :class:`jaxrecog.kernels.config_grid.ConfigGrid`; :func:`index_from_config`
+and :func:`config_from_index` are its functional form for rig code (plain
+integer arithmetic: Python ints, NumPy arrays and traced JAX arrays alike).
+
+This module is the whole interface between the recognition core and the rigs:
+:class:`Rig` and :class:`Capture`, and the pool the trial driver captures
+through (:class:`RigPool`, :class:`CaptureJob`, :class:`SceneSpec`; the pools
+themselves are in :mod:`.rig_pool`).  It is the one hardware module the core
+imports at module level (``docs/architecture.md``, Layers).
 """
 
 from __future__ import annotations
 
 import dataclasses
-import math
-import numbers
 from typing import Any, Protocol, Sequence, runtime_checkable
 
 import numpy as np
 
-__all__ = ["Capture", "Rig", "RigError", "SeededCaptures", "config_from_index", "index_from_config"]
+from ..kernels.config_grid import ConfigGrid
+
+__all__ = ["Capture", "CaptureJob", "Rig", "RigError", "RigPool", "SceneSpec", "SeededCaptures", "config_from_index",
+           "index_from_config"]
 
 
 class RigError(RuntimeError):
@@ -119,42 +126,74 @@ class Rig(Protocol):
         ...
 
 
-def _check_config(configuration, positions) -> None:
-    cfg = tuple(int(v) for v in configuration)
-    if len(cfg) != len(positions) or any(not 0 <= v < int(n) for v, n in zip(cfg, positions)):
-        raise ValueError(f"configuration {cfg} does not fit the positions {tuple(positions)}")
-
-
 def index_from_config(configuration, positions: Sequence[int]):
     """Per-camera position indices -> flat configuration index (row-major,
-    camera 1 slowest): ``a = (...(v_1 V_2 + v_2) V_3 + ...) + v_n``.
+    camera 1 slowest): ``ConfigGrid(positions).index(configuration)``
+    (:mod:`jaxrecog.kernels.config_grid`).
 
     Python ints and NumPy integers are range-checked (``ValueError``) and give
     an ``int``; a traced JAX array ``[n]`` gives a traced scalar (no check)."""
-    concrete = all(isinstance(v, numbers.Integral) for v in configuration)
-    if concrete:
-        _check_config(configuration, positions)
-    a = 0
-    for i, n in enumerate(positions):
-        a = a * int(n) + configuration[i]
-    return int(a) if concrete else a
+    return ConfigGrid(positions).index(configuration)
 
 
 def config_from_index(a, positions: Sequence[int]):
     """Flat configuration index -> per-camera position indices (row-major), the
-    inverse of :func:`index_from_config`.
+    inverse of :func:`index_from_config`: ``ConfigGrid(positions).configuration(a)``.
 
     An ``int`` gives a tuple of ints (``ValueError`` outside ``0 .. A-1``); a
     traced JAX scalar gives a tuple of traced scalars."""
-    concrete = isinstance(a, numbers.Integral)
-    if concrete:
-        total = math.prod(int(n) for n in positions)
-        if not 0 <= int(a) < total:
-            raise ValueError(f"configuration index {int(a)} is outside 0..{total - 1}")
-        a = int(a)
-    out = []
-    for n in reversed(tuple(int(n) for n in positions)):
-        out.append(a % n)
-        a = a // n
-    out.reverse()
-    return tuple(int(v) for v in out) if concrete else tuple(out)
+    return ConfigGrid(positions).configuration(a)
+
+
+# ---- rig pools: what the trial driver captures through (implementations: .rig_pool) ----
+
+
+@dataclasses.dataclass(frozen=True)
+class SceneSpec:
+    """What a rig must show before a capture: :meth:`Rig.reset`'s arguments.
+    ``yaw_offset`` None = on the training grid (``reset`` is called without it,
+    as every rig allows)."""
+
+    object: int
+    pose: int
+    occluders: Any = None
+    yaw_offset: float | None = None
+
+
+@dataclasses.dataclass(frozen=True)
+class CaptureJob:
+    """One capture of one rig of the pool.
+
+    Attributes:
+        rig: index of the rig in the pool (``0 <= rig < n_rigs``).
+        scene: set the rig up for this scene first (``reset``), or ``None`` to
+            keep the scene it shows.
+        seed: the rig's ``reseed`` value for this capture.
+        config: the configuration to ``move`` to before capturing.
+    """
+
+    rig: int
+    scene: SceneSpec | None
+    seed: Any
+    config: tuple[int, ...]
+
+
+@runtime_checkable
+class RigPool(Protocol):
+    """``n_rigs`` identical rigs that capture a batch of jobs at once."""
+
+    @property
+    def n_rigs(self) -> int: ...
+
+    @property
+    def positions(self) -> tuple[int, ...]: ...
+
+    @property
+    def image_shape(self) -> tuple[int, int]: ...
+
+    def capture_batch(self, jobs: Sequence[CaptureJob]) -> list[Capture]:
+        """The captures of ``jobs``, in their order; the jobs of one rig run in
+        their order (several slots may share a rig)."""
+        ...
+
+    def close(self) -> None: ...

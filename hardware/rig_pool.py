@@ -20,46 +20,15 @@ campaign's results are the same with any number of workers (tested).
 
 from __future__ import annotations
 
-import dataclasses
 import multiprocessing as mp
 import traceback
 import weakref
 from multiprocessing.reduction import ForkingPickler
-from typing import Any, Callable, Protocol, Sequence, runtime_checkable
+from typing import Callable, Sequence
 
-from .rig import Capture, Rig, RigError
+from .rig import Capture, CaptureJob, Rig, RigError, RigPool, SceneSpec  # the pool's interface (re-exported)
 
 __all__ = ["SceneSpec", "CaptureJob", "RigPool", "LocalRigs", "ProcessRigs", "as_rig_pool"]
-
-
-@dataclasses.dataclass(frozen=True)
-class SceneSpec:
-    """What a rig must show before a capture: :meth:`Rig.reset`'s arguments.
-    ``yaw_offset`` None = on the training grid (``reset`` is called without it,
-    as every rig allows)."""
-
-    object: int
-    pose: int
-    occluders: Any = None
-    yaw_offset: float | None = None
-
-
-@dataclasses.dataclass(frozen=True)
-class CaptureJob:
-    """One capture of one rig of the pool.
-
-    Attributes:
-        rig: index of the rig in the pool (``0 <= rig < n_rigs``).
-        scene: set the rig up for this scene first (``reset``), or ``None`` to
-            keep the scene it shows.
-        seed: the rig's ``reseed`` value for this capture.
-        config: the configuration to ``move`` to before capturing.
-    """
-
-    rig: int
-    scene: SceneSpec | None
-    seed: Any
-    config: tuple[int, ...]
 
 
 def run_job(rig: Rig, job: CaptureJob) -> Capture:
@@ -74,27 +43,6 @@ def run_job(rig: Rig, job: CaptureJob) -> Capture:
     rig.reseed(job.seed)
     rig.move(job.config)
     return rig.capture()
-
-
-@runtime_checkable
-class RigPool(Protocol):
-    """``n_rigs`` identical rigs that capture a batch of jobs at once."""
-
-    @property
-    def n_rigs(self) -> int: ...
-
-    @property
-    def positions(self) -> tuple[int, ...]: ...
-
-    @property
-    def image_shape(self) -> tuple[int, int]: ...
-
-    def capture_batch(self, jobs: Sequence[CaptureJob]) -> list[Capture]:
-        """The captures of ``jobs``, in their order; the jobs of one rig run in
-        their order (several slots may share a rig)."""
-        ...
-
-    def close(self) -> None: ...
 
 
 def _check_rigs(rigs: Sequence[Rig]) -> None:

@@ -44,7 +44,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from .dbformat import SPLITS, manifest_text, write_image
+from ..dbformat import SPLITS, manifest_text, write_image
 from .kinematics import Workspace
 from .occluders import OCCLUDER_OFFSET, OCCLUDER_SIZE, random_occluders
 from .positions import CameraTable, View

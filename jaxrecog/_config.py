@@ -24,7 +24,7 @@ import tomllib
 from pathlib import Path
 from typing import Any
 
-from .hardware.problems import problem_message
+from .problems import problem_message
 
 __all__ = ["ConfigFileError", "load_settings", "read_toml", "section"]
 
@@ -62,7 +62,7 @@ def load_settings(path: str | os.PathLike) -> dict[str, Any]:
 def section(data: dict[str, Any], name: str, known: set[str], where: str) -> dict[str, Any]:
     """The table ``name`` with keys normalised to argparse ``dest`` names
     (dashes to underscores); unknown keys raise :class:`ConfigFileError`,
-    which lists them all (:func:`~jaxrecog.hardware.problems.problem_message`)."""
+    which lists them all (:func:`~jaxrecog.problems.problem_message`)."""
     out = {k.replace("-", "_"): v for k, v in data.get(name, {}).items()}
     unknown = [repr(k) for k in data.get(name, {}) if k.replace("-", "_") not in known]
     if unknown:

@@ -18,7 +18,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from .hardware.problems import one_line
+from .problems import one_line
 
 __all__ = ["check_field_types", "check_settings"]
 

@@ -61,7 +61,6 @@ from __future__ import annotations
 import dataclasses
 import math
 
-import cv2
 import numpy as np
 
 __all__ = [
@@ -205,6 +204,7 @@ def _polygon(shape: str, rng: np.random.Generator) -> np.ndarray:
 def _rasterise(pts: np.ndarray, scale: float) -> np.ndarray:
     """Fill the polygon ``pts * scale`` with OpenCV (sub-pixel vertices) and crop
     to its bounding box; ``uint8`` 0/1."""
+    import cv2  # imported on first use: `import jaxrecog` does not load OpenCV
     p = pts * scale
     h = int(math.ceil(p[:, 1].max())) + 2
     w = int(math.ceil(p[:, 0].max())) + 2
@@ -378,6 +378,7 @@ def capture_transform(image: np.ndarray, rotation: float, scale: float, blur: fl
                       gain: np.ndarray) -> np.ndarray:
     """``g ⊙ G_σ A_{θ,a} x`` of one image (module docstring), ``float32 [H, W]``.
     Steps whose parameter is zero are skipped (so they are exact identities)."""
+    import cv2  # imported on first use: `import jaxrecog` does not load OpenCV
     out = np.asarray(image, dtype=np.float32)
     H, W = out.shape
     if rotation != 0.0 or scale != 0.0:

@@ -15,8 +15,7 @@ from typing import Any, Callable, Iterable, Sequence
 import numpy as np
 
 from .driver import TrialSpec, batched_step, run_trials
-from .hardware.rig import Rig
-from .hardware.rig_pool import RigPool
+from .hardware.rig import Rig, RigPool
 from .recognizer import Recognizer
 from .results import TrialResult, TrialStore
 

@@ -1,7 +1,7 @@
 """The image database users work with: load, write, inspect.
 
 The format (columns, rules, the in-memory :class:`ImageDatabase`, reading and
-writing) is defined once, in :mod:`jaxrecog.hardware.dbformat`, and
+writing) is defined once, in :mod:`jaxrecog.dbformat`, and
 re-exported here.  :func:`load_database` validates the whole folder and
 reports *every* problem at once, each with its manifest row number (row 1 is
 the first line after the header); nothing is written into the folder (the
@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import os
 
-from .hardware.dbformat import (
+from .dbformat import (
     COLUMNS,
     SPLITS,
     DatabaseError,
@@ -24,7 +24,7 @@ from .hardware.dbformat import (
     read_folder,
     shared_files,
 )
-from .hardware.dbformat import write_folder as write_database
+from .dbformat import write_folder as write_database
 
 __all__ = [
     "COLUMNS",
@@ -40,7 +40,7 @@ __all__ = [
 
 def load_database(folder: str | os.PathLike) -> ImageDatabase:
     """Load and validate an image database folder
-    (:func:`jaxrecog.hardware.dbformat.read_folder`: header, indices, splits,
+    (:func:`jaxrecog.dbformat.read_folder`: header, indices, splits,
     exact duplicate rows, two ``train`` images of one view, missing or
     unreadable files, image sizes; colour images become gray with a
     :class:`NonGrayImageWarning`).

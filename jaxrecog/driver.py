@@ -65,10 +65,8 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from jaxtyping import ArrayLike, Bool, Int, PRNGKeyArray, Shaped
 
-from .hardware.motion import path_travel_s
-from .hardware.rig import Capture, Rig
-from .hardware.rig_pool import CaptureJob, RigPool, SceneSpec, as_rig_pool
-from .recognizer import Decision, Recognizer, RecognizerState, _Static
+from .hardware.rig import Capture, CaptureJob, Rig, RigPool, SceneSpec  # the rig interface: all the driver needs
+from .recognizer import Decision, Recognizer, RecognizerState, StaticParts
 from .results import TrialResult
 
 __all__ = ["TrialSpec", "StepRecord", "run_trials", "batched_step", "trial_mesh", "TRIALS_AXIS"]
@@ -133,7 +131,7 @@ def _map_slots(recognizer: Recognizer, states, fresh, configs, images, key, tria
 
 
 @functools.partial(jax.jit, static_argnames=("static", "vectorize", "trace", "mesh"))
-def _batched_step(params, static: _Static, states: RecognizerState, fresh, configs, images, key, trials, steps, *,
+def _batched_step(params, static: StaticParts, states: RecognizerState, fresh, configs, images, key, trials, steps, *,
                   vectorize: bool, trace: bool, mesh: Mesh | None):
     # module level, the recognizer an argument (its arrays ``params``, the
     # rest ``static``, hashable): jit's cache is keyed on its structure and
@@ -214,7 +212,7 @@ def batched_step(recognizer: Recognizer, *, vectorize: bool = False, trace: bool
     # split the recognizer once, not at every call (and with a mesh, replicate
     # the model and planner tables once)
     params, static = eqx.partition(recognizer, eqx.is_array)
-    static = _Static(static)
+    static = StaticParts(static)
     if mesh is not None:
         params = jax.device_put(params, NamedSharding(mesh, PartitionSpec()))
 
@@ -311,6 +309,9 @@ def run_trials(
             steps one half while the host captures the other's images (the
             results are the same; off with one slot or several devices).
     """
+    from .hardware.motion import path_travel_s
+    from .hardware.rig_pool import as_rig_pool
+
     pool = as_rig_pool(rigs)
     positions = tuple(recognizer.positions)
     from .counts import check_counts  # the one model-vs-rig check (positions, image size, ...)

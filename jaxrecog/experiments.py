@@ -63,9 +63,8 @@ from typing import Callable, Sequence
 import jax.random as jr
 
 from .campaign import TrialSpec, plan_trials, run_campaign
-from .hardware.occluders import OCCLUDER_OFFSET, OCCLUDER_SIZE
 from .kernels import DEFAULT_LIKELIHOOD
-from .hardware.problems import problem_message
+from .problems import problem_message
 from .planners import DEFAULT_MIN_PER_STRATUM, DEFAULT_PLANNER, make_planner, planner_spec
 from .results import ObjectRow, TrialResult, TrialStore, summarize, table_json, table_markdown
 from .thesis import ThesisTable, published
@@ -593,14 +592,19 @@ def capture_pool(settings: Settings, cameras: tuple[int, ...] | None = None, *, 
 # the campaigns' board ranges (OCCLUDER_SIZE / OCCLUDER_OFFSET) live with the boards
 
 
-def occluder_factory(rig, size: tuple[float, float] = OCCLUDER_SIZE, offset: tuple[float, float] = OCCLUDER_OFFSET):
+def occluder_factory(rig, size: tuple[float, float] | None = None, offset: tuple[float, float] | None = None):
     """Cardboard for one trial (thesis §7.2): a board in front of each camera's
     *initial* view, so both first images are occluded, plus one board per
     camera facing a random other position, so moving is not a guaranteed
     escape.  ``size`` / ``offset``: the boards' half-size and offset ranges
-    (:func:`~jaxrecog.hardware.random_occluders`; default the campaign's)."""
+    (:func:`~jaxrecog.hardware.random_occluders`; default the campaign's,
+    ``OCCLUDER_SIZE`` / ``OCCLUDER_OFFSET`` of :mod:`jaxrecog.hardware.occluders`)."""
     from .hardware import OccluderLayout, random_occluders
+    from .hardware.occluders import OCCLUDER_OFFSET, OCCLUDER_SIZE
     from .hardware.positions import CameraTable
+
+    size = OCCLUDER_SIZE if size is None else size
+    offset = OCCLUDER_OFFSET if offset is None else offset
 
     def factory(rng, initial):
         first = CameraTable(rig.table.workspace, tuple((views[v],) for views, v in zip(rig.table.views, initial)))

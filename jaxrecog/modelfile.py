@@ -57,7 +57,7 @@ from pathlib import Path
 import jax.numpy as jnp
 import numpy as np
 
-from .hardware.problems import one_line, problem_message
+from .problems import one_line, problem_message
 from .kernels import likelihood_class
 from .recipes import THESIS
 from .sensor_model import CameraModel, SensorModel

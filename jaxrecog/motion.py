@@ -23,6 +23,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int
 
+from .kernels.config_grid import ConfigGrid
+
 __all__ = ["MotionCost", "check_weight", "rig_travel_times", "with_motion_cost"]
 
 
@@ -65,12 +67,8 @@ class MotionCost(eqx.Module):
     def seconds(self, config: Int[Array, " n"]) -> Float[Array, " A"]:
         """``[A]``: seconds from ``config`` to every configuration, the
         slowest camera's time (they move in parallel)."""
-        n = len(self.times)
-        out = jnp.zeros(self.positions, jnp.float32)
-        for i, t in enumerate(self.times):
-            row = t[config[i]]
-            out = jnp.maximum(out, row.reshape((1,) * i + (row.shape[0],) + (1,) * (n - 1 - i)))
-        return out.reshape(-1)
+        rows = [t[config[i]] for i, t in enumerate(self.times)]  # [V_i] from each camera's position
+        return ConfigGrid(self.positions).combine(jnp.maximum, rows, jnp.zeros(self.positions, jnp.float32))
 
     def apply(self, scores: Float[Array, " A"], config: Int[Array, " n"]) -> Float[Array, " A"]:
         """``scores − λ · seconds(config)`` in the scores' dtype (non-finite

@@ -40,7 +40,7 @@ import shutil
 from pathlib import Path
 from typing import NamedTuple
 
-from .hardware.dbformat import manifest_text
+from .dbformat import manifest_text
 
 __all__ = ["PhotoSet", "scan_photos", "build_photo_database", "PHOTOS"]
 

@@ -15,7 +15,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from .hardware.rig import config_from_index
+from .kernels.config_grid import ConfigGrid
 from .thesis import TABLE_7_8
 
 __all__ = [
@@ -98,7 +98,7 @@ def score_heatmap(
     thesis rig), the chosen configuration boxed.
 
     Args:
-        scores: ``[A]`` flat scores, ``a = ravel_multi_index(cfg, positions)``.
+        scores: ``[A]`` flat scores, ``a = ConfigGrid(positions).index(cfg)``.
         positions: positions per camera (1 or 2 cameras; one camera gives a
             ``V1 x 1`` column).
         chosen: the configuration to mark (default: the arg-max).
@@ -113,7 +113,7 @@ def score_heatmap(
     finite = np.isfinite(grid)
     if chosen is None:
         flat = np.where(np.isfinite(scores), scores, -np.inf)
-        chosen = config_from_index(int(np.argmax(flat)), positions)
+        chosen = ConfigGrid(positions).configuration(int(np.argmax(flat)))
     chosen = tuple(int(c) for c in chosen) + (0,) * (2 - len(chosen))
     V1, V2 = grid.shape
     fig, ax = plt.subplots(figsize=(5.0, 8.0))

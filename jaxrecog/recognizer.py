@@ -36,7 +36,7 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Int, PRNGKeyArray, Real
 
 from . import kernels as K
 from .features import project_at
-from .hardware.rig import config_from_index, index_from_config
+from .kernels.config_grid import ConfigGrid
 from .motion import MotionCost
 from .planners import Planner
 
@@ -139,12 +139,8 @@ def excluded_by_positions(seen: Sequence[Bool[Array, " _V"]], positions: tuple[i
     """``[A]``: configurations in which some camera i is at a position of
     ``seen[i]``; a camera that has used all its positions excludes nothing
     (so the product of the cameras' remaining positions is never empty)."""
-    n = len(positions)
-    out = jnp.zeros(positions, bool)
-    for i, s in enumerate(seen):
-        s = s & ~jnp.all(s)
-        out = out | s.reshape((1,) * i + (positions[i],) + (1,) * (n - 1 - i))
-    return out.reshape(-1)
+    lapsed = [s & ~jnp.all(s) for s in seen]
+    return ConfigGrid(positions).combine(jnp.logical_or, lapsed, jnp.zeros(positions, bool))
 
 
 def check_min_views(min_views: int, max_steps: int) -> int:
@@ -260,7 +256,7 @@ class Recognizer(eqx.Module):
                 config = (0,) * len(positions)
             else:
                 a = jr.randint(key, (), 0, self.n_configs)
-                config = jnp.stack(config_from_index(a, positions)).astype(jnp.int32)
+                config = jnp.stack(ConfigGrid(positions).configuration(a)).astype(jnp.int32)
         config = jnp.asarray(config, jnp.int32)
         if config.shape != (len(positions),):
             raise ValueError(f"config must give one position per camera ({len(positions)}), got shape {config.shape}")
@@ -325,7 +321,7 @@ class Recognizer(eqx.Module):
         views = n_explained if self.adaptive_scale > 1.0 else steps
         stop = (reached & (views >= self.min_views)) | (steps >= self.max_steps)
 
-        here = index_from_config(state.config, positions)
+        here = ConfigGrid(positions).index(state.config)
         visited = state.visited.at[here].set(True)
         seen = state.visited_positions or tuple(jnp.zeros((v,), bool) for v in positions)
         seen = tuple(s.at[state.config[i]].set(True) for i, s in enumerate(seen))
@@ -358,7 +354,7 @@ class Recognizer(eqx.Module):
             # configurations never used): then revisit, as before
             scores_for_choice = jnp.where(jnp.all(excluded), usable, masked)
         nxt = jnp.argmax(scores_for_choice)
-        next_config = jnp.stack(config_from_index(nxt, positions)).astype(jnp.int32)
+        next_config = jnp.stack(ConfigGrid(positions).configuration(nxt)).astype(jnp.int32)
 
         # the prior for the next images: the predicted prior at the chosen positions
         next_prior = K.Belief(state_predicted.log_pc, tuple(lp[v] for lp, v in zip(state_predicted.log_pk, next_config)))
@@ -385,7 +381,7 @@ class Recognizer(eqx.Module):
         return new_state, decision
 
 
-class _Static:
+class StaticParts:
     """A recognizer's non-array part as a static jit argument: hashed and
     compared by its tree structure and leaves (a leaf is equal to itself even
     where ``==`` says otherwise, e.g. a NaN setting), so an equal recognizer
@@ -400,7 +396,7 @@ class _Static:
         return self._hash
 
     def __eq__(self, other) -> bool:
-        if not isinstance(other, _Static):
+        if not isinstance(other, StaticParts):
             return NotImplemented
         return (self._treedef == other._treedef and len(self._leaves) == len(other._leaves)
                 and all(a is b or bool(a == b) for a, b in zip(self._leaves, other._leaves)))
@@ -411,7 +407,7 @@ class _Static:
 _SPLITS: dict[int, tuple] = {}
 
 
-def _split(rec: Recognizer) -> tuple[object, _Static]:
+def _split(rec: Recognizer) -> tuple[object, StaticParts]:
     """``(arrays, static part)`` of a recognizer, cached per live object
     (modules are immutable); not cached while its leaves are tracers (a
     recognizer rebuilt inside a transform, e.g. the driver's batched step)."""
@@ -419,14 +415,14 @@ def _split(rec: Recognizer) -> tuple[object, _Static]:
     if hit is not None and hit[0]() is rec:
         return hit[1], hit[2]
     params, static = eqx.partition(rec, eqx.is_array)
-    static = _Static(static)
+    static = StaticParts(static)
     if not any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(params)):
         key = id(rec)
         _SPLITS[key] = (weakref.ref(rec, lambda _, key=key: _SPLITS.pop(key, None)), params, static)
     return params, static
 
 
-def _step_program(params, static: _Static, state: RecognizerState, images, key, trace: bool, plan_on_stop: bool):
+def _step_program(params, static: StaticParts, state: RecognizerState, images, key, trace: bool, plan_on_stop: bool):
     return eqx.combine(params, static.tree)._step(state, images, key, trace, plan_on_stop)
 
 

@@ -28,7 +28,6 @@ Two interpolations (``interpolation=``):
 
 from __future__ import annotations
 
-import cv2
 import numpy as np
 
 __all__ = ["INTERPOLATIONS", "view_neighbours", "interpolated_views", "morph"]
@@ -76,6 +75,7 @@ def view_neighbours(train: np.ndarray) -> list[tuple[int, int]]:
 
 def flow_pair(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The dense optical flows ``a -> b`` and ``b -> a`` (Farnebäck), ``float32 [H, W, 2]`` each."""
+    import cv2  # imported on first use: `import jaxrecog` does not load OpenCV
     return (cv2.calcOpticalFlowFarneback(a, b, None, *_FLOW, 0),
             cv2.calcOpticalFlowFarneback(b, a, None, *_FLOW, 0))
 
@@ -90,6 +90,7 @@ def morph(a: np.ndarray, b: np.ndarray, ts, interpolation: str = "linear", flows
         flows: ``"flow"`` only: :func:`flow_pair` ``(a, b)`` when already
             computed (the way back from ``b`` to ``a`` uses the same two).
     """
+    import cv2  # imported on first use: `import jaxrecog` does not load OpenCV
     if interpolation not in INTERPOLATIONS:
         raise ValueError(f"interpolation must be one of {', '.join(INTERPOLATIONS)}, got {interpolation!r}")
     fa, fb = a.astype(np.float64), b.astype(np.float64)

@@ -5,7 +5,7 @@ Nothing here imports from ``jaxrecog`` proper or ``jaxrecog.hardware``.
 Per-camera values come as tuples, one entry per camera: likelihoods
 (:class:`Likelihood`, each over its ``V_i`` positions), log-likelihood arrays
 ``[C, L_i]``, sample tables; configurations are the row-major product of the
-cameras' positions.  Likelihood families register in :data:`LIKELIHOODS`
+cameras' positions (:class:`ConfigGrid`, ``config_grid.py``).  Likelihood families register in :data:`LIKELIHOODS`
 (importing a family's module registers it: one line below per built-in kind).
 In the jaxtyping annotations a per-camera size is written with a leading ``_``
 (``"_V C _L _K"``): it may differ from camera to camera, so it is not matched
@@ -29,6 +29,7 @@ from .belief import (
     update,
     update_with_info,
 )
+from .config_grid import ConfigGrid
 from .fisher import DEFAULT_SIGMA_S, FisherDraws, crlb_criterion, fisher_draws, fisher_information
 from .fisher_pairwise import PairwiseFisherTables, pairwise_fisher_information, pairwise_fisher_tables
 from .fisher_qmc import QMCFisherTables, qmc_fisher_draws, qmc_fisher_information, qmc_fisher_tables
@@ -57,6 +58,7 @@ from .view_mixture import LowRankViewMixture, ViewMixture
 
 __all__ = [
     "Belief",
+    "ConfigGrid",
     "DEFAULT_LIKELIHOOD",
     "DEFAULT_VIEW_JITTER_LIKELIHOOD",
     "DEFAULT_SIGMA_S",

@@ -20,6 +20,8 @@ import math
 import jax
 import jax.numpy as jnp
 
+from .config_grid import ConfigGrid, position_rows
+
 _GRID_LETTERS = "pqrstuvwxy"
 
 
@@ -60,12 +62,6 @@ def floor_log_probs(log_p):
     return jnp.maximum(log_p, floor)
 
 
-def _expand(a, i, n):
-    """[C, J, X_i, ...] -> [C, J, 1, .., X_i, .., 1, ...] (X_i at grid slot i of n)."""
-    shape = a.shape[:2] + (1,) * i + (a.shape[2],) + (1,) * (n - 1 - i) + a.shape[3:]
-    return a.reshape(shape)
-
-
 def grid_mixture(tabs, extra, feats=()):
     """log Z and posterior means over c' on the product grid (see module doc).
 
@@ -80,6 +76,7 @@ def grid_mixture(tabs, extra, feats=()):
         ``(logZ [C, J, X_0, ..., X_{n-1}], [mean [C, J, X_0, ...] per feat], n_underflow)``.
     """
     n = len(tabs)
+    grid = ConfigGrid(tuple(t.shape[2] for t in tabs))  # x = (x_0, x_1, ...); expand(., i, axis=2): X_i at slot i
     dtype = tabs[0].dtype
     finfo = jnp.finfo(dtype)
     n_c = tabs[0].shape[-1]
@@ -99,7 +96,7 @@ def grid_mixture(tabs, extra, feats=()):
         return jnp.einsum(spec, *ops)
 
     z = contract(es)
-    mtot = sum(_expand(m, i, n) for i, m in enumerate(ms))
+    mtot = sum(grid.expand(m, i, axis=2) for i, m in enumerate(ms))
     logz = jnp.log(z) + mtot
     means = []
     for cam, f in feats:
@@ -112,13 +109,13 @@ def grid_mixture(tabs, extra, feats=()):
     def exact(_):
         full = extra.reshape(extra.shape[:2] + (1,) * n + extra.shape[2:])
         for i, t in enumerate(tabs):
-            full = full + _expand(t, i, n)
+            full = full + grid.expand(t, i, axis=2)
         lz = lse(full, axis=-1)
         w = jnp.exp(full - lz[..., None])
         outs = []
         for cam, f in feats:
             fb = jnp.broadcast_to(f, tabs[cam].shape)
-            outs.append(jnp.sum(w * _expand(fb, cam, n), axis=-1))
+            outs.append(jnp.sum(w * grid.expand(fb, cam, axis=2), axis=-1))
         return (jnp.where(under, lz, logz), [jnp.where(under, o, mu) for o, mu in zip(outs, means)])
 
     def fast(_):
@@ -204,6 +201,7 @@ def mixture_information(ts, selfs, log_pc, log_pk):
     """
     n = len(ts)
     positions = tuple(t.shape[0] for t in ts)
+    grid = ConfigGrid(positions)
     n_c, j = ts[0].shape[1], ts[0].shape[3]
     dtype = ts[0].dtype
     # E_s log sum_c' ...: mixture over c' on the (v_0, v_1, ...) grid.
@@ -222,8 +220,8 @@ def mixture_information(ts, selfs, log_pc, log_pk):
     if selfs is not None:
         for i, s in enumerate(selfs):
             e_i = jnp.einsum("c,vcl,vclj->jv", pc, pk[i], s)
-            e_self = e_self + e_i.reshape((j,) + (1,) * i + (positions[i],) + (1,) * (n - 1 - i))
-    return (e_self - e_logp).reshape(j, -1)
+            e_self = e_self + grid.expand(e_i, i)
+    return grid.flatten(e_self - e_logp)
 
 
 __all__ = ["check_options", "floor_log_probs", "grid_mixture", "level_tables", "lse", "mixture_information", "own_class", "weights"]
@@ -258,8 +256,4 @@ def check_belief_values(belief) -> None:
 def to_grid(t):
     """``[V, C, L, J, ...] -> [C, J, V*L, ...]``: a camera's per-position table
     as the rows of the (v_1, v_2) grid product."""
-    v, c, l, j = t.shape[:4]
-    t = jnp.moveaxis(t, 3, 1)  # [V, J, C, L, ...]
-    t = jnp.moveaxis(t, 2, 0)  # [C, V, J, L, ...]
-    t = jnp.moveaxis(t, 2, 1)  # [C, J, V, L, ...]
-    return t.reshape((c, j, v * l) + t.shape[4:])
+    return position_rows(t, front=(1, 3))

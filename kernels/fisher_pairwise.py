@@ -78,6 +78,7 @@ from jaxtyping import Array, ArrayLike, Float
 
 from ._grid import check_belief_sizes, floor_log_probs, weights
 from .belief import Belief
+from .config_grid import ConfigGrid, position_rows
 from .fisher import DEFAULT_SIGMA_S
 from .likelihood import as_likelihoods
 from .mutual_information import per_position_levels
@@ -196,12 +197,6 @@ def pairwise_fisher_information(
     return _pairwise_fisher(tables, belief, n_objects, n_poses, bool(fast))
 
 
-def _to_grid(t):
-    """``[V, C, L, ...] -> [C, V*L, ...]``."""
-    v, c, l = t.shape[:3]
-    return jnp.moveaxis(t, 1, 0).reshape((c, v * l) + t.shape[3:])
-
-
 def _level_moments(w_exp, w_max, p):
     """Per camera, grid layout ``[C, X_i, C']``: (A_i, B_i, S_i) of the module doc
     from E'_i ``[V, C', C|1, L, L']``, M'_i ``[V, C|1, L, C']`` and the level
@@ -213,7 +208,7 @@ def _level_moments(w_exp, w_max, p):
     s0 = jnp.einsum("vCclK,vCK->vclC", w_exp, p)
     s1 = jnp.einsum("vCclK,vCK,lK->vclC", w_exp, p, delta)
     s2 = jnp.einsum("vCclK,vCK,lK->vclC", w_exp, p, delta * delta)
-    return _to_grid(jnp.log(s0) + w_max), _to_grid(s1 / s0), _to_grid(s2 / s0)
+    return position_rows(jnp.log(s0) + w_max), position_rows(s1 / s0), position_rows(s2 / s0)
 
 
 _CAM0_ORDER = {"o": 0, "p": 1, 0: 2}
@@ -323,10 +318,11 @@ def _side(tabs, log_pk, extra, dobj, dpose, log_pc, kappa):
         for acc, t in zip((ts, bs, ss), _level_moments(ex, mx, p)):
             acc.append(jnp.broadcast_to(t, (n_c,) + t.shape[1:]))
     # stratum weights P(c) prod_i P_i[v_i](k_i|c) on the grid [C, X_0, ..., X_{n-1}]
+    row_grid = ConfigGrid(tuple(lp.shape[0] * lp.shape[2] for lp in log_pk))  # (x_0, x_1, ...)
     strata = weights(log_pc, n + 1).reshape((n_c,) + (1,) * n)
     for i, lp in enumerate(log_pk):
-        pk = _to_grid(weights(lp, n + 1))  # [C, X_i]
-        strata = strata * pk.reshape((n_c,) + (1,) * i + (pk.shape[1],) + (1,) * (n - 1 - i))
+        pk = position_rows(weights(lp, n + 1))  # [C, X_i]
+        strata = strata * row_grid.expand(pk, i, axis=1)
     cov = _expected_covariance(ts, bs, ss, extra, dobj, dpose, strata)  # [D, D, X_0, ...]
     d = n + 2
     split = sum(((lp.shape[0], lp.shape[2]) for lp in log_pk), ())

@@ -61,6 +61,13 @@ class FullGaussian(Likelihood):
         self.chol = chol
         self.var = jnp.sum(chol * chol, axis=-1) if var is None else var
 
+    @classmethod
+    def from_moments(cls, mean: Float[ArrayLike, "*V C L K"], covariance: Float[ArrayLike, "*V C L K K"]) -> "FullGaussian":
+        """N(mean, covariance) per component: the moment-matched Gaussian that
+        :meth:`Likelihood.divergence` falls back on for a family without a
+        closed form (found in the registry as ``"full"``)."""
+        return cls(mean, cholesky_lower(covariance))
+
     def log_density(self, g: Float[ArrayLike, "*B K"]) -> Float[Array, "*B C L"]:
         """Eq. 4.22: ``-1/2 |z|^2 - sum log diag S - K/2 log 2 pi`` with
         ``z = S^-1 (g - mu)`` by one batched triangular solve per component."""

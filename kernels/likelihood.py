@@ -250,7 +250,9 @@ class Likelihood(eqx.Module):
         The family's closed form (:meth:`bhattacharyya` / :meth:`kl`) where it
         has one.  Otherwise an *approximation*: the same divergence between the
         moment-matched Gaussians N(mean(), covariance()) of the components (the
-        full-covariance closed form of ``gaussian_full.py``).  For a heavy-tailed
+        full-covariance closed form of the family registered as ``"full"``,
+        ``gaussian_full.py``, taken from :data:`LIKELIHOODS`: this module
+        imports no family).  For a heavy-tailed
         family this is not a bound any more (the pairwise estimator's bounds hold
         for the exact divergences); it is exact where the family is Gaussian.
         """
@@ -259,9 +261,7 @@ class Likelihood(eqx.Module):
         try:
             return self.bhattacharyya() if kind == "bhattacharyya" else self.kl()
         except NotImplementedError:
-            from .gaussian_full import FullGaussian, cholesky_lower  # the Gaussian formula lives in its own file
-
-            matched = FullGaussian(self.mean(), cholesky_lower(self.covariance()))
+            matched = likelihood_class("full").from_moments(self.mean(), self.covariance())
             return matched.bhattacharyya() if kind == "bhattacharyya" else matched.kl()
 
     def scaling_terms(self, g: Float[Array, "N K"]):

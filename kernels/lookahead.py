@@ -69,6 +69,7 @@ from jaxtyping import Array, Float, Int, PRNGKeyArray
 
 from ._grid import check_belief
 from .belief import Belief, transition_per_position, update
+from .config_grid import ConfigGrid
 from .mutual_information import MITables, per_position_levels
 
 __all__ = ["LookaheadDraws", "lookahead_draws", "lookahead_information", "outcome_strata"]
@@ -176,16 +177,19 @@ def lookahead_information(
     else:
         first = jax.lax.top_k(one, k)[1]  # [k]
 
+    grid = ConfigGrid(positions)  # first configurations a = (v_0, v_1, ...)
+    level_grid = ConfigGrid(levels)  # (k_0, k_1, ...)
+    stratum_grid = ConfigGrid((n_c,) + levels)  # outcome strata s = (c, k_0, k_1, ...)
+
     def config_of(a):
-        return tuple(jnp.unravel_index(a, positions))
+        return grid.configuration(a)
 
     def strata_of(a):  # [S] flat stratum indices at first configuration a
         v = config_of(a)
         log_w = log_pc.reshape((n_c,) + (1,) * len(positions))
         for i, lp in enumerate(log_pk):
-            shape = (n_c,) + tuple(levels[q] if q == i else 1 for q in range(len(positions)))
-            log_w = log_w + lp[v[i]].reshape(shape)
-        return outcome_strata(log_w.reshape(-1), draws.u.astype(dtype), n_out)
+            log_w = log_w + level_grid.expand(lp[v[i]], i)  # [C, L_i] at level slot i
+        return outcome_strata(stratum_grid.flatten(log_w), draws.u.astype(dtype), n_out)
 
     strata = jax.vmap(strata_of)(first)  # [k, S]
     pair_a = jnp.repeat(first, n_out)  # [k * S]
@@ -196,7 +200,7 @@ def lookahead_information(
         """max_{a_2 != a} of the one-step score after outcome (stratum, j) at a."""
         a, s, j = x
         v = config_of(a)
-        c, *ks = jnp.unravel_index(s, (n_c,) + levels)
+        c, *ks = stratum_grid.configuration(s)
         here = Belief(log_pc, tuple(lp[vi] for lp, vi in zip(log_pk, v)))
         logliks = tuple(ld[vi, c, ki, j] for ld, vi, ki in zip(tables.ld, v, ks))  # [C, L_i] each
         post = update(here, logliks)

@@ -97,6 +97,7 @@ from jaxtyping import Array, ArrayLike, Float
 
 from ._grid import check_belief_sizes, check_options, floor_log_probs, lse
 from .belief import Belief
+from .config_grid import ConfigGrid, position_rows
 from .likelihood import as_likelihoods
 from .mutual_information import per_position_levels
 
@@ -155,12 +156,6 @@ def _shifted(w):
     return m, jnp.where(s < floor, 0.0, jnp.exp(jnp.maximum(s, floor)))
 
 
-def _to_grid(t):
-    """``[V, C, L, ...] -> [C, V*L, ...]``: per-position rows as grid rows."""
-    v, c, l = t.shape[:3]
-    return jnp.moveaxis(t, 1, 0).reshape((c, v * l) + t.shape[3:])
-
-
 def _own_class(t):
     """``[C, X, C'] -> [C, X]``: the entries at c' = c."""
     return jnp.transpose(jnp.diagonal(t, axis1=0, axis2=2))
@@ -192,10 +187,10 @@ def pairwise_tables(
         eye = (jnp.eye(n_c, dtype=bool)[:, None, :, None] & jnp.eye(n_l, dtype=bool)[None, :, None, :])
         w = -jnp.where(eye[None], 0.0, jnp.maximum(d, 0.0))  # [V, C, L, C', L']
         m, e = _shifted(w)
-        u = _to_grid(lse(w, axis=-1) - math.log(n_l))  # [C, X, C']
+        u = position_rows(lse(w, axis=-1) - math.log(n_l))  # [C, X, C']
         um, ue = _shifted(u)
         out["log_w"].append(w)
-        out["w_max"].append(_to_grid(m))
+        out["w_max"].append(position_rows(m))
         out["w_exp"].append(jnp.transpose(e, (0, 3, 1, 2, 4)))
         out["u_log"].append(u)
         out["u_max"].append(um)
@@ -263,6 +258,7 @@ def _information(es, ms, selfs, log_pc, wks, weight_floor, patch=None):
     xs = tuple(e.shape[1] for e in es)
     positions = tuple(w.shape[1] for w in wks)
     n_levels = tuple(w.shape[2] for w in wks)
+    grid, row_grid = ConfigGrid(positions), ConfigGrid(xs)  # (v_0, v_1, ...) and (x_0, x_1, ...)
     small = min(range(n), key=lambda i: xs[i])
     pc_inner = jnp.exp(log_pc)  # floored: >= e^-61, no flush
     es = list(es)
@@ -293,7 +289,7 @@ def _information(es, ms, selfs, log_pc, wks, weight_floor, patch=None):
         logz = jnp.log(jnp.maximum(jax.lax.dynamic_index_in_dim(z, c, 0, keepdims=False), tiny))
         for i, w in enumerate(wg):
             wc = jax.lax.dynamic_index_in_dim(w, c, 0, keepdims=False)
-            logz = logz * wc.reshape((1,) * i + (xs[i],) + (1,) * (n - 1 - i))
+            logz = logz * row_grid.expand(wc, i)
         return acc + logz
 
     if n_c * math.prod(xs) <= _SMALL_GRID:
@@ -301,7 +297,7 @@ def _information(es, ms, selfs, log_pc, wks, weight_floor, patch=None):
         # classes (the loop's per-iteration cost would dominate)
         logz = jnp.log(jnp.maximum(z, tiny))
         for i, w in enumerate(wg):
-            logz = logz * w.reshape((n_c,) + (1,) * i + (xs[i],) + (1,) * (n - 1 - i))
+            logz = logz * row_grid.expand(w, i)
         acc = jnp.sum(logz, axis=0)
     else:
         acc = jax.lax.fori_loop(0, n_c, body, jnp.zeros(xs, dtype))
@@ -315,8 +311,8 @@ def _information(es, ms, selfs, log_pc, wks, weight_floor, patch=None):
     if selfs is not None:
         for i, (s, w) in enumerate(zip(selfs, ws)):
             e_i = jnp.einsum("c,cvl,cvl->v", pc, w, s.reshape(w.shape))
-            e_logp = e_logp - e_i.reshape((1,) * i + (positions[i],) + (1,) * (n - 1 - i))
-    return -e_logp.reshape(-1)
+            e_logp = e_logp - grid.expand(e_i, i)
+    return -grid.flatten(e_logp)
 
 
 def pairwise_mutual_information(

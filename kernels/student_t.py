@@ -50,7 +50,6 @@ import jax.numpy as jnp
 import numpy as np
 from jax.scipy.special import gammainc, gammaincc, gammaln, log_ndtr
 from jaxtyping import Array, ArrayLike, Float
-from scipy.special import gammaln as np_gammaln
 
 from .likelihood import Likelihood, register_likelihood
 
@@ -242,6 +241,8 @@ class StudentT(Likelihood):
 def _best_nu(g, mu, var, floor, k: int) -> float:
     """The :data:`NU_GRID` value of the highest summed log-density of the rows ``g``
     under their components (moment-matched scale), NumPy float64."""
+    from scipy.special import gammaln as np_gammaln  # training only: `import jaxrecog` does not load SciPy
+
     d2 = (g - mu) ** 2
     best, best_ll = DEFAULT_NU, -np.inf
     for nu in NU_GRID:

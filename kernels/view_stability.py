@@ -28,10 +28,13 @@ pairwise MI.
 
 from __future__ import annotations
 
+import operator
+
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 from ._grid import lse
+from .config_grid import ConfigGrid
 
 __all__ = ["view_instability", "expected_instability"]
 
@@ -50,8 +53,5 @@ def expected_instability(instability: tuple[Float[Array, "_V C"], ...], log_pc: 
                          ) -> Float[Array, " A"]:
     """``sum_i E_{c ~ P(c)} d_i[v_i, c]`` for every configuration (row-major)."""
     p = jnp.exp(log_pc - lse(log_pc, axis=-1))
-    n = len(instability)
-    total = jnp.zeros(tuple(d.shape[0] for d in instability), p.dtype)
-    for i, d in enumerate(instability):
-        total = total + (d @ p).reshape((1,) * i + (d.shape[0],) + (1,) * (n - 1 - i))
-    return total.reshape(-1)
+    grid = ConfigGrid(tuple(d.shape[0] for d in instability))
+    return grid.combine(operator.add, [d @ p for d in instability], jnp.zeros(grid.positions, p.dtype))

@@ -34,9 +34,9 @@ from jaxrecog.cli._options import (given_likelihood_options, gray_range, likelih
 from jaxrecog.calibration_plots import reliability_plot
 from jaxrecog.campaign import run_campaign
 from jaxrecog.database import load_database
-from jaxrecog.experiments import (CASES, OCCLUDER_OFFSET, OCCLUDER_SIZE, Settings, make_recognizer, case_settings,
-                                  case_trials, make_rig, prepare)
+from jaxrecog.experiments import CASES, Settings, make_recognizer, case_settings, case_trials, make_rig, prepare
 from jaxrecog.hardware import OccluderLayout, random_occluders
+from jaxrecog.hardware.occluders import OCCLUDER_OFFSET, OCCLUDER_SIZE
 from jaxrecog.hardware.positions import CameraTable
 from jaxrecog.hardware.scene import default_objects, object_radius
 from jaxrecog.hardware import render_database

@@ -182,7 +182,7 @@ def test_problems_out_writes_the_whole_list_to_a_new_file_only(tmp_path, capsys)
 
 
 def test_a_problem_list_message_is_the_same_with_or_without_a_folder():
-    from jaxrecog.hardware.dbformat import database_error
+    from jaxrecog.dbformat import database_error
 
     err = database_error("db", [f"row {r}: bad" for r in range(1, 13)])
     assert err.full_list is None
@@ -194,7 +194,7 @@ def test_a_problem_list_message_is_the_same_with_or_without_a_folder():
 
 
 def test_one_problem_is_one_line_and_odd_text_stays_on_its_line():
-    from jaxrecog.hardware.problems import LINE_CAP, problem_message
+    from jaxrecog.problems import LINE_CAP, problem_message
 
     assert problem_message("model m", ["no such file"]) == "model m: no such file"
     msg = problem_message("h", ["a\nb\r\x00c", "x" * 10_000])
@@ -272,34 +272,12 @@ def test_the_same_file_as_two_train_images_of_one_view_is_an_error(folder):
         load_database(root)
 
 
-# ---- the format lives in hardware/ (issue 14 item 4) -----------------------------------
-
-def test_hardware_imports_nothing_from_jaxrecog_outside_its_package():
-    import ast
-    from pathlib import Path
-
-    hw = Path(__file__).resolve().parent.parent / "hardware"
-    files = sorted(hw.glob("*.py"))
-    assert len(files) > 10
-    bad = []
-    for f in files:
-        for node in ast.walk(ast.parse(f.read_text(), str(f))):
-            names = []
-            if isinstance(node, ast.Import):
-                names = [a.name for a in node.names]
-            elif isinstance(node, ast.ImportFrom):
-                if node.level == 0:
-                    names = [node.module or ""]
-                elif node.level > 1:  # `from .. import x` leaves the package
-                    names = ["jaxrecog"]
-            bad += [f"{f.name}:{node.lineno} {n}" for n in names
-                    if (n == "jaxrecog" or n.startswith("jaxrecog.")) and not n.startswith("jaxrecog.hardware")]
-    assert bad == []
-
+# ---- one format for the loader, the renderer and the dataset rig (jaxrecog/dbformat.py) -----
 
 def test_the_renderer_and_the_loader_share_one_format(tmp_path):
     from jaxrecog import database
-    from jaxrecog.hardware import dbformat, render_db
+    from jaxrecog import dbformat
+    from jaxrecog.hardware import render_db
 
     assert render_db.MANIFEST_COLUMNS is dbformat.COLUMNS is database.COLUMNS
     assert database.DatabaseError is dbformat.DatabaseError

@@ -15,7 +15,6 @@ pytest.importorskip("pybullet")
 
 from jaxrecog import load_database, train_model  # noqa: E402
 from jaxrecog.campaign import plan_trials, run_campaign  # noqa: E402
-from jaxrecog.experiments import OCCLUDER_OFFSET, OCCLUDER_SIZE  # noqa: E402
 from jaxrecog.hardware import (  # noqa: E402
     Noise,
     OccluderLayout,
@@ -25,6 +24,7 @@ from jaxrecog.hardware import (  # noqa: E402
     random_occluders,
     render_database,
 )
+from jaxrecog.hardware.occluders import OCCLUDER_OFFSET, OCCLUDER_SIZE  # noqa: E402
 from jaxrecog.hardware.config import RigConfig  # noqa: E402
 from jaxrecog.hardware.positions import CameraTable, default_table  # noqa: E402
 from jaxrecog.planners import make_planner  # noqa: E402

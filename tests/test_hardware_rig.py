@@ -17,11 +17,9 @@ from jaxrecog.hardware.controller_sim import LINEAR_RESOLUTION_M, ControllerSimu
 from jaxrecog.hardware.hardware_rig import (
     HardwareRig,
     SimulatedHardwareRig,
-    line_of_sight,
-    ptu_angles,
     rig_from_config,
 )
-from jaxrecog.hardware.kinematics import Workspace
+from jaxrecog.hardware.kinematics import DEFAULT_MOUNTS, Mount, Workspace, line_of_sight, ptu_angles
 from jaxrecog.hardware.positions import default_table
 from jaxrecog.hardware.ptu import PTU
 from jaxrecog.hardware.ptu_sim import PTUSimulator
@@ -69,6 +67,16 @@ def test_ptu_angles_and_line_of_sight_are_inverse(rng):
         assert -180 <= pan <= 180
         want = (target - eye) / np.linalg.norm(target - eye)
         np.testing.assert_allclose(line_of_sight(pan, tilt, mount), want, atol=1e-12)
+
+
+def test_the_rig_file_default_mounts_are_the_kinematic_defaults():
+    """config.default_mounts (PTU entries) and kinematics.DEFAULT_MOUNTS (the travel
+    times' default) hold the same angles; the old import path of the angle functions works."""
+    from jaxrecog.hardware import hardware_rig
+
+    assert [Mount(m.pan_zero_deg, m.tilt_zero_deg, m.pan_sign) for m in default_mounts(2)] == list(DEFAULT_MOUNTS)
+    assert default_mounts(1) == default_mounts(2)[:1]
+    assert hardware_rig.ptu_angles is ptu_angles and hardware_rig.line_of_sight is line_of_sight
 
 
 def test_default_mounts_keep_the_default_table_inside_the_ptu_limits():

@@ -1,6 +1,6 @@
 """Every error that lists problems follows one rule (issue 16 item 3): the
 count, the first ten one per line, and where the rest are
-(:func:`jaxrecog.hardware.problems.problem_message`)."""
+(:func:`jaxrecog.problems.problem_message`)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from jaxrecog._config import ConfigFileError, section
-from jaxrecog.hardware.problems import DEBUG_HINT
+from jaxrecog.problems import DEBUG_HINT
 
 
 def _shape(msg: str, n: int) -> list[str]:

@@ -12,7 +12,8 @@ import pytest
 from jaxrecog.hardware import RigError
 from jaxrecog.hardware.config import ConfigError, ControllerConfig, PTUConfig, RigConfig, default_mounts, load_config
 from jaxrecog.hardware.controller_sim import ControllerSimulator
-from jaxrecog.hardware.hardware_rig import HardwareRig, Reconnect, SimulatedHardwareRig, ptu_angles
+from jaxrecog.hardware.hardware_rig import HardwareRig, Reconnect, SimulatedHardwareRig
+from jaxrecog.hardware.kinematics import ptu_angles
 from jaxrecog.hardware.pan_tilt import PanTilt, open_pan_tilt, pan_tilt_driver, register_pan_tilt
 from jaxrecog.hardware.positions import default_table
 from jaxrecog.hardware.ptu import PTU

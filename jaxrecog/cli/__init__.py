@@ -28,7 +28,7 @@ from typing import Any, Callable, Sequence
 
 from .. import __version__
 from .._config import ConfigFileError, load_settings, section
-from ..hardware.problems import problem_message, write_problem_list
+from ..problems import problem_message, write_problem_list
 from .._progress import set_quiet
 from ._common import CLIError, UsageError
 from ._options import Formatter, global_options

@@ -10,7 +10,7 @@ from typing import Any
 
 from .. import experiments as ex  # as a module: tests stub its prepare / run_case / run_trace
 from .. import plots
-from ..hardware.problems import problem_message
+from ..problems import problem_message
 from ._common import UsageError
 
 __all__ = ["QUICK", "make_settings", "trace_plot", "write_report"]

@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from ..hardware.problems import problem_message
+from ..problems import problem_message
 from .._progress import bar
 from ._bench_runner import find_scripts, headline, run_all
 from ._common import CLIError, print_table

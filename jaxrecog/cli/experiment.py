@@ -15,7 +15,7 @@ from ..driver import trial_mesh
 from ..modelfile import ModelFileError
 from ..planners import DEFAULT_MIN_PER_STRATUM
 from .._progress import enabled as progress_bars
-from ..hardware.problems import one_line
+from ..problems import one_line
 from ._common import UsageError
 from ._json import SCHEMA_VERSION, json_option, run_reporting
 from ._options import (PLANNERS, capture_options, capture_params, choice_options, default_likelihood, model_recipe,

@@ -67,7 +67,7 @@ import numpy as np
 
 from .. import kernels as K
 from ..driver import TrialSpec
-from ..hardware.rig import config_from_index, index_from_config
+from ..kernels.config_grid import ConfigGrid
 from . import _engine as E
 from .rigs import build_rig, load_env_model
 
@@ -448,7 +448,7 @@ class ActiveRecognitionEnv(_Base):
         if self.action_form == "flat":
             if np.ndim(a) != 0 or not np.issubdtype(np.asarray(a).dtype, np.integer) or not 0 <= int(a) < self.n_configs:
                 raise gym.error.InvalidAction(f"action['action'] = {a!r} is outside {space} (a configuration index)")
-            return np.asarray(config_from_index(int(a), self.positions), np.int32)
+            return np.asarray(ConfigGrid(self.positions).configuration(int(a)), np.int32)
         arr = np.asarray(a)
         if arr.shape != (len(self.positions),) or not np.issubdtype(arr.dtype, np.integer) or not space.contains(arr.astype(space.dtype)):
             raise gym.error.InvalidAction(f"action['action'] = {a!r} is outside {space} (one position per camera)")
@@ -488,7 +488,7 @@ class ActiveRecognitionEnv(_Base):
 
     def _configuration_obs(self):
         if self.action_form == "flat":
-            return np.int64(index_from_config(tuple(int(v) for v in self._config), self.positions))
+            return np.int64(ConfigGrid(self.positions).index(tuple(int(v) for v in self._config)))
         return self._config.astype(np.int64)
 
     def _class_probs(self) -> np.ndarray:

@@ -45,6 +45,7 @@ from jaxtyping import Array, ArrayLike, Float, Int, PRNGKeyArray
 from .. import kernels as K
 from ..driver import TrialSpec
 from ..features import project_camera
+from ..kernels.config_grid import ConfigGrid
 from ..recognizer import image_features
 from . import _engine as E
 
@@ -222,7 +223,7 @@ class FunctionalEnv(eqx.Module):
     def _obs(self, state: FunctionalState) -> dict:
         return {
             "features": state.features,
-            "configuration": jnp.ravel_multi_index(tuple(state.config), self.positions, mode="clip"),
+            "configuration": ConfigGrid(self.positions).index(state.config, clip=True),
             "belief": K.class_marginal(state.belief),
             "views": state.views,
         }
@@ -242,7 +243,7 @@ class FunctionalEnv(eqx.Module):
         k_class, k_config, k_obs = jr.split(key, 3)
         target = jr.randint(k_class, (), 0, self.model.n_classes)
         a = jr.randint(k_config, (), 0, self.n_configs)
-        config = jnp.stack(jnp.unravel_index(a, self.positions)).astype(jnp.int32)
+        config = jnp.stack(ConfigGrid(self.positions).configuration(a)).astype(jnp.int32)
         return self.init(target, config, k_obs)
 
     def step(self, state: FunctionalState, action: dict, key: PRNGKeyArray):
@@ -262,7 +263,7 @@ class FunctionalEnv(eqx.Module):
         k_class, k_config, k_obs = jr.split(key, 3)
         a = jnp.clip(jnp.asarray(action["action"], jnp.int32), 0, self.n_configs - 1)
         fresh = jr.randint(k_config, (), 0, self.n_configs)
-        nxt = jnp.stack(jnp.unravel_index(jnp.where(done, fresh, a), self.positions)).astype(jnp.int32)
+        nxt = jnp.stack(ConfigGrid(self.positions).configuration(jnp.where(done, fresh, a))).astype(jnp.int32)
         target = jnp.where(done, jr.randint(k_class, (), 0, n_classes), state.target)
         moved = E.move_prior(state.belief, state.config, nxt, self.transition, self.rho)
         prior = jax.tree.map(lambda u, m: jnp.where(done, u, m), E.uniform_prior(self.model), moved)

@@ -19,7 +19,7 @@ import jax.random as jr
 import numpy as np
 
 from .. import kernels as K
-from ..hardware.rig import config_from_index
+from ..kernels.config_grid import ConfigGrid
 
 __all__ = ["PlannerPolicy"]
 
@@ -63,7 +63,7 @@ class PlannerPolicy:
     def _config(self, obs) -> np.ndarray:
         c = np.asarray(obs["configuration"])
         if c.ndim == 0:
-            c = np.asarray(config_from_index(int(c), self.env.positions))
+            c = np.asarray(ConfigGrid(self.env.positions).configuration(int(c)))
         return c.astype(np.int32)
 
     def __call__(self, obs: dict) -> dict[str, Any]:
