@@ -268,6 +268,8 @@ def _resolve(args) -> _Resolved:
     values.setdefault("workdir", args.workdir or str(out / "work"))
     if args.workdir:
         values["workdir"] = args.workdir
+    if isinstance(values.get("capture_noise"), list):  # a TOML array: the field is a tuple
+        values["capture_noise"] = tuple(values["capture_noise"])
     try:
         settings = make_settings(values, args.case or "experiment")
     except ValueError as e:
