@@ -229,6 +229,8 @@ def _resolve(args) -> _Resolved:
             raise UsageError(f"--rig {rig} replays a database, not a thesis case: leave out the case ({name})")
         if not model:
             raise UsageError("--rig dataset:FOLDER needs --model MODEL.NPZ (a model file trained on the database)")
+        if not isinstance(model, str):
+            raise UsageError(f"model must be a model file name, got {one_line(repr(model), 80)}")
         if args.trace:
             raise UsageError("--trace works with the thesis cases (synthetic rig) only")
         if (args.stride or values.get("stride", 1)) != 1:
