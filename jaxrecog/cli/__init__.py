@@ -4,7 +4,8 @@ Exit codes: 0 success, 2 usage error, 1 runtime failure (one line
 "jaxrecog: error: ..."; run with --debug for the traceback), 141 when the
 reader of the output went away (a pipe into head), as for any Unix tool.
 Settings may come from a TOML file (--config FILE): one table per subcommand
-with the long option names as keys; command-line options override the file.
+with the long option names (or, for experiment, the Settings field names) as
+keys; command-line options override the file.
 Indices (objects, poses, positions) are 0-based everywhere.
 """
 
@@ -27,7 +28,7 @@ import types
 from typing import Any, Callable, Sequence
 
 from .. import __version__
-from .._config import ConfigFileError, load_settings, section
+from .._config import OPTION_FIELDS, ConfigFileError, load_settings, section
 from ..problems import problem_message, write_problem_list
 from .._progress import set_quiet
 from ._common import CLIError, UsageError
@@ -88,9 +89,21 @@ def _apply_config(parser: argparse.ArgumentParser, path: str) -> dict[str, Any]:
     if unknown:
         raise ConfigFileError(problem_message(f"settings file {path}: unknown table(s) "
                                               f"(known: global, {', '.join(subs)})", unknown))
+    modules = {m.NAME: m for m in SUBCOMMANDS}
     for name, sp in subs.items():
+        if name not in data:
+            continue
         dests = {a.dest for a in sp._actions if a.option_strings and a.dest not in ("help", "config")}
-        values = section(data, name, dests, path)
+        # one dialect: an option's Settings field name too; a subcommand's CONFIG_FIELDS (Settings
+        # fields without an option) arrive together as args.config_fields
+        names = {d: d for d in dests}
+        names.update({f: o for o, f in OPTION_FIELDS.items() if o in dests and f not in dests})
+        extra = [f for f in getattr(modules.get(name), "CONFIG_FIELDS", ()) if f not in names]
+        names.update({f: f for f in extra})
+        values = section(data, name, names, path)
+        fields = {k: values.pop(k) for k in extra if k in values}
+        if fields:
+            values["config_fields"] = fields
         if values:
             sp.set_defaults(**values)
     return glob

@@ -4,12 +4,13 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import time
 from pathlib import Path
 from typing import Any
 
 from .. import experiments as ex  # as a module: tests stub its prepare / run_case / run_dataset
-from .._config import ConfigFileError, read_toml
+from .._config import FIELD_OPTIONS, LIKELIHOOD_OPTION_KEYS, OPTION_FIELDS, ConfigFileError, read_toml, resolve_keys
 from .._lock import folder_lock
 from ..driver import trial_mesh
 from ..modelfile import ModelFileError
@@ -18,8 +19,8 @@ from .._progress import enabled as progress_bars
 from ..problems import one_line
 from ._common import UsageError
 from ._json import SCHEMA_VERSION, json_option, run_reporting
-from ._options import (PLANNERS, capture_options, capture_params, choice_options, default_likelihood, model_recipe,
-                       nonneg, probability,
+from ._options import (PLANNERS, capture_options, capture_params, choice_options, default_likelihood, gray_range,
+                       model_recipe, nonneg, probability, sigma_range,
                        given_likelihood_options, likelihood_options, positive, render_jitter_options,
                        render_jitter_values, render_workers_option)
 from ._reports import QUICK, make_settings, trace_plot, write_report
@@ -36,7 +37,17 @@ DESCRIPTION = ("Run a recognition campaign as in thesis chapter 7 and write the 
                "With --rig dataset:FOLDER --model MODEL.NPZ (and no CASE) the campaign replays the\n"
                "test split of an image database instead: every object of the model, --trials per\n"
                "object with a random pose and start, any number of cameras and positions (the\n"
-               "model's).  A TOML file may give 'rig' and 'model' in place of 'case'.")
+               "model's).  A TOML file may give 'rig' and 'model' in place of 'case'.\n\n"
+               "An experiment file and the [experiment] table of --config take the same keys: the\n"
+               "option names (trials, threshold, ...) or the Settings field names (trials_per_object,\n"
+               "p_threshold, ...).  --print-config prints the resolved configuration as an experiment\n"
+               "file and exits; every run writes it as config.toml into --out.")
+
+#: Settings fields an [experiment] table of ``--config`` may give besides the
+#: options (cli._apply_config): those without an option arrive as ``args.config_fields``.
+CONFIG_FIELDS = tuple(f.name for f in dataclasses.fields(ex.Settings))
+#: An experiment file's own keys besides the Settings fields and their option names.
+FILE_KEYS = ("case", "rig", "model", "planners")
 
 
 def add_arguments(p) -> None:
@@ -82,6 +93,9 @@ def add_arguments(p) -> None:
                         "(optical-flow morph, the robust recipe's)")
     render_jitter_options(g)
     capture_options(p, unset=True)
+    p.add_argument("--print-config", action="store_true",
+                   help="print the resolved configuration (every Settings field and the planners, an experiment "
+                        "file that runs the same campaign) and exit without running")
     json_option(p)
 
 
@@ -111,15 +125,43 @@ def _training_values(args, values: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
+def experiment_keys() -> dict[str, str]:
+    """Every key an experiment file accepts -> its canonical name: the file's
+    own keys, the Settings fields, their option names (:data:`OPTION_FIELDS`)
+    and the likelihood's option flags (``rank`` -> ``likelihood_options``'s)."""
+    names = {k: k for k in (*FILE_KEYS, *CONFIG_FIELDS)}
+    names.update({o: f for o, f in OPTION_FIELDS.items()})
+    names.update({k: k for k in LIKELIHOOD_OPTION_KEYS})
+    return names
+
+
 def load_settings_flat(path: str) -> dict[str, Any]:
     """An experiment TOML: top-level keys (``case``, ``planners``, Settings
-    fields); a ``[settings]`` table is merged in too."""
+    fields or their option names); a ``[settings]`` table is merged in too.
+    Keys come back as Settings field names (``rank``, ``nu``,
+    ``occluded_jitter`` folded into ``likelihood_options``)."""
     data = read_toml(path, "experiment file")
     inner = data.pop("settings", {})
     if not isinstance(inner, dict):
         raise ConfigFileError(f"experiment file {path}: 'settings' must be a table")
-    data.update(inner)
-    return data
+    out = resolve_keys([("top level", data), ("[settings]", inner)], experiment_keys(), f"experiment file {path}")
+    flags = {k: out.pop(k) for k in LIKELIHOOD_OPTION_KEYS if k in out}
+    if flags:
+        base = out.get("likelihood_options") or {}
+        if not isinstance(base, dict):
+            raise ConfigFileError(f"experiment file {path}: likelihood_options must be a table")
+        twice = sorted(set(flags) & set(base))
+        if twice:
+            raise ConfigFileError(f"experiment file {path}: {twice[0]!r} and likelihood_options.{twice[0]} are the "
+                                  "same setting; give one of them")
+        out["likelihood_options"] = {**base, **flags}
+    for field, parse in (("blur_sigma", sigma_range), ("occluder_gray", gray_range)):
+        if isinstance(out.get(field), str):  # the option's "LO,HI" form
+            try:
+                out[field] = parse(out[field])
+            except (ValueError, argparse.ArgumentTypeError) as e:
+                raise ConfigFileError(f"experiment file {path}: {FIELD_OPTIONS.get(field, field)}: {e}") from None
+    return out
 
 
 def _dataset_folder(rig: str) -> str:
@@ -131,7 +173,27 @@ def _dataset_folder(rig: str) -> str:
     return folder
 
 
-def _report(args) -> tuple[dict, str]:
+@dataclasses.dataclass(frozen=True)
+class _Resolved:
+    """What a run does: the campaign (a case name, or a database ``folder``
+    and ``model``), its Settings and planners (``None``: the default)."""
+
+    name: str | None
+    rig: Any
+    model: Any
+    folder: str | None
+    settings: Any
+    planners: list[str] | None
+    out: Path
+
+    @property
+    def dataset(self) -> bool:
+        return self.folder is not None
+
+
+def _resolve(args) -> _Resolved:
+    """The experiment's configuration from the case or experiment file, the
+    ``--config`` table and the options (usage errors before anything runs)."""
     values: dict[str, Any] = {}
     planners = args.planners
     name = args.case
@@ -157,13 +219,18 @@ def _report(args) -> tuple[dict, str]:
                                  f"({', '.join(PLANNERS)}), got {one_line(repr(planners), 80)}")
         data.pop("planners", None)
         values.update(data)
+    fields = getattr(args, "config_fields", None) or {}  # --config [experiment]: fields without an option
+    values.update(fields)
     dataset = rig is not None and str(rig) != "synthetic"
+    folder = None
     if dataset:
         folder = _dataset_folder(str(rig))
         if name is not None:
             raise UsageError(f"--rig {rig} replays a database, not a thesis case: leave out the case ({name})")
         if not model:
             raise UsageError("--rig dataset:FOLDER needs --model MODEL.NPZ (a model file trained on the database)")
+        if not isinstance(model, str):
+            raise UsageError(f"model must be a model file name, got {one_line(repr(model), 80)}")
         if args.trace:
             raise UsageError("--trace works with the thesis cases (synthetic rig) only")
         if (args.stride or values.get("stride", 1)) != 1:
@@ -203,6 +270,8 @@ def _report(args) -> tuple[dict, str]:
     values.setdefault("workdir", args.workdir or str(out / "work"))
     if args.workdir:
         values["workdir"] = args.workdir
+    if isinstance(values.get("capture_noise"), list):  # a TOML array: the field is a tuple
+        values["capture_noise"] = tuple(values["capture_noise"])
     try:
         settings = make_settings(values, args.case or "experiment")
     except ValueError as e:
@@ -215,8 +284,68 @@ def _report(args) -> tuple[dict, str]:
         trial_mesh(settings.devices)  # too many devices: one clear line before anything renders or trains
     except ValueError as e:
         raise UsageError(f"--devices {settings.devices}: {e}") from None
+    return _Resolved(name, rig, model, folder, settings, planners, out)
+
+
+def _toml_key(k: Any) -> str:
+    k = str(k)
+    return k if k and all(c.isascii() and (c.isalnum() or c in "_-") for c in k) else json.dumps(k)
+
+
+def _toml_value(v: Any) -> str | None:
+    """``v`` as a TOML value (``None``: TOML has none; the key is left out)."""
+    if v is None:
+        return None
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, (int, float)):
+        return repr(v)
+    if isinstance(v, (str, Path)):
+        return json.dumps(str(v))  # a JSON string is a TOML basic string
+    if isinstance(v, dict):
+        items = [(k, _toml_value(x)) for k, x in v.items()]
+        return "{" + ", ".join(f"{_toml_key(k)} = {x}" for k, x in items if x is not None) + "}"
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_toml_value(x) or '""' for x in v) + "]"
+    raise TypeError(f"no TOML form for {type(v).__name__}")
+
+
+def config_text(r: _Resolved) -> str:
+    """The resolved configuration as an experiment file: the campaign, the
+    planners and every Settings field (under its field name; a field that is
+    ``None``, the case's own, as a comment)."""
+    lines = ["# jaxrecog experiment: the resolved configuration (run it again: jaxrecog experiment FILE.toml)"]
+    if r.dataset:
+        lines += [f"rig = {_toml_value(str(r.rig))}", f"model = {_toml_value(str(r.model))}"]
+    else:
+        lines.append(f"case = {_toml_value(r.name)}")
+    planners = r.planners
+    if planners is None and not r.dataset:
+        planners = list(ex.CASES[r.name].planners)
+    elif planners is None:
+        try:
+            planners = list(ex.dataset_planners(r.model))
+        except (ModelFileError, ValueError, OSError):
+            planners = None  # the campaign's own load of the model reports it
+    if planners is not None:
+        lines.append(f"planners = {_toml_value(list(planners))}")
+    for f in dataclasses.fields(r.settings):
+        v = getattr(r.settings, f.name)
+        if f.name == "likelihood_options":
+            v = dict(v)
+        text = _toml_value(v)
+        lines.append(f"# {f.name}: not set (the case's)" if text is None else f"{f.name} = {text}")
+    return "\n".join(lines) + "\n"
+
+
+def _report(args) -> tuple[dict, str]:
+    r = _resolve(args)
+    name, rig, model, folder, settings, planners, out, dataset = (r.name, r.rig, r.model, r.folder, r.settings,
+                                                                  r.planners, r.out, r.dataset)
     # one run per --out and work folder: a second is refused, naming the first's PID
     with folder_lock(out, settings.workdir):
+        config = out / "config.toml"  # the resolved configuration beside the results (as hydra does)
+        config.write_text(config_text(r))
         t0 = time.perf_counter()
         if dataset:
             report = ex.run_dataset(folder, model, settings, planners=planners, progress=progress_bars())
@@ -228,6 +357,7 @@ def _report(args) -> tuple[dict, str]:
             if args.trace:
                 written += trace_plot(settings, out, planner=(planners or ["mi"])[0], case=name)
             done = f"case {name}"
+        written.insert(0, config)
         seconds = time.perf_counter() - t0
     doc = {"command": NAME, "schema_version": SCHEMA_VERSION, "case": "dataset" if dataset else name,
            "title": report.case.title, "rig": str(rig) if dataset else "synthetic",
@@ -255,4 +385,7 @@ def _planner_doc(report, planner: str) -> dict[str, Any]:
 
 
 def run(args) -> int:
+    if args.print_config:
+        print(config_text(_resolve(args)), end="")
+        return 0
     return run_reporting(args, _report)
