@@ -236,6 +236,12 @@ class StableViewMIPlanner(TemperedPairwiseMIPlanner):
 
         score(a) = I_D^tau(c; g | a) - stability * sum_i E_{c ~ P(c)} d_i[v_i, c]
 
+    ``temper`` defaults to 1 here (the belief itself): with the stability
+    term the plain belief no longer chases the views where the model is worst
+    (photos, 40° grid, diagonal mixture: 99.0 / 1.0 % in 2.18 views at 1,
+    2.21 at 0), and on the synthetic rig's off-grid case it keeps the plain
+    planner's rate (low-rank mixture: 96.0 / 0.0 % against 93.0 / 1.0 % at 0).
+
     ``d`` (mean 1 per camera) is large where a class's appearance changes
     fast between training views, so a capture there is modelled worst; with
     the adaptive scale such a capture weighs little and does not count
@@ -248,7 +254,7 @@ class StableViewMIPlanner(TemperedPairwiseMIPlanner):
 
     @classmethod
     def from_model(cls, model, *, target: str = "class", divergence: str = "bhattacharyya",
-                   levels: str = "belief", temper: float = 0.0, stability: float = 1.0) -> "StableViewMIPlanner":
+                   levels: str = "belief", temper: float = 1.0, stability: float = 1.0) -> "StableViewMIPlanner":
         if isinstance(stability, bool) or not isinstance(stability, (int, float)) or not 0.0 <= stability < math.inf:
             raise ValueError(f"stability must be a finite number >= 0, got {stability!r}")
         base = TemperedPairwiseMIPlanner.from_model(model, target=target, divergence=divergence, levels=levels,
@@ -523,7 +529,8 @@ PLANNERS: dict[str, PlannerSpec] = {
                                             "pairwise I(c; g | a) under the tempered class belief P(c)^tau (option temper, default 0: "
                                             "the uniform class prior; does not chase an over-confident belief, issue 28)"),
     "mi-class-pairwise-stable": PlannerSpec(_stable("class"), "mi",
-                                            "mi-class-pairwise-robust minus option stability (default 1) times the expected "
+                                            "pairwise I(c; g | a) under P(c)^tau (option temper, default 1) minus option "
+                                            "stability (default 1) times the expected "
                                             "view instability under the belief: prefers views the likely classes look alike "
                                             "at from either side (a view-mixture model's interpolated components; issue 28)"),
     "mi-lookahead": PlannerSpec(_lookahead("state"), "mi",

@@ -19,7 +19,7 @@ records the parts as they were used.
 ``robust``
     The default: the best we measured on real turntable photos with test
     views between the training views (``scripts/photo_bench.py``,
-    ``docs/results.md`` "Real photos").  A view mixture with two
+    ``docs/results.md`` "Real photos").  A low-rank view mixture with two
     interpolated components per side toward each neighbouring training view,
     made by optical-flow morphing (:mod:`jaxrecog.view_interpolation`), the database's jitter rows
     when it has them, calibration on its ``calib`` split when it has one,
@@ -158,13 +158,13 @@ THESIS = Recipe(
 
 # version 2: the planner part (mi-class-pairwise-robust); a version-1 file recorded no planner
 # version 3: the adaptive scale (32; a version-2 file recorded none: it loads with 1, off, as it ran)
-# and the planner mi-class-pairwise-stable
+# the planner mi-class-pairwise-stable and the low-rank view mixture
 ROBUST = Recipe(
     name="robust", version=3,
     summary="the default: view mixture with optical-flow interpolated views, calibrated, evidence weakened "
             "for captures no class explains, stop after 2 explained views from new positions, MI under a "
             "tempered class belief, preferring stable views",
-    likelihood="view-mixture", interpolate=2, interpolation="flow", view_jitter=AUTO, calibrate=AUTO,
+    likelihood="view-mixture-lowrank", interpolate=2, interpolation="flow", view_jitter=AUTO, calibrate=AUTO,
     min_views=2, exclude_visited=True, adaptive_scale=32.0, planner="mi-class-pairwise-stable",
 )
 

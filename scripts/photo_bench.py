@@ -54,7 +54,7 @@ APPROACHES: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "student-t, robust stop": (("--recipe", "robust", "--likelihood", "student-t", "--interpolate", "0"), ()),
     "robust, thesis stop": (("--recipe", "robust",), ("--min-views", "1", "--no-exclude-visited")),
     "robust, linear interpolation": (("--recipe", "robust", "--interpolation", "linear"), ()),
-    "robust, lowrank mixture": (("--recipe", "robust", "--likelihood", "view-mixture-lowrank"), ()),
+    "robust, diagonal mixture": (("--recipe", "robust", "--likelihood", "view-mixture"), ()),
     "robust, plain MI planner": (("--recipe", "robust"), ("--planners", "mi-class-pairwise")),
     "robust, 4 interpolated views": (("--recipe", "robust", "--interpolate", "4"), ()),
     "robust, 3 views": (("--recipe", "robust",), ("--min-views", "3")),

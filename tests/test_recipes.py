@@ -75,11 +75,11 @@ def test_train_records_the_resolved_recipe_and_inspect_shows_it(photo_db, robust
     assert meta["format_version"] == FORMAT_VERSION == 4
     r = recipe_from_meta(meta)
     # 'auto' resolved against the database: it has a calib split and no jitter rows
-    assert (r.name, r.likelihood, r.interpolate, r.calibrate, r.view_jitter) == ("robust", "view-mixture", 2, True, False)
+    assert (r.name, r.likelihood, r.interpolate, r.calibrate, r.view_jitter) == ("robust", "view-mixture-lowrank", 2, True, False)
     assert meta["calibrated"] and meta["training"]["interpolate"]["points_per_side"] == 2
     assert load_model(robust_model).cameras[0].likelihood.mu.shape[3] == 5   # 1 training view + 2 x 2 blends
     p = run_cli("inspect", robust_model)
-    assert "recipe: robust (version 3): likelihood = 'view-mixture'" in p.stdout
+    assert "recipe: robust (version 3): likelihood = 'view-mixture-lowrank'" in p.stdout
     assert "interpolated views: 2 per side; neighbouring positions found per camera: [18] of [18]" in p.stdout
     # the thesis recipe: today's defaults; a flag overrides one part and the file records it
     out = photo_db / "thesis.npz"
@@ -120,7 +120,7 @@ def test_old_model_files_load_as_thesis(photo_db, robust_model, tmp_path):
     (("--recipe", "thesis", "--interpolate", "2"), "--interpolate 2 needs a mixture likelihood"),
     (("--recipe", "thesis", "--likelihood", "view-mixture"), "--likelihood view-mixture needs mixture components"),
     (("--view-jitter",), "--view-jitter (recipe robust) needs a 'jitter' split"),
-    (("--rank", "2"), "--rank applies to gaussian-lowrank, view-mixture-lowrank"),
+    (("--likelihood", "view-mixture", "--rank", "2"), "--rank applies to gaussian-lowrank, view-mixture-lowrank"),
 ])
 def test_train_contradictions_are_one_line_and_write_nothing(photo_db, tmp_path, argv, needle):
     out = tmp_path / "m.npz"

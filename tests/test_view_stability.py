@@ -42,6 +42,11 @@ def test_instability_matches_numpy_and_is_zero_without_view_components():
         np.testing.assert_allclose(np.asarray(view_instability(cam.likelihood)), d / d.mean(), rtol=1e-5)
     diag = random_sensor_model((4, 3)).cameras[0].likelihood
     assert np.all(np.asarray(view_instability(diag)) == 0.0)
+    # the low-rank mixture's component means are read the same way
+    mix = model.cameras[0].likelihood
+    v, c, l, m, k = mix.mu.shape
+    lowrank = K.LowRankViewMixture(mix.mu, jnp.zeros((v, c, l, m, k, 1), jnp.float32), mix.var, mix.log_w)
+    np.testing.assert_allclose(np.asarray(view_instability(lowrank)), np.asarray(view_instability(mix)), rtol=1e-6)
 
 
 def test_expected_instability_is_the_brute_force_sum_over_cameras_row_major():
@@ -57,7 +62,8 @@ def test_planner_is_the_robust_score_minus_the_weighted_expected_instability(get
     model = _mixture_model()
     prior = K.uniform_belief(model.n_classes, tuple(len(model.levels) for _ in model.positions))
     prior = prior._replace(log_pc=jax.nn.log_softmax(jnp.arange(model.n_classes, dtype=prior.log_pc.dtype)))
-    robust = make_planner("mi-class-pairwise-robust", model, key=getkey())
+    robust = make_planner("mi-class-pairwise-robust", model, key=getkey(), temper=1.0)
+    assert make_planner("mi-class-pairwise-stable", model, key=getkey()).temper == 1.0   # the plain belief by default
     for lam in (0.0, 1.0, 2.5):
         p = make_planner("mi-class-pairwise-stable", model, key=getkey(), stability=lam)
         assert isinstance(p, StableViewMIPlanner) and isinstance(p, TemperedPairwiseMIPlanner)
@@ -67,7 +73,8 @@ def test_planner_is_the_robust_score_minus_the_weighted_expected_instability(get
     # without view components it is the robust planner
     diag = random_sensor_model()
     np.testing.assert_allclose(np.asarray(make_planner("mi-class-pairwise-stable", diag, key=getkey()).scores(prior, getkey())),
-                               np.asarray(make_planner("mi-class-pairwise-robust", diag, key=getkey()).scores(prior, getkey())))
+                               np.asarray(make_planner("mi-class-pairwise-robust", diag, key=getkey(), temper=1.0)
+                                          .scores(prior, getkey())))
     for bad in (-1.0, float("inf"), True):
         with pytest.raises(ValueError, match="stability must be a finite number >= 0"):
             make_planner("mi-class-pairwise-stable", model, key=getkey(), stability=bad)
