@@ -26,11 +26,10 @@ records the parts as they were used.
     evidence weakened for a capture that no class explains (the adaptive
     scale, :mod:`jaxrecog.kernels.adaptive_scale`), a stop only after two
     explained image sets from different positions, and the
-    planner ``mi-class-pairwise-stable`` (MI under the tempered class belief:
-    the plain planner trusts an over-confident one-view belief and picks
-    views where the model is worst, below random on the photos; minus the
-    expected view instability, so the next view is one the likely classes
-    are modelled well at and the stop comes sooner).
+    planner ``mi-class-pairwise-stable`` (pairwise MI minus the expected
+    view instability, so the next view is one the likely classes are
+    modelled well at and the stop comes sooner; plain MI picks the views
+    where the model is worst and ends below random on the photos).
 
 The registry :data:`RECIPES` maps names to recipes; :func:`get_recipe`
 looks one up (an unknown name is one line listing the known ones).
@@ -161,9 +160,9 @@ THESIS = Recipe(
 # the planner mi-class-pairwise-stable and the low-rank view mixture
 ROBUST = Recipe(
     name="robust", version=3,
-    summary="the default: view mixture with optical-flow interpolated views, calibrated, evidence weakened "
-            "for captures no class explains, stop after 2 explained views from new positions, MI under a "
-            "tempered class belief, preferring stable views",
+    summary="the default: low-rank view mixture with optical-flow interpolated views, calibrated, evidence weakened "
+            "for captures no class explains, stop after 2 explained views from new positions, MI that "
+            "prefers stable views",
     likelihood="view-mixture-lowrank", interpolate=2, interpolation="flow", view_jitter=AUTO, calibrate=AUTO,
     min_views=2, exclude_visited=True, adaptive_scale=32.0, planner="mi-class-pairwise-stable",
 )
