@@ -227,7 +227,7 @@ def test_train_cli_flags_reach_train_model(tmp_path, monkeypatch, capsys):
                      "--components", "3", "--samples", "10", "--view-jitter"]) == 2
     assert "--view-jitter (recipe robust) needs a 'jitter' split" in capsys.readouterr().err
     assert not (tmp_path / "p.npz").exists()
-    assert cli.main(["train", str(plain), "--out", "x.npz", "--rank", "2"]) == 2  # --rank is gaussian-lowrank's
+    assert cli.main(["train", str(plain), "--out", str(tmp_path / "x.npz"), "--likelihood", "view-mixture", "--rank", "2"]) == 2  # --rank is the low-rank families'
 
 
 def test_experiment_cli_flags_reach_settings(tmp_path, monkeypatch, capsys):
