@@ -9,7 +9,7 @@
 
 Targets (issue 6, 2-core CPU): step ≤ 5 ms for MI with 1024 samples; 800
 trials of case (iii) ≤ 60 s; issue 30: the default recipe's planner
-(the default recipe's, ``mi-class-pairwise-stable``) step ≤ 1 ms, each row with its planner's own
+(``mi-class-pairwise-stable`` today) step ≤ 1 ms, each row with its planner's own
 time (``planner_median_ms``); issue 15: step ≤ 2 ms, planner ≤ 1 ms at regret
 ≤ 0.01 nats (the ``accuracy`` section: each planner against J = 32 oracles on
 the trained model, as ``bench_kernels.accuracy``).  The campaign defaults draw at least 8 samples
