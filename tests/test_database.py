@@ -350,3 +350,28 @@ def test_sparse_views_are_listed_without_sizing_their_product():
     probs = e.value.problems
     assert len(probs) == 1001 and probs[0] == "camera 0 position 0: no train image of object 0 pose 1"
     assert probs[-1] == f"camera 0: {n * n - n - 1000} more of its 1 positions x {n * n} classes have no train image"
+
+
+def test_a_colour_image_is_one_warning_line_at_the_cli(folder):
+    """Issue 31: ``jaxrecog inspect`` on a database with a colour image says so
+    in one line, ``jaxrecog: warning: ...``, not Python's warning with its
+    source line and category; the caller's warning display is restored."""
+    import subprocess
+    import sys
+    import warnings
+
+    from clirun import run_cli
+
+    root, _ = folder
+    rows = _rows(root)
+    gray = cv2.imread(str(root / rows[1][0]), cv2.IMREAD_UNCHANGED)
+    cv2.imwrite(str(root / rows[1][0]), cv2.cvtColor(gray, cv2.COLOR_GRAY2BGR))
+    before = warnings.showwarning
+    with warnings.catch_warnings():
+        warnings.simplefilter("default", NonGrayImageWarning)
+        p = run_cli("inspect", root)
+    assert warnings.showwarning is before
+    assert p.returncode == 0 and p.stderr.splitlines() == [
+        f"jaxrecog: warning: {root}: 1 colour image(s) converted to gray (rows 1)"], p.stderr
+    q = subprocess.run([sys.executable, "-m", "jaxrecog.cli", "inspect", str(root)], capture_output=True, text=True)
+    assert q.returncode == 0 and "jaxrecog: warning:" in q.stderr and "NonGrayImageWarning" not in q.stderr, q.stderr

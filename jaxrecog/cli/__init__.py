@@ -25,11 +25,12 @@ import pkgutil
 import select
 import sys
 import types
+import warnings
 from typing import Any, Callable, Sequence
 
 from .. import __version__
 from .._config import OPTION_FIELDS, ConfigFileError, load_settings, section
-from ..problems import problem_message, write_problem_list
+from ..problems import one_line, problem_message, write_problem_list
 from .._progress import set_quiet
 from ._common import CLIError, UsageError
 from ._options import Formatter, global_options
@@ -115,14 +116,24 @@ BROKEN_PIPE = 141
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    try:
-        code = _main(argv)
-        sys.stdout.flush()  # a reader that went away shows here, not as a complaint at exit
-        return code
-    except BrokenPipeError:
-        if not _stdout_gone():
-            raise
-        return _quiet_after_broken_pipe()
+    with warnings.catch_warnings():   # restores the caller's warning display afterwards
+        warnings.showwarning = _show_warning
+        try:
+            code = _main(argv)
+            sys.stdout.flush()  # a reader that went away shows here, not as a complaint at exit
+            return code
+        except BrokenPipeError:
+            if not _stdout_gone():
+                raise
+            return _quiet_after_broken_pipe()
+
+
+def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """A warning during a command is one line on stderr, ``jaxrecog: warning:
+    MESSAGE`` (not Python's two lines with the source file and the category),
+    e.g. a colour image converted to gray; the warning filters decide, as
+    always, whether it shows at all."""
+    print(f"jaxrecog: warning: {one_line(str(message), 300)}", file=sys.stderr if file is None else file)
 
 
 def _stdout_gone() -> bool:
