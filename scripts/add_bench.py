@@ -41,9 +41,8 @@ import time
 from pathlib import Path
 
 from jaxrecog.cli import main as cli_main
-from jaxrecog.metrics import campaign_metrics
-from jaxrecog.photo_turntable import PHOTOS, PhotoSet, build_photo_database, scan_photos
-from jaxrecog.results import TrialStore
+from jaxrecog.photo_turntable import PhotoSet, build_photo_database, scan_photos
+from photo_bench import parse_bench_args, planner_metrics   # scripts/ is this script's folder
 
 QUICK = {"grid": 40, "old": 2, "new": 1, "trials": 1, "samples": 10, "components": 4, "repeats": 0}
 
@@ -74,15 +73,9 @@ def _rate(exp: Path) -> dict:
     confident errors in % of trials, each with its standard error)."""
     report = json.loads((exp / "case_dataset.json").read_text())
     planner = next(iter(report["tables"]))
-    files = sorted((exp / "work" / "trials").glob(f"dataset-{planner}-*.jsonl"))
-    results = list(TrialStore(files[0]).load().values())
-    m = campaign_metrics(results, report["settings"]["p_threshold"])
-    n = m["trials"]
-    out = {"planner": planner, "trials": n}
-    for k in ("recognition_rate", "confident_error_pct_of_trials"):
-        p = m[k] / 100.0
-        out[k], out[k + "_se"] = m[k], 100.0 * math.sqrt(p * (1 - p) / n)
-    return out
+    m = planner_metrics(exp / "work", planner, report["settings"]["p_threshold"])
+    keys = ("recognition_rate", "recognition_rate_se", "confident_error_pct_of_trials", "confident_error_pct_of_trials_se")
+    return {"planner": planner, "trials": m["trials"], **{k: m[k] for k in keys}}
 
 
 def run(out: Path, *, photos: Path, grid: int, old: int, new: int, trials: int, samples: int, components: int,
@@ -142,20 +135,11 @@ def _line(r: dict, full: dict) -> str:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", type=Path, default=Path("out/add-bench"))
-    ap.add_argument("--photos", type=Path, default=PHOTOS, help="folder of objM__I.png turntable photos")
     ap.add_argument("--grid", type=int, default=30, help="grid step in degrees")
     ap.add_argument("--old", type=int, default=8, help="objects of the model added to")
     ap.add_argument("--new", type=int, default=2, help="objects added")
-    ap.add_argument("--trials", type=int, default=30, help="trials per object")
-    ap.add_argument("--samples", type=int, default=100, help="augmented samples per training image")
-    ap.add_argument("--components", type=int, default=20, help="eigenvectors K")
     ap.add_argument("--repeats", type=int, default=3, help="cold and warm runs of each training command (median)")
-    ap.add_argument("--quick", action="store_true", help="the CI form: " + ", ".join(f"{k} {v}" for k, v in QUICK.items()))
-    args = ap.parse_args(argv)
-    if args.quick:
-        for k, v in QUICK.items():
-            setattr(args, k, v)
-    args.out.mkdir(parents=True, exist_ok=True)
+    args = parse_bench_args(ap, argv, QUICK)
     print(HEADER, flush=True)
     rows = run(args.out, photos=args.photos, grid=args.grid, old=args.old, new=args.new, trials=args.trials,
                samples=args.samples, components=args.components, repeats=args.repeats)

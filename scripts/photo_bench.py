@@ -80,7 +80,10 @@ def _cli(*args, log) -> None:
         raise SystemExit(f"photo_bench: command failed ({rc}): jaxrecog {' '.join(argv)}\n{last[-1] if last else ''}")
 
 
-def _metrics(workdir: Path, planner: str, p_threshold: float) -> dict:
+def planner_metrics(workdir: Path, planner: str, p_threshold: float) -> dict:
+    """:func:`~jaxrecog.metrics.campaign_metrics` of ``planner``'s trial store in
+    an experiment's ``workdir``, with the standard errors of the rate, the
+    confident errors and the mean views (also ``scripts/add_bench.py``'s)."""
     files = sorted((workdir / "trials").glob(f"dataset-{planner}-*.jsonl"))
     if len(files) != 1:
         raise SystemExit(f"photo_bench: expected one trial store of {planner} in {workdir}, found {len(files)}")
@@ -125,7 +128,7 @@ def run(out: Path, *, photos: Path, grids, recipes, approaches, trials: int, obj
             report = json.loads((exp / "case_dataset.json").read_text())
             settings = report["settings"]
             for planner in report["tables"]:   # the model recipe's planner and random unless --planners
-                m = _metrics(exp / "work", planner, settings["p_threshold"])
+                m = planner_metrics(exp / "work", planner, settings["p_threshold"])
                 rows.append({"grid": grid, "offset": grid / 2, "variant": name, "planner": planner,
                              "train_s": train_s, "min_views": settings["min_views"],
                              "exclude_visited": settings["exclude_visited_positions"],
@@ -181,25 +184,34 @@ def figure(rows: list[dict], path: Path) -> Path:
     return path
 
 
+def parse_bench_args(ap: argparse.ArgumentParser, argv, quick: dict) -> argparse.Namespace:
+    """The options every photo benchmark script shares (``--photos``,
+    ``--trials``, ``--samples``, ``--components``, ``--quick`` = the script's
+    ``quick`` values) added to ``ap``, the arguments parsed, ``--quick``
+    applied and ``--out`` made."""
+    ap.add_argument("--photos", type=Path, default=PHOTOS, help="folder of objM__I.png turntable photos")
+    ap.add_argument("--trials", type=int, default=30, help="trials per object")
+    ap.add_argument("--samples", type=int, default=100, help="augmented samples per training image")
+    ap.add_argument("--components", type=int, default=20, help="eigenvectors K")
+    ap.add_argument("--quick", action="store_true", help="the CI form: " + ", ".join(f"{k} {v}" for k, v in quick.items()))
+    args = ap.parse_args(argv)
+    if args.quick:
+        for k, v in quick.items():
+            setattr(args, k, v)
+    args.out.mkdir(parents=True, exist_ok=True)
+    return args
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", type=Path, default=Path("out/photo-bench"))
-    ap.add_argument("--photos", type=Path, default=PHOTOS, help="folder of objM__I.png turntable photos")
     ap.add_argument("--grids", type=int, nargs="+", default=[20, 30, 40], help="grid steps in degrees")
     ap.add_argument("--recipes", nargs="+", default=list(RECIPES), choices=list(RECIPES))
     ap.add_argument("--approaches", action="store_true", help="also the other approaches (APPROACHES)")
     ap.add_argument("--approach", nargs="+", choices=list(APPROACHES), metavar="NAME", default=None,
                     help="only these approaches (names as in the table), besides --recipes")
-    ap.add_argument("--trials", type=int, default=30, help="trials per object")
     ap.add_argument("--objects", type=int, default=None, help="the first N objects (default all)")
-    ap.add_argument("--samples", type=int, default=100, help="augmented samples per training image")
-    ap.add_argument("--components", type=int, default=20, help="eigenvectors K")
-    ap.add_argument("--quick", action="store_true", help="the CI form: " + ", ".join(f"{k} {v}" for k, v in QUICK.items()))
-    args = ap.parse_args(argv)
-    if args.quick:
-        for k, v in QUICK.items():
-            setattr(args, k, v)
-    args.out.mkdir(parents=True, exist_ok=True)
+    args = parse_bench_args(ap, argv, QUICK)
     t0 = time.perf_counter()
     print(HEADER, flush=True)
     with open(args.out / "photo_bench.log", "w") as log:
