@@ -249,6 +249,7 @@ class StableViewMIPlanner(TemperedPairwiseMIPlanner):
     stable at.  ``stability = 0`` is :class:`TemperedPairwiseMIPlanner`; a
     model without view components has ``d = 0`` (the same)."""
 
+    temper: float = eqx.field(static=True, default=1.0)   # the belief itself (class docstring)
     instability: tuple[Float[Array, "_V C"], ...] = ()
     stability: float = eqx.field(static=True, default=1.0)
 
@@ -260,7 +261,8 @@ class StableViewMIPlanner(TemperedPairwiseMIPlanner):
         base = TemperedPairwiseMIPlanner.from_model(model, target=target, divergence=divergence, levels=levels,
                                                     temper=temper)
         inst = tuple(K.view_stability.view_instability(lik) for lik in model.likelihoods)
-        return cls(base.n_configs, base.tables, base.target, base.levels, base.temper, inst, float(stability))
+        return cls(base.n_configs, base.tables, target=base.target, levels=base.levels, temper=base.temper,
+                   instability=inst, stability=float(stability))
 
     def scores(self, prior, key):
         mi = super().scores(prior, key)
