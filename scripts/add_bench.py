@@ -42,7 +42,7 @@ from pathlib import Path
 
 from jaxrecog.cli import main as cli_main
 from jaxrecog.photo_turntable import PhotoSet, build_photo_database, scan_photos
-from photo_bench import parse_bench_args, planner_metrics   # scripts/ is this script's folder
+from photo_bench import bench_args, bench_options, planner_metrics   # scripts/ is this script's folder
 
 QUICK = {"grid": 40, "old": 2, "new": 1, "trials": 1, "samples": 10, "components": 4, "repeats": 0}
 
@@ -132,14 +132,19 @@ def _line(r: dict, full: dict) -> str:
     return f"| {r['variant']} | {share('cold_s')} | {share('warm_s')} | {rate} |"
 
 
-def main(argv=None) -> int:
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of this script (the docs tests parse the docs' commands with it)."""
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", type=Path, default=Path("out/add-bench"))
     ap.add_argument("--grid", type=int, default=30, help="grid step in degrees")
     ap.add_argument("--old", type=int, default=8, help="objects of the model added to")
     ap.add_argument("--new", type=int, default=2, help="objects added")
     ap.add_argument("--repeats", type=int, default=3, help="cold and warm runs of each training command (median)")
-    args = parse_bench_args(ap, argv, QUICK)
+    return bench_options(ap, QUICK)
+
+
+def main(argv=None) -> int:
+    args = bench_args(build_parser().parse_args(argv), QUICK)
     print(HEADER, flush=True)
     rows = run(args.out, photos=args.photos, grid=args.grid, old=args.old, new=args.new, trials=args.trials,
                samples=args.samples, components=args.components, repeats=args.repeats)

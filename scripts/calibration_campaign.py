@@ -48,7 +48,8 @@ from jaxrecog.recognizer import restrict_cameras
 from jaxrecog.results import TrialStore
 
 
-def main(argv=None) -> int:
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of this script (the docs tests parse the docs' commands with it)."""
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--workdir", type=Path, default=Path("out/calibration"))
     ap.add_argument("--case", default="i", choices=sorted(CASES))
@@ -78,7 +79,11 @@ def main(argv=None) -> int:
                     help="keep a view mixture's component in the belief, one per trial (Recognizer(shared_view=True))")
     likelihood_options(ap)
     render_jitter_options(ap)
-    args = ap.parse_args(argv)
+    return ap
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
 
     case = CASES[args.case]
     likelihood, options = likelihood_choice(args.likelihood, given_likelihood_options(args),

@@ -234,7 +234,8 @@ def plot(summary: dict, axis: str, path: Path) -> Path:
     return save_png(fig, path, dpi=90)
 
 
-def main(argv=None) -> int:
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of this script (the docs tests parse the docs' commands with it)."""
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", type=Path, default=Path("out/difficulty"))
     ap.add_argument("--workdir", type=Path, help="database and model cache (default: OUT/work)")
@@ -248,7 +249,11 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--quick", action="store_true", help="stride 8, small models, 1 trial per object, angles 0 and 20 (CI)")
     ap.add_argument("--quiet", action="store_true")
-    args = ap.parse_args(argv)
+    return ap
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
     values = dict(QUICK) if args.quick else {"stride": 2, "trials_per_object": 10}
     for k, v in (("trials_per_object", args.trials), ("stride", args.stride)):
         if v is not None:

@@ -23,7 +23,8 @@ import sys
 from pathlib import Path
 
 
-def main(argv=None) -> int:
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of this script (the docs tests parse the docs' commands with it)."""
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--case", default="i", help="a case of jaxrecog.experiments.CASES (default: i)")
     p.add_argument("--planners", default="mi,mi-class,crlb,random")
@@ -33,7 +34,11 @@ def main(argv=None) -> int:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--no-campaign", action="store_true", help="only the env, not run_campaign beside it")
     p.add_argument("--out", default=None, help="write the numbers as JSON here")
-    args = p.parse_args(argv)
+    return p
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
 
     from jaxrecog.experiments import CASES, Settings, case_model, case_trials, prepare
 

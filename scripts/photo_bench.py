@@ -184,17 +184,21 @@ def figure(rows: list[dict], path: Path) -> Path:
     return path
 
 
-def parse_bench_args(ap: argparse.ArgumentParser, argv, quick: dict) -> argparse.Namespace:
-    """The options every photo benchmark script shares (``--photos``,
+def bench_options(ap: argparse.ArgumentParser, quick: dict) -> argparse.ArgumentParser:
+    """Add the options every photo benchmark script shares (``--photos``,
     ``--trials``, ``--samples``, ``--components``, ``--quick`` = the script's
-    ``quick`` values) added to ``ap``, the arguments parsed, ``--quick``
-    applied and ``--out`` made."""
+    ``quick`` values) to ``ap``; returns ``ap``."""
     ap.add_argument("--photos", type=Path, default=PHOTOS, help="folder of objM__I.png turntable photos")
     ap.add_argument("--trials", type=int, default=30, help="trials per object")
     ap.add_argument("--samples", type=int, default=100, help="augmented samples per training image")
     ap.add_argument("--components", type=int, default=20, help="eigenvectors K")
     ap.add_argument("--quick", action="store_true", help="the CI form: " + ", ".join(f"{k} {v}" for k, v in quick.items()))
-    args = ap.parse_args(argv)
+    return ap
+
+
+def bench_args(args: argparse.Namespace, quick: dict) -> argparse.Namespace:
+    """Parsed arguments of a photo benchmark script with ``--quick`` applied
+    and ``--out`` made."""
     if args.quick:
         for k, v in quick.items():
             setattr(args, k, v)
@@ -202,7 +206,8 @@ def parse_bench_args(ap: argparse.ArgumentParser, argv, quick: dict) -> argparse
     return args
 
 
-def main(argv=None) -> int:
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of this script (the docs tests parse the docs' commands with it)."""
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", type=Path, default=Path("out/photo-bench"))
     ap.add_argument("--grids", type=int, nargs="+", default=[20, 30, 40], help="grid steps in degrees")
@@ -211,7 +216,11 @@ def main(argv=None) -> int:
     ap.add_argument("--approach", nargs="+", choices=list(APPROACHES), metavar="NAME", default=None,
                     help="only these approaches (names as in the table), besides --recipes")
     ap.add_argument("--objects", type=int, default=None, help="the first N objects (default all)")
-    args = parse_bench_args(ap, argv, QUICK)
+    return bench_options(ap, QUICK)
+
+
+def main(argv=None) -> int:
+    args = bench_args(build_parser().parse_args(argv), QUICK)
     t0 = time.perf_counter()
     print(HEADER, flush=True)
     with open(args.out / "photo_bench.log", "w") as log:

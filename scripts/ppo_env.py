@@ -45,7 +45,8 @@ def evaluate(env, act, seeds):
             "views": float(views.mean()), "return": float(ret.mean()), "episodes": n}
 
 
-def main(argv=None) -> int:
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of this script (the docs tests parse the docs' commands with it)."""
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--case", default="occluded", choices=("clean", "occluded"))
     ap.add_argument("--stride", type=int, default=4, help="every stride-th position per camera (4: 8 x 2 = 16 configurations)")
@@ -56,7 +57,11 @@ def main(argv=None) -> int:
     ap.add_argument("--workdir", default="out/ppo-env", help="rendered database and model cache, and the JSON")
     ap.add_argument("--figure", default="docs/figures/ppo_env.png")
     ap.add_argument("--plot-only", metavar="JSON", help="redraw the figure from a run's ppo_env.json")
-    args = ap.parse_args(argv)
+    return ap
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
     if args.plot_only:
         plot(json.loads(Path(args.plot_only).read_text()), args.figure)
         return 0
@@ -87,8 +92,7 @@ def main(argv=None) -> int:
     mi_policy = PlannerPolicy("mi", mi_env)
     mi = evaluate(mi_env, lambda obs: mi_policy(obs)["action"], seeds)
     mi["wall_s"] = time.perf_counter() - t
-    print(f"setup {setup_s:.0f} s; random: {100 * random['rate']:.1f} %, {random['views']:.2f} views; "
-          f"MI: {100 * mi['rate']:.1f} %, {mi['views']:.2f} views", flush=True)
+    print(baselines_line(setup_s, random, mi), flush=True)
 
     model = PPO("MlpPolicy", env, n_steps=256, batch_size=64, n_epochs=4, learning_rate=3e-4, gamma=0.99,
                 ent_coef=0.01, policy_kwargs={"net_arch": [64, 64]}, seed=args.seed, device="cpu", verbose=0)
@@ -100,8 +104,7 @@ def main(argv=None) -> int:
         r = evaluate(eval_env, lambda obs: model.predict(obs, deterministic=True)[0], seeds)
         r.update(steps=int(steps), eval_s=time.perf_counter() - t, train_s=train_s[0])
         curve.append(r)
-        print(f"PPO {steps:6d} steps: {100 * r['rate']:.1f} %, {r['views']:.2f} views, return {r['return']:.2f} "
-              f"(training so far {train_s[0]:.0f} s)", flush=True)
+        print(point_line(r), flush=True)
 
     class Every(BaseCallback):
         def _on_training_start(self):
@@ -122,8 +125,32 @@ def main(argv=None) -> int:
     Path(args.workdir).mkdir(parents=True, exist_ok=True)
     (Path(args.workdir) / "ppo_env.json").write_text(json.dumps(out, indent=1))
     plot(out, args.figure)
-    print(f"PPO trained {args.steps} steps in {train_s[0]:.0f} s; wrote {args.figure}")
+    print(done_line(out, args.figure))
     return 0
+
+
+def baselines_line(setup_s: float, random: dict, mi: dict) -> str:
+    """The first printed line: setup time and the two baseline policies."""
+    return (f"setup {setup_s:.0f} s; random: {100 * random['rate']:.1f} %, {random['views']:.2f} views; "
+            f"MI: {100 * mi['rate']:.1f} %, {mi['views']:.2f} views")
+
+
+def point_line(r: dict) -> str:
+    """The printed line of one evaluation of the PPO policy (a ``curve`` entry)."""
+    return (f"PPO {r['steps']:6d} steps: {100 * r['rate']:.1f} %, {r['views']:.2f} views, return {r['return']:.2f} "
+            f"(training so far {r['train_s']:.0f} s)")
+
+
+def done_line(out: dict, figure: str) -> str:
+    return f"PPO trained {out['steps']} steps in {out['ppo_train_s']:.0f} s; wrote {figure}"
+
+
+def printed(out: dict, figure: str) -> str:
+    """What a run printed, rebuilt from its ``ppo_env.json`` (``out``): the
+    docs/envs.md output block is checked against the recorded run with it."""
+    lines = [baselines_line(out["setup_s"], out["random"], out["mi"]), *map(point_line, out["ppo"]),
+             done_line(out, figure)]
+    return "\n".join(lines) + "\n"
 
 
 def plot(out, path):

@@ -74,9 +74,18 @@ def trace_markdown(res, thesis: bool = True) -> str:
     return "\n".join(lines) + "\n"
 
 
-def main(argv=None) -> int:
+def _case(name: str) -> str:
+    """``--case``: a case of ``CASES``, ``trace``, ``all`` or a turntable case."""
+    if name in CASES or name in TURNTABLE_CASES or name in ("trace", "all"):
+        return name
+    raise argparse.ArgumentTypeError(f"{name!r}: choose one of {', '.join(CASES)}, 'trace' or 'all' "
+                                     f"(or {', '.join(TURNTABLE_CASES)})")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of this script (the docs tests parse the docs' commands with it)."""
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--case", default="all", help=f"one of {', '.join(CASES)}, 'trace', 'all' (default: all), "
+    p.add_argument("--case", default="all", type=_case, help=f"one of {', '.join(CASES)}, 'trace', 'all' (default: all), "
                         "or turntable / turntable-occluded (issue 18 item 4; not in 'all')")
     p.add_argument("--planners", default=None, help="comma-separated planners (default: the case's own)")
     p.add_argument("--trials", type=int, default=100, help="trials per object (default: 100, as the thesis)")
@@ -94,6 +103,11 @@ def main(argv=None) -> int:
     capture_options(p)
     p.add_argument("--objects", type=int, default=50, help="turntable cases: random objects (default: 50)")
     p.add_argument("--cameras", type=int, choices=(1, 2), default=1, help="turntable cases: cameras (default: 1)")
+    return p
+
+
+def main(argv=None) -> int:
+    p = build_parser()
     args = p.parse_args(argv)
     if args.case in TURNTABLE_CASES:
         return turntable_case(args)
@@ -110,10 +124,6 @@ def main(argv=None) -> int:
         p.error(str(e))
     show = not args.quiet and sys.stderr.isatty()
     cases = list(CASES) + ["trace"] if args.case == "all" else [args.case]
-    unknown = [c for c in cases if c != "trace" and c not in CASES]
-    if unknown:
-        p.error(f"--case {unknown[0]!r}: choose one of {', '.join(CASES)}, 'trace' or 'all' "
-                f"(or {', '.join(TURNTABLE_CASES)})")
     # train only the models the chosen cases use (the trace is a case-iii trial: DB2)
     databases = sorted({CASES[c].database if c != "trace" else CASES["iii"].database for c in cases})
     prepared = prepare(settings, progress=show, databases=databases)
