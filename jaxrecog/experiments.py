@@ -24,8 +24,8 @@ name           database scene       cameras planners (default)
 i              DB1      clean       both    mi, mi-class, crlb, random
 ii             DB1      occluders   both    mi, mi-class, crlb
 iii            DB2      occluders   both    mi, mi-class, crlb
-single-clean   DB1      clean       cam 1   mi, mi-class
-single-occluded DB2     occluders   cam 1   mi, mi-class
+single-clean   DB1      clean       cam 0   mi, mi-class
+single-occluded DB2     occluders   cam 0   mi, mi-class
 jitter         DB1      clean,      both    mi-class, mi-class-pairwise, random
                         off-grid
 jitter-occluded DB2     occluders,  both    mi-class, mi-class-pairwise, random
@@ -105,8 +105,8 @@ CASES: dict[str, Case] = {
         Case("i", "Case (i): non-occluded objects, DB1 model", "DB1", False, None, ("mi", "mi-class", "crlb", "random")),
         Case("ii", "Case (ii): occluded objects, no occlusion model (DB1)", "DB1", True, None, ("mi", "mi-class", "crlb")),
         Case("iii", "Case (iii): occluded objects, occlusion model (DB2)", "DB2", True, None, ("mi", "mi-class", "crlb")),
-        Case("single-clean", "Single camera (camera 1), non-occluded, DB1", "DB1", False, (0,), ("mi", "mi-class")),
-        Case("single-occluded", "Single camera (camera 1), occluded, DB2", "DB2", True, (0,), ("mi", "mi-class")),
+        Case("single-clean", "Single camera (camera 0), non-occluded, DB1", "DB1", False, (0,), ("mi", "mi-class")),
+        Case("single-occluded", "Single camera (camera 0), occluded, DB2", "DB2", True, (0,), ("mi", "mi-class")),
         Case("jitter", "Off-grid captures (yaw ±20°, eye and light jitter), non-occluded objects, DB1", "DB1", False,
              None, ("mi-class", "mi-class-pairwise", "random"), JITTER),
         Case("jitter-occluded", "Off-grid captures (yaw ±20°, eye and light jitter), occluded objects, DB2", "DB2",

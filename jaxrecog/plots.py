@@ -119,16 +119,16 @@ def score_heatmap(
     fig, ax = plt.subplots(figsize=(5.0, 8.0))
     masked = np.ma.masked_where(~finite, grid)
     im = ax.imshow(masked, aspect="auto", cmap="viridis", interpolation="nearest", origin="upper")
-    ax.set_xlabel("camera 2 position v2" if len(positions) == 2 else "(one camera)")
-    ax.set_ylabel("camera 1 position v1")
+    ax.set_xlabel("camera 1 position" if len(positions) == 2 else "(one camera)")
+    ax.set_ylabel("camera 0 position")
     ax.set_xticks(range(V2))
     ax.set_xticklabels([str(v) for v in range(V2)] if len(positions) == 2 else [""])
     step = 1 if V1 <= 16 else 4
     ax.set_yticks(range(0, V1, step))
     r, c = chosen
     ax.add_patch(plt.Rectangle((c - 0.5, r - 0.5), 1, 1, fill=False, edgecolor="red", linewidth=2.5))
-    ax.plot([], [], "s", mfc="none", mec="red", mew=2, label=f"chosen (v1={r}, v2={c})"
-            if len(positions) == 2 else f"chosen (v1={r})")
+    ax.plot([], [], "s", mfc="none", mec="red", mew=2, label=f"chosen ({r},{c})"
+            if len(positions) == 2 else f"chosen ({r})")
     ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.07), frameon=False)
     ax.set_title(title)
     cb = fig.colorbar(im, ax=ax)
@@ -151,7 +151,7 @@ def belief_lines(
     Args:
         object_probs: ``[S, M]``; row 0 is usually the uniform prior.
         true_object: 0-based index; its line is drawn thick.  Legends number
-            objects from 1, as the thesis tables do.
+            objects from 0, as the manifest, the CLI and the tables do.
         reference: optional ``[S', M]`` (e.g. Table 7.8) drawn dotted for
             the true object only.
     """
@@ -167,10 +167,10 @@ def belief_lines(
     for m in range(M):
         thick = true_object is not None and m == true_object
         ax.plot(steps, P[:, m], marker="o", lw=5 if thick else 1.3, ms=9 if thick else 5, color=cmap(m % 10),
-                label=f"object {m + 1}" + (" (true)" if thick else ""), zorder=2 if thick else 3)  # true line underneath, so ties stay visible
+                label=f"object {m}" + (" (true)" if thick else ""), zorder=2 if thick else 3)  # true line underneath, so ties stay visible
     if R is not None:
         ax.plot(np.arange(R.shape[0]), R[:, true_object], ls=":", color="k", lw=1.5,
-                label=f"thesis Table 7.8, object {true_object + 1}")
+                label=f"thesis Table 7.8 (object {true_object})")
     ax.set_xlabel("step (0 = prior, n = after the n-th image set)")
     ax.set_ylabel("P(object | images so far)")
     ax.set_ylim(-0.02, 1.02)
@@ -210,7 +210,7 @@ def eigenimages(
     tiles = [("mean image", np.asarray(mean_image, float).reshape(H, W), "gray")]
     for k in range(n):
         e = basis[:, k].reshape(H, W)
-        sub = f"eigenimage {k + 1}"
+        sub = f"eigenimage {k}"
         if eigenvalues is not None:
             sub += f"\nλ = {float(np.asarray(eigenvalues)[k]):.3g}"
         tiles.append((sub, e, "RdBu_r"))
@@ -365,14 +365,14 @@ def belief_trace(result, path: str | os.PathLike, *, planner: str, case: str, oc
     """:func:`belief_lines` of one traced trial (a
     :class:`~jaxrecog.results.TrialResult` with ``object_probs``), the uniform
     prior first; thesis Table 7.8 drawn beside it when the trial is the one
-    that table traces (case iii, object 6 = index 5, 8 objects, the thesis's rig)."""
+    that table traces (case iii, object 5 -- the thesis's object 6 --, 8 objects, the thesis's rig)."""
     probs = np.asarray(result.object_probs, dtype=float)
     M = probs.shape[1]
     probs = np.vstack([np.full((1, M), 1.0 / M), probs])
     traced = thesis_rig and case == "iii" and result.object == 5 and M == len(TABLE_7_8[0])
     scene = "occluded" if occluded else "clean"
     return belief_lines(probs, path, true_object=result.object, reference=np.asarray(TABLE_7_8) if traced else None,
-                        title=f"Belief per step: object {result.object + 1} (index {result.object}), "
+                        title=f"Belief per step: object {result.object}, "
                               f"pose {result.pose}, {planner.upper()}, case {case} ({scene})")
 
 

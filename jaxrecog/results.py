@@ -165,7 +165,7 @@ class TrialStore:
 
 @dataclasses.dataclass(frozen=True)
 class ObjectRow:
-    label: str  # "1".."M" (1-based, as the thesis) or "Average"
+    label: str  # "0".."M-1" (0-based, as the manifest and the CLI; the thesis counts from 1) or "Average"
     trials: int
     rate: float  # percent
     exit_prob: float
@@ -199,7 +199,7 @@ def summarize(results: Iterable[TrialResult], n_objects: int) -> list[ObjectRow]
         if rs:
             rows.append(
                 ObjectRow(
-                    str(m + 1),
+                    str(m),
                     len(rs),
                     100.0 * sum(r.correct for r in rs) / len(rs),
                     sum(r.exit_prob for r in rs) / len(rs),
@@ -209,7 +209,7 @@ def summarize(results: Iterable[TrialResult], n_objects: int) -> list[ObjectRow]
                 )
             )
         else:
-            rows.append(ObjectRow(str(m + 1), 0, math.nan, math.nan, math.nan))
+            rows.append(ObjectRow(str(m), 0, math.nan, math.nan, math.nan))
     filled = [r for r in rows if r.trials]
     if filled:
         rows.append(

@@ -4,8 +4,8 @@
 On one grid (default 30°) the script builds three one-camera turntable
 databases from the photos (:func:`jaxrecog.photo_turntable.build_photo_database`:
 training views on the grid, 4 poses 90° apart, ``test`` views halfway between,
-``calib`` views 5° off): ALL (objects 1..OLD+NEW), OLD (objects 1..OLD) and
-NEW (objects OLD+1..OLD+NEW alone).  Then, through the CLI as a user would::
+``calib`` views 5° off): ALL (objects 0..OLD+NEW-1), OLD (objects 0..OLD-1) and
+NEW (objects OLD..OLD+NEW-1 alone; photos ``obj1..`` are objects ``0..``).  Then, through the CLI as a user would::
 
     jaxrecog train ALL --out full.npz --kind DB1 --samples 100 --components 20
     jaxrecog train OLD --out old.npz  --kind DB1 --samples 100 --components 20
@@ -93,7 +93,7 @@ def run(out: Path, *, photos: Path, grid: int, old: int, new: int, trials: int, 
     fit = ("--kind", "DB1", "--samples", samples, "--components", components)
     commands = {
         "train at once": ("train", dbs["all"], "--out", out / "full.npz", *fit),
-        f"train objects 1-{old}": ("train", dbs["old"], "--out", out / "old.npz", *fit),
+        f"train objects 0-{old - 1}": ("train", dbs["old"], "--out", out / "old.npz", *fit),
         "train --add (recalibrates)": ("train", "--add", dbs["new"], "--to", out / "old.npz", "--out", out / "add.npz"),
         "train --add --no-calibrate": ("train", "--add", dbs["new"], "--to", out / "old.npz", "--out",
                                        out / "add-nc.npz", "--no-calibrate"),

@@ -64,13 +64,14 @@ def trace_markdown(res, thesis: bool = True) -> str:
     lines = [head, "|---|" + "---:|" * (steps + 1)]
     for m in range(n_objects):
         vals = [1.0 / n_objects] + [p[m] for p in res.object_probs]
-        lines.append(f"| Obj. {m + 1} | " + " | ".join(f"{v:.4f}" for v in vals) + " |")
+        lines.append(f"| Obj. {m} | " + " | ".join(f"{v:.4f}" for v in vals) + " |")
     occ = " / ".join("(" + ", ".join(f"{x:.2f}" for x in f) + ")" for f in res.occluded_fraction)
     cfg = " / ".join(str(c) for c in res.configurations)
-    lines += ["", f"Configurations per step: {cfg}", f"True occluded fraction per step (camera 1, camera 2): {occ}",
-              f"Decision: object {res.predicted_object + 1}, pose {res.predicted_pose} (true object {res.object + 1}, pose {res.pose}), p = {res.exit_prob:.3f}"]
+    lines += ["", f"Configurations per step: {cfg}", f"True occluded fraction per step (camera 0, camera 1): {occ}",
+              f"Decision: object {res.predicted_object}, pose {res.predicted_pose} (true object {res.object}, pose {res.pose}), p = {res.exit_prob:.3f}"]
     if thesis:
-        lines += ["", "Thesis Table 7.8 (object 6, occluded): " + " -> ".join(f"{row[5]:.4f}" for row in TABLE_7_8)]
+        lines += ["", "Thesis Table 7.8 (the thesis's object 6 = object 5, occluded): "
+                  + " -> ".join(f"{row[5]:.4f}" for row in TABLE_7_8)]
     return "\n".join(lines) + "\n"
 
 
@@ -133,7 +134,7 @@ def main(argv=None) -> int:
             records = {}
             for planner in (args.planners or "mi,mi-class").split(","):
                 res = run_trace(settings, prepared=prepared, planner=planner)
-                md += f"### Trace of one hard trial (object 6, occluded, case iii), planner {planner}\n\n" + trace_markdown(res, settings.stride == 1) + "\n"
+                md += f"### Trace of one hard trial (object 5, occluded, case iii), planner {planner}\n\n" + trace_markdown(res, settings.stride == 1) + "\n"
                 records[planner] = res.__dict__
             out = results_dir(settings) / "trace.md"
             out.parent.mkdir(parents=True, exist_ok=True)

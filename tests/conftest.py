@@ -148,6 +148,33 @@ def x64():
         jax.config.update("jax_enable_x64", previous)
 
 
+@pytest.fixture
+def saved_figures(monkeypatch):
+    """The texts of every figure :mod:`jaxrecog.plots` saves during the test,
+    in order (the file is still written): ``{"titles", "xlabels", "ylabels",
+    "xticks", "yticks", "legend"}``, each a list over the figure's axes (the
+    suptitle first among the titles), to check what a reader sees -- e.g.
+    one numbering of objects and cameras in tables, plots and the CLI."""
+    from jaxrecog import plots
+
+    seen: list[dict] = []
+    real = plots.save
+
+    def save(fig, path):
+        axes = fig.axes
+        seen.append({
+            "titles": ([fig._suptitle.get_text()] if fig._suptitle is not None else []) + [a.get_title() for a in axes],
+            "xlabels": [a.get_xlabel() for a in axes], "ylabels": [a.get_ylabel() for a in axes],
+            "xticks": [[t.get_text() for t in a.get_xticklabels()] for a in axes],
+            "yticks": [[t.get_text() for t in a.get_yticklabels()] for a in axes],
+            "legend": [t.get_text() for a in axes if a.get_legend() for t in a.get_legend().get_texts()],
+        })
+        return real(fig, path)
+
+    monkeypatch.setattr(plots, "save", save)
+    return seen
+
+
 @pytest.fixture(scope="session")
 def moving_model():
     """``builders.moving_database()`` and its DB1 model (K = 2, 10 samples per

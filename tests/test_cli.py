@@ -107,11 +107,15 @@ def test_corrupt_model_exit_1_and_debug_traceback(tmp_path):
 # -- subcommands on the tiny model ---------------------------------------------
 
 @pytest.mark.slow
-def test_inspect_model_and_database(tiny, tmp_path):
+def test_inspect_model_and_database(tiny, tmp_path, saved_figures):
     p = run("inspect", tiny["model"], "--plot-dir", tmp_path, "--camera", 1, "--position", 1)
     assert p.returncode == 0, p.stderr
     assert "2 objects x 2 poses" in p.stdout and "kind DB2" in p.stdout
     assert png_size(tmp_path / "eigenimages.png") == (960, 282)  # mean + K=3 eigenimages in one row
+    (fig,) = saved_figures  # the camera and position as given (0-based), the eigenimages numbered as basis[:, k]
+    assert fig["titles"][0].startswith("Camera 1, position 1: ")
+    assert [t.split("\n")[0] for t in fig["titles"][1:5]] == ["mean image", "eigenimage 0", "eigenimage 1",
+                                                              "eigenimage 2"]
     assert (tmp_path / "eigenimages.svg").is_file()
     p = run("inspect", tiny["db"], "--plot-dir", tmp_path)
     assert p.returncode == 0, p.stderr
@@ -207,7 +211,7 @@ def test_train_bad_database_and_calibrate(tiny, tmp_path):
 
 
 @pytest.mark.slow
-def test_plan_uniform_and_after_images(tiny, tmp_path):
+def test_plan_uniform_and_after_images(tiny, tmp_path, saved_figures):
     p = run("plan", tiny["model"], "--planner", "mi", "--samples", 64, "--plot", tmp_path / "h.png", "--top", 4)
     assert p.returncode == 0, p.stderr
     lines = p.stdout.splitlines()
@@ -219,6 +223,11 @@ def test_plan_uniform_and_after_images(tiny, tmp_path):
     best = lines[0].split("best: (")[1].split(")")[0]
     assert ranks[0][1] == best
     assert png_size(tmp_path / "h.png") == (500, 800)
+    # the heat map numbers cameras and positions as the CLI does (0-based): its chosen box is the best config
+    (fig,) = saved_figures
+    assert (fig["ylabels"][0], fig["xlabels"][0]) == ("camera 0 position", "camera 1 position")
+    assert fig["yticks"][0] == ["0", "1", "2"] and fig["xticks"][0] == ["0", "1"]
+    assert fig["legend"] == [f"chosen ({best})"]
     # images at a configuration: one per camera, the model's size
     db = tiny["db"]
     imgs = [db / "train/c0/v01/m1_p0.png", db / "train/c1/v00/m1_p0.png"]
@@ -236,12 +245,16 @@ def test_plan_uniform_and_after_images(tiny, tmp_path):
 
 
 @pytest.mark.slow
-def test_recognize_dataset_rig(tiny, tmp_path):
+def test_recognize_dataset_rig(tiny, tmp_path, saved_figures):
     p = run("recognize", tiny["model"], "--rig", f"dataset:{tiny['db']}", "--object", 1, "--pose", 1,
             "--samples", 64, "--start", "0,0", "--plot", tmp_path / "b.png")
     assert p.returncode == 0, p.stderr
     assert "step" in p.stdout and "result: object 1, pose 1" in p.stdout and "correct" in p.stdout
     assert png_size(tmp_path / "b.png") == (700, 450)
+    # the belief plot numbers the objects as --object and the printed table do (0-based)
+    (fig,) = saved_figures
+    assert fig["titles"][0].startswith("Belief per step: object 1, pose 1,")
+    assert fig["legend"] == ["object 0", "object 1 (true)"]
     p = run("recognize", tiny["model"], "--rig", "dataset:", "--samples", 64)
     assert p.returncode == 2
     p = run("recognize", tiny["model"], "--rig", "nonsense", "--samples", 64)

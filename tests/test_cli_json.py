@@ -181,7 +181,7 @@ def test_experiment_json(fake_experiments, tmp_path):
     assert (doc["case"], doc["rig"], doc["model"], doc["out"]) == ("i", "synthetic", None, str(out))
     assert [x["planner"] for x in doc["planners"]] == ["mi", "random"]
     rows = doc["planners"][0]["rows"]
-    assert [r["label"] for r in rows] == ["1", "2", "Average"] and rows[-1]["trials"] == 6
+    assert [r["label"] for r in rows] == ["0", "1", "Average"] and rows[-1]["trials"] == 6
     assert rows[-1]["travel_s"] is None and rows[0]["rate"] == pytest.approx(2 / 3 * 100)
     assert doc["settings"]["trials_per_object"] == 3 and doc["settings"]["workdir"] == str(out / "work")
     assert str(out / "case_i.json") in doc["written"] and str(out / "campaign_i.png") in doc["written"]

@@ -42,7 +42,7 @@ def _png_size(path) -> tuple[int, int]:
 
 
 @pytest.mark.slow
-def test_campaign_on_an_image_database(moving, tmp_path):
+def test_campaign_on_an_image_database(moving, tmp_path, saved_figures):
     out = tmp_path / "out"
     trials = 6
     p = run("--quiet", "experiment", "--rig", f"dataset:{moving['db']}", "--model", moving["model"],
@@ -54,6 +54,11 @@ def test_campaign_on_an_image_database(moving, tmp_path):
     for planner in ("MI", "RANDOM"):
         assert f"**{planner} — {trials} trials per object" in text
     assert text.count("| Average | 12 |") == 2 and text.count("| 1 | 6 |") == 2 and "Thesis" not in text
+    # one numbering: the table's rows and the bars' ticks are the manifest's objects (0-based, as --object)
+    objects = sorted({int(r.split(",")[3]) for r in (moving["db"] / "manifest.csv").read_text().splitlines()[1:]})
+    assert objects == [0, 1] and text.count("| 0 | 6 |") == 2
+    (bars,) = saved_figures
+    assert bars["xticks"][1] == ["0", "1", "Average"] and bars["xlabels"][1] == "object"
     # files: tables and the campaign bars, their paths printed
     for name in ("case_dataset.md", "case_dataset.json", "campaign_dataset.png", "campaign_dataset.svg"):
         assert (out / name).is_file() and str(out / name) in text

@@ -99,9 +99,9 @@ def test_campaign_bars(tmp_path):
 
 
 def test_titles_wrap_at_commas_and_keep_short_phrases_whole():
-    t = "Belief per step: object 6 (index 5), pose 2, MI-CLASS, case iii (occluded)"
+    t = "Belief per step: object 5, pose 2, MI-CLASS, case iii (occluded), every 8th position"
     lines = plots.wrap_title(t, 62).split("\n")
-    assert lines == ["Belief per step: object 6 (index 5), pose 2, MI-CLASS,", "case iii (occluded)"]
+    assert lines == ["Belief per step: object 5, pose 2, MI-CLASS,", "case iii (occluded), every 8th position"]
     assert plots.wrap_title("short", 62) == "short"
     long = plots.wrap_title("a " * 50, 20).split("\n")  # one part longer than the width: spaces
     assert all(len(line) <= 20 for line in long)
@@ -146,7 +146,7 @@ def test_belief_trace_draws_table_7_8_beside_the_trial_it_traces(tmp_path):
 
     probs = np.asarray(TABLE_7_8[1:])
     res = types.SimpleNamespace(object=5, pose=2, object_probs=probs)
-    title = "Belief per step: object 6 (index 5), pose 2, MI, case iii (occluded)"
+    title = "Belief per step: object 5, pose 2, MI, case iii (occluded)"
     with_ref = plots.belief_trace(res, tmp_path / "t", planner="mi", case="iii", occluded=True, thesis_rig=True)
     assert _same_png(with_ref, plots.belief_lines(np.asarray(TABLE_7_8), tmp_path / "r", true_object=5,
                                                   reference=np.asarray(TABLE_7_8), title=title))
@@ -154,3 +154,27 @@ def test_belief_trace_draws_table_7_8_beside_the_trial_it_traces(tmp_path):
     plain = plots.belief_trace(res, tmp_path / "s", planner="mi", case="iii", occluded=True, thesis_rig=False)
     assert _same_png(plain, plots.belief_lines(np.asarray(TABLE_7_8), tmp_path / "p", true_object=5, title=title))
     assert not _same_png(with_ref, plain)
+
+
+def test_the_trace_names_objects_and_cameras_as_the_cli_does(tmp_path, saved_figures):
+    """One numbering (issue 31): the traced trial of object 5 (the thesis's
+    object 6 of Table 7.8) is object 5 in reproduce_thesis's table, its
+    decision line and the belief plot's legend and title, and the cameras
+    are 0 and 1; only the thesis's own number is named as the thesis's."""
+    import types
+
+    from clirun import script
+
+    res = types.SimpleNamespace(object=5, pose=2, predicted_object=5, predicted_pose=2, exit_prob=0.99,
+                                object_probs=np.asarray(TABLE_7_8[1:]), configurations=((0, 1), (2, 3)),
+                                occluded_fraction=((0.1, 0.2), (0.0, 0.3)))
+    md = script("reproduce_thesis").trace_markdown(res)
+    rows = [line.split("|")[1].strip() for line in md.splitlines() if line.startswith("| Obj.")]
+    assert rows == [f"Obj. {m}" for m in range(8)]
+    assert "Decision: object 5, pose 2 (true object 5, pose 2)" in md
+    assert "(camera 0, camera 1)" in md and "Thesis Table 7.8 (the thesis's object 6 = object 5" in md
+    plots.belief_trace(res, tmp_path / "t", planner="mi", case="iii", occluded=True, thesis_rig=True)
+    (fig,) = saved_figures
+    assert fig["titles"][0].startswith("Belief per step: object 5, pose 2, MI")
+    assert fig["legend"][:8] == [f"object {m}" + (" (true)" if m == 5 else "") for m in range(8)]
+    assert fig["legend"][8] == "thesis Table 7.8 (object 5)"

@@ -12,7 +12,7 @@ def _trial(i, obj, ok=True, steps=2, p=0.97, stopped=True):
 def test_summary_rows_match_hand_computation():
     rs = [_trial(0, 0), _trial(1, 0, ok=False, steps=4, p=0.5), _trial(2, 1, steps=1), _trial(3, 2, steps=3)]
     rows = summarize(rs, 3)
-    assert [r.label for r in rows] == ["1", "2", "3", "Average"]
+    assert [r.label for r in rows] == ["0", "1", "2", "Average"]  # objects 0-based, as the manifest and the CLI
     assert rows[0].rate == 50.0 and rows[0].views == 3.0 and rows[0].exit_prob == pytest.approx(0.735)
     assert rows[1].rate == 100.0 and rows[1].views == 1.0
     assert rows[3].rate == pytest.approx((50 + 100 + 100) / 3)
@@ -31,7 +31,7 @@ def test_confident_errors_count_wrong_trials_stopped_on_the_threshold_only():
     assert rows[2].confident_errors == pytest.approx(12.5)  # mean over objects, as the rate
     md = table_markdown(rows)
     assert "Confident errors (%)" in md.splitlines()[0]
-    assert "| 1 | 4 | 50.0 | 0.88 | 2.00 | 25.0 |" in md
+    assert "| 0 | 4 | 50.0 | 0.88 | 2.00 | 25.0 |" in md
 
 
 def test_unreported_thesis_value_is_a_dash_not_nan():

@@ -223,7 +223,7 @@ def _schemas() -> dict[str, dict[str, Key]]:
         "written": _WRITTEN,
     }
     row = {
-        "label": Key("string", '"1".."M" (objects, 1-based as the thesis) or "Average"'),
+        "label": Key("string", '"0".."M-1" (the object, 0-based as everywhere) or "Average"'),
         "trials": Key("integer", "trials of the row"),
         "rate": Key("number|null", "recognition rate, percent"),
         "exit_prob": Key("number|null", "mean exit probability"),

@@ -174,7 +174,7 @@ def table_options(p: argparse.ArgumentParser) -> None:
     """The synthetic rig's layout (``render`` and ``recognize``)."""
     g = p.add_argument_group("synthetic rig layout (must match the model's positions)")
     g.add_argument("--cameras", type=int, choices=(1, 2), default=2,
-                   help="cameras of the thesis rig to use (1 = camera 1 only)")
+                   help="cameras of the thesis rig to use (1 = camera 0 only)")
     g.add_argument("--stride", type=positive, default=1,
                    help="keep every STRIDE-th position of each camera (1 = the full 32 x 7 table)")
     g.add_argument("--objects", type=object_choice, default=8,

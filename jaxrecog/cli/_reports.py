@@ -42,7 +42,7 @@ def write_report(report, name: str, out: Path, title: str | None = None) -> list
 
 
 def trace_plot(settings, out: Path, planner: str = "mi", prepared=None, case: str = "iii") -> list[Path]:
-    """One traced trial of ``case`` (object 6, as thesis Table 7.8) as ``belief_trace`` (PNG + SVG)."""
+    """One traced trial of ``case`` (object 5, the thesis's object 6 of Table 7.8) as ``belief_trace`` (PNG + SVG)."""
     res = ex.run_trace(settings, object=5, planner=planner, prepared=prepared, case=case)
     return list(plots.belief_trace(res, out / "belief_trace", planner=planner, case=case,
                                    occluded=ex.CASES[case].occluded, thesis_rig=settings.stride == 1))
