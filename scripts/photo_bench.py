@@ -58,7 +58,7 @@ APPROACHES: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "robust, plain MI planner": (("--recipe", "robust"), ("--planners", "mi-class-pairwise")),
     "robust, 4 interpolated views": (("--recipe", "robust", "--interpolate", "4"), ()),
     "robust, 3 views": (("--recipe", "robust",), ("--min-views", "3")),
-    "robust, P_th 0.99": (("--recipe", "robust",), ("--threshold", "0.99")),
+    "robust, P_th 0.95 (version 3)": (("--recipe", "robust",), ("--threshold", "0.95")),
     # the adaptive scale (recipe robust version 3): off = recipe robust version 2; one explained view
     "robust, adaptive scale off": (("--recipe", "robust",), ("--adaptive-scale", "1")),
     "robust, 1 explained view": (("--recipe", "robust",), ("--min-views", "1")),

@@ -62,7 +62,7 @@ def test_registry_and_thesis_is_todays_defaults():
 def test_recipes_command_lists_them():
     p = run_cli("recipes")
     assert p.returncode == 0
-    assert p.stdout.startswith("robust (default), version 3:") and "\nthesis, version 1:" in p.stdout
+    assert p.stdout.startswith("robust (default), version 4:") and "\nthesis, version 1:" in p.stdout
     assert "  interpolate = 2" in p.stdout and "  min_views = 1" in p.stdout
     assert "  planner = 'mi-class-pairwise-stable'" in p.stdout and "  planner = 'mi-class-pairwise'" in p.stdout
     p = run_cli("recipes", "fast")
@@ -79,7 +79,7 @@ def test_train_records_the_resolved_recipe_and_inspect_shows_it(photo_db, robust
     assert meta["calibrated"] and meta["training"]["interpolate"]["points_per_side"] == 2
     assert load_model(robust_model).cameras[0].likelihood.mu.shape[3] == 5   # 1 training view + 2 x 2 blends
     p = run_cli("inspect", robust_model)
-    assert "recipe: robust (version 3): likelihood = 'view-mixture-lowrank'" in p.stdout
+    assert "recipe: robust (version 4): likelihood = 'view-mixture-lowrank'" in p.stdout
     assert "interpolated views: 2 per side; neighbouring positions found per camera: [18] of [18]" in p.stdout
     # the thesis recipe: today's defaults; a flag overrides one part and the file records it
     out = photo_db / "thesis.npz"

@@ -42,7 +42,7 @@ def add_arguments(p) -> None:
                    help="view planner (default: the model's recipe's; thesis-recipe and older model files: "
                         f"{DEFAULT_PLANNER})")
     p.add_argument("--threshold", type=probability, default=None,
-                   help="stop probability P_th (default: the model's recipe's, 0.95 in both built-in recipes)")
+                   help="stop probability P_th (default: the model's recipe's: robust 0.99, thesis 0.95)")
     p.add_argument("--max-steps", type=positive, default=7, help="largest number of image sets")
     planner_size_options(p)
     skip_invalid_option(p)
