@@ -15,7 +15,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from jaxrecog.hardware.datagram import (
+from jaxrecog.hardware.devices.datagram import (
     MAGIC,
     MAX_DATAGRAM,
     VERSION,

@@ -11,19 +11,19 @@ import numpy as np
 import pytest
 
 from jaxrecog.hardware import Rig, RigError
-from jaxrecog.hardware.camera import CameraError
-from jaxrecog.hardware.config import ConfigError, ControllerConfig, PTUConfig, RigConfig, default_mounts, load_config
-from jaxrecog.hardware.controller_sim import LINEAR_RESOLUTION_M, ControllerSimulator
-from jaxrecog.hardware.hardware_rig import (
+from jaxrecog.hardware.devices.camera import CameraError
+from jaxrecog.hardware.physical.config import ConfigError, ControllerConfig, PTUConfig, RigConfig, default_mounts, load_config
+from jaxrecog.hardware.sim.controller_sim import LINEAR_RESOLUTION_M, ControllerSimulator
+from jaxrecog.hardware.physical.hardware_rig import (
     HardwareRig,
     SimulatedHardwareRig,
     rig_from_config,
 )
-from jaxrecog.hardware.kinematics import DEFAULT_MOUNTS, Mount, Workspace, line_of_sight, ptu_angles
-from jaxrecog.hardware.positions import default_table
-from jaxrecog.hardware.ptu import PTU
-from jaxrecog.hardware.ptu_sim import PTUSimulator
-from jaxrecog.hardware.udp_link import ControllerLink, ControllerRejected
+from jaxrecog.hardware.geometry.kinematics import DEFAULT_MOUNTS, Mount, Workspace, line_of_sight, ptu_angles
+from jaxrecog.hardware.geometry.positions import default_table
+from jaxrecog.hardware.devices.ptu import PTU
+from jaxrecog.hardware.sim.ptu_sim import PTUSimulator
+from jaxrecog.hardware.devices.udp_link import ControllerLink, ControllerRejected
 
 EXAMPLE = os.path.join(os.path.dirname(__file__), "..", "examples", "simulated_rig.toml")
 H, W = 120, 160
@@ -72,7 +72,7 @@ def test_ptu_angles_and_line_of_sight_are_inverse(rng):
 def test_the_rig_file_default_mounts_are_the_kinematic_defaults():
     """config.default_mounts (PTU entries) and kinematics.DEFAULT_MOUNTS (the travel
     times' default) hold the same angles; the old import path of the angle functions works."""
-    from jaxrecog.hardware import hardware_rig
+    from jaxrecog.hardware.physical import hardware_rig
 
     assert [Mount(m.pan_zero_deg, m.tilt_zero_deg, m.pan_sign) for m in default_mounts(2)] == list(DEFAULT_MOUNTS)
     assert default_mounts(1) == default_mounts(2)[:1]

@@ -81,7 +81,7 @@ def test_configuration_index_is_row_major():
 
 
 def test_default_table_is_thesis_sized_and_round_trips():
-    from jaxrecog.hardware.positions import CameraTable, default_table
+    from jaxrecog.hardware.geometry.positions import CameraTable, default_table
 
     table = default_table()
     assert table.positions == (32, 7)

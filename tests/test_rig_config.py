@@ -14,11 +14,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from jaxrecog.hardware import pan_tilt
-from jaxrecog.hardware.config import ConfigError, load_config
-from jaxrecog.hardware.hardware_rig import SimulatedHardwareRig
-from jaxrecog.hardware.pan_tilt import ENTRY_POINT_GROUP, pan_tilt_driver, pan_tilt_drivers
-from jaxrecog.hardware.ptu import PTU
+from jaxrecog.hardware.devices import pan_tilt
+from jaxrecog.hardware.physical.config import ConfigError, load_config
+from jaxrecog.hardware.physical.hardware_rig import SimulatedHardwareRig
+from jaxrecog.hardware.devices.pan_tilt import ENTRY_POINT_GROUP, pan_tilt_driver, pan_tilt_drivers
+from jaxrecog.hardware.devices.ptu import PTU
 
 MOUNTS = """
 [[ptu]]
@@ -252,7 +252,7 @@ def test_the_built_in_driver_is_an_entry_point_and_works_without_the_metadata(mo
     import importlib.metadata
 
     (ep,) = [e for e in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP) if e.name == "ptu-d46"]
-    assert ep.value == "jaxrecog.hardware.ptu:PTU"  # pyproject.toml [project.entry-points."jaxrecog.pan_tilt"]
+    assert ep.value == "jaxrecog.hardware.devices.ptu:PTU"  # pyproject.toml [project.entry-points."jaxrecog.pan_tilt"]
     monkeypatch.setattr(pan_tilt, "_entry_points", lambda: {})  # stale or missing metadata
     assert pan_tilt_driver("ptu-d46") is PTU and pan_tilt_drivers() == ("ptu-d46",)
 

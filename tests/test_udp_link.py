@@ -9,13 +9,13 @@ import time
 
 import pytest
 
-from jaxrecog.hardware.controller_sim import (
+from jaxrecog.hardware.sim.controller_sim import (
     LINEAR_RESOLUTION_M,
     TURNTABLE_COUNTS,
     ControllerSimulator,
     LinkFaults,
 )
-from jaxrecog.hardware.datagram import (
+from jaxrecog.hardware.devices.datagram import (
     Datagram,
     Hello,
     InPosition,
@@ -26,9 +26,9 @@ from jaxrecog.hardware.datagram import (
     decode,
     encode,
 )
-from jaxrecog.hardware.kinematics import Workspace, camera1_position, camera2_position
-from jaxrecog.hardware.positions import default_table
-from jaxrecog.hardware.udp_link import ControllerLink, ControllerRejected, ControllerRestarted, LinkTimeoutError
+from jaxrecog.hardware.geometry.kinematics import Workspace, camera1_position, camera2_position
+from jaxrecog.hardware.geometry.positions import default_table
+from jaxrecog.hardware.devices.udp_link import ControllerLink, ControllerRejected, ControllerRestarted, LinkTimeoutError
 
 TABLE = default_table()
 

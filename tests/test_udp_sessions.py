@@ -13,8 +13,8 @@ import time
 
 import pytest
 
-from jaxrecog.hardware.controller_sim import ControllerSimulator
-from jaxrecog.hardware.datagram import (
+from jaxrecog.hardware.sim.controller_sim import ControllerSimulator
+from jaxrecog.hardware.devices.datagram import (
     Datagram,
     DatagramError,
     Hello,
@@ -25,8 +25,8 @@ from jaxrecog.hardware.datagram import (
     decode,
     encode,
 )
-from jaxrecog.hardware.positions import default_table
-from jaxrecog.hardware.udp_link import ControllerLink, LinkError, LinkTimeoutError, SessionClosed, SessionRefused
+from jaxrecog.hardware.geometry.positions import default_table
+from jaxrecog.hardware.devices.udp_link import ControllerLink, LinkError, LinkTimeoutError, SessionClosed, SessionRefused
 
 TABLE = default_table()
 KEY = SharedKey(b"a shared key of the rig, 32 byte")

@@ -148,7 +148,7 @@ def camera2_angles(ws: Workspace, y: float) -> tuple[float, float]:
 @dataclasses.dataclass(frozen=True)
 class Mount:
     """How a pan-tilt unit is mounted (the angle part of a rig file's ``[[ptu]]``
-    entry, :class:`~jaxrecog.hardware.config.PTUConfig`): ``pan_zero_deg`` /
+    entry, :class:`~jaxrecog.hardware.physical.config.PTUConfig`): ``pan_zero_deg`` /
     ``tilt_zero_deg`` are the azimuth / elevation the camera looks along at
     PTU position (0, 0), ``pan_sign`` = -1 for a unit whose pan turns the
     other way.  :func:`ptu_angles` reads only these three attributes, so a

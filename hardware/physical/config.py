@@ -23,13 +23,13 @@ import os
 import tomllib
 from typing import Any
 
-from .controller_sim import LinkFaults
-from .datagram import SharedKey
-from .motion import MotionSpeeds
-from .kinematics import DEFAULT_MOUNTS, ptu_angles
-from .pan_tilt import DEFAULT_PAN_TILT, pan_tilt_driver
-from .positions import CameraTable, default_table
-from ..problems import one_line
+from ..sim.controller_sim import LinkFaults
+from ..devices.datagram import SharedKey
+from ..geometry.motion import MotionSpeeds
+from ..geometry.kinematics import DEFAULT_MOUNTS, ptu_angles
+from ..devices.pan_tilt import DEFAULT_PAN_TILT, pan_tilt_driver
+from ..geometry.positions import CameraTable, default_table
+from ...problems import one_line
 
 __all__ = [
     "ConfigError",
@@ -58,7 +58,7 @@ class PTUConfig:
     ``tilt = el - tilt_zero_deg``: ``pan_zero_deg`` / ``tilt_zero_deg`` are the
     azimuth / elevation the camera looks along at PTU position (0, 0).
 
-    ``driver`` names the pan-tilt driver (:mod:`.pan_tilt`; default the
+    ``driver`` names the pan-tilt driver (:mod:`..devices.pan_tilt`; default the
     PTU-D46).  When the unit's device disappears, the rig tries ``port``
     and every path matching ``reconnect_glob`` (e.g.
     ``"/dev/serial/by-id/usb-FTDI_*"``) with a bounded backoff for
@@ -137,7 +137,7 @@ class RigConfig:
     ptus: tuple[PTUConfig, ...] = ()
     cameras: tuple[CameraConfig, ...] = ()
     simulation: SimulationConfig = SimulationConfig()
-    #: axis speeds for planned travel times (``[motion]``; :mod:`.motion`)
+    #: axis speeds for planned travel times (``[motion]``; :mod:`..geometry.motion`)
     motion: MotionSpeeds = MotionSpeeds()
 
     @classmethod
@@ -253,9 +253,9 @@ class RigConfig:
 
     def travel_times(self):
         """Per camera ``[V_i, V_i]`` travel seconds between its positions
-        (:func:`.motion.camera_travel_times` with this rig's table, mounts and
+        (:func:`..geometry.motion.camera_travel_times` with this rig's table, mounts and
         speeds)."""
-        from .motion import camera_travel_times
+        from ..geometry.motion import camera_travel_times
 
         return camera_travel_times(self.table, MotionSpeeds.from_config(self),
                                    tuple(self.ptu(i) for i in range(self.table.n_cameras)))

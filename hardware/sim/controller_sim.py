@@ -1,8 +1,8 @@
 """Simulated motion controller (the thesis's VxWorks side, §6.6) on 127.0.0.1.
 
-It answers the datagrams of :mod:`.datagram`: a ``MOVE`` carries the planner
+It answers the datagrams of :mod:`..devices.datagram`: a ``MOVE`` carries the planner
 angles; the controller converts them with the appendix-C kinematics
-(:func:`.kinematics.camera1_position`, :func:`.kinematics.camera2_position`),
+(:func:`..geometry.kinematics.camera1_position`, :func:`..geometry.kinematics.camera2_position`),
 rejects moves outside the workspace (``REJECTED``), otherwise "moves" the
 gantry, the linear track and the turn-table at finite speed in simulated time
 and then sends ``IN_POSITION`` with the achieved positions (quantised to the
@@ -79,9 +79,9 @@ import socket
 import threading
 import time
 
-from .datagram import Datagram, DatagramAuthError, DatagramError, Hello, InPosition, Move, Moving
-from .datagram import MsgType, Refused, Rejected, RejectCode, SharedKey, Welcome, decode, encode
-from .kinematics import Workspace, WorkspaceError, camera1_position, camera2_position
+from ..devices.datagram import Datagram, DatagramAuthError, DatagramError, Hello, InPosition, Move, Moving
+from ..devices.datagram import MsgType, Refused, Rejected, RejectCode, SharedKey, Welcome, decode, encode
+from ..geometry.kinematics import Workspace, WorkspaceError, camera1_position, camera2_position
 
 __all__ = ["LinkFaults", "ControllerSimulator", "ExecutedMove"]
 
@@ -134,7 +134,7 @@ class ControllerSimulator:
         linear_speed: gantry / track speed, m/s (simulated).
         turntable_speed: rad/s (simulated).
         moving_after_s: send ``MOVING`` first when a move takes longer (wall seconds).
-        key: a :class:`.datagram.SharedKey` (or its bytes): accept only datagrams
+        key: a :class:`..devices.datagram.SharedKey` (or its bytes): accept only datagrams
             tagged with it, tag every reply.
         session_idle_s: a session is live (HELLOs from other addresses refused)
             until this many wall seconds passed without a request of it.

@@ -273,7 +273,7 @@ class PTU:
 
     @classmethod
     def from_config(cls, config, port: str | None = None) -> "PTU":
-        """The unit of a ``[[ptu]]`` entry (:class:`.config.PTUConfig`); ``port`` overrides its ``port``."""
+        """The unit of a ``[[ptu]]`` entry (:class:`..physical.config.PTUConfig`); ``port`` overrides its ``port``."""
         return cls(
             config.port if port is None else port,
             baudrate=config.baudrate,

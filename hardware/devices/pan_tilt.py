@@ -1,6 +1,6 @@
 """The ``PanTilt`` interface every pan-tilt unit driver implements, and the driver registry.
 
-:class:`.hardware_rig.HardwareRig` talks to its pan-tilt units only through
+:class:`..physical.hardware_rig.HardwareRig` talks to its pan-tilt units only through
 this protocol, and builds them from the rig file's ``[[ptu]] driver`` key
 through :func:`open_pan_tilt`.  The key is a *registered name*, never a
 module path: a rig file cannot make the program import anything.  A driver
@@ -39,7 +39,7 @@ import importlib.metadata
 from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
 if TYPE_CHECKING:
-    from .config import PTUConfig
+    from ..physical.config import PTUConfig
 
 __all__ = [
     "PanTilt",
@@ -57,7 +57,7 @@ DEFAULT_PAN_TILT = "ptu-d46"
 ENTRY_POINT_GROUP = "jaxrecog.pan_tilt"
 
 # the built-in drivers: name -> "module:Class" of this package, imported on first use
-_BUILTIN: dict[str, str] = {DEFAULT_PAN_TILT: "jaxrecog.hardware.ptu:PTU"}
+_BUILTIN: dict[str, str] = {DEFAULT_PAN_TILT: "jaxrecog.hardware.devices.ptu:PTU"}
 # registered from code (register_pan_tilt): name -> class, or "module:Class"
 _DRIVERS: dict[str, type | str] = {}
 

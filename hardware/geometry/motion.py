@@ -20,7 +20,7 @@ The cameras move in parallel (one controller ``MOVE`` drives the gantry and
 the track, the PTUs are pointed together, ``docs/hardware.md``), so a change
 of configuration takes ``max_i T_i[c_i, a_i]``.
 
-The controller simulator (:mod:`.controller_sim`) times a move by the
+The controller simulator (:mod:`..sim.controller_sim`) times a move by the
 gantry's straight-line distance, ``hypot(dx, dy) / linear_speed``; the model
 here treats the gantry's x and y as independent axes (thesis §6.1: one DC
 motor and PID loop each), which is at most sqrt(2) shorter on a diagonal.
@@ -34,7 +34,7 @@ from typing import Sequence
 
 import numpy as np
 
-from ..kernels.config_grid import ConfigGrid
+from ...kernels.config_grid import ConfigGrid
 from .kinematics import DEFAULT_MOUNTS, ptu_angles
 from .positions import CameraTable
 
@@ -91,7 +91,7 @@ class MotionSpeeds:
 
     @classmethod
     def from_config(cls, config) -> "MotionSpeeds":
-        """The speeds of a :class:`~.config.RigConfig`: its ``[motion]`` table,
+        """The speeds of a :class:`~..physical.config.RigConfig`: its ``[motion]`` table,
         with each ``[[ptu]] speed_deg_s`` that is set (the unit runs at it)."""
         base = config.motion
         n = config.table.n_cameras
@@ -109,7 +109,7 @@ def camera_travel_times(table: CameraTable, speeds: MotionSpeeds | None = None,
 
     ``mounts``: one PTU mount per camera (``pan_zero_deg``, ``tilt_zero_deg``,
     ``pan_sign``; default :data:`~.kinematics.DEFAULT_MOUNTS`, the angles of
-    :func:`~.config.default_mounts`)."""
+    :func:`~..physical.config.default_mounts`)."""
     speeds = speeds or MotionSpeeds()
     mounts = tuple(mounts) if mounts is not None else DEFAULT_MOUNTS[:table.n_cameras]
     if len(mounts) != table.n_cameras:
