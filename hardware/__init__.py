@@ -35,7 +35,7 @@ _EXPORTS: dict[str, str] = {
     **dict.fromkeys(["ControllerSimulator", "LinkFaults"], "sim.controller_sim"),
     **dict.fromkeys(["HardwareRig", "Reconnect", "rig_from_config", "SimulatedHardwareRig"], "physical.hardware_rig"),
     **dict.fromkeys(["PanTilt", "PanTiltConnectionError", "PanTiltError", "register_pan_tilt"], "devices.pan_tilt"),
-    **dict.fromkeys(["PTU"], "devices.ptu"),
+    **dict.fromkeys(["PTU"], "devices.pan_tilt_drivers.ptu_d46"),
     **dict.fromkeys(["PTUError", "PTUErrorReply", "PTUGarbageError", "PTUHomingTimeout", "PTULimitError",
                      "PTUTimeoutError"], "devices.ptu_protocol"),
     **dict.fromkeys(["PTUSimulator"], "sim.ptu_sim"),

@@ -21,7 +21,7 @@ from jaxrecog.hardware.physical.hardware_rig import (
 )
 from jaxrecog.hardware.geometry.kinematics import DEFAULT_MOUNTS, Mount, Workspace, line_of_sight, ptu_angles
 from jaxrecog.hardware.geometry.positions import default_table
-from jaxrecog.hardware.devices.ptu import PTU
+from jaxrecog.hardware.devices.pan_tilt_drivers.ptu_d46 import PTU
 from jaxrecog.hardware.sim.ptu_sim import PTUSimulator
 from jaxrecog.hardware.devices.udp_link import ControllerLink, ControllerRejected
 

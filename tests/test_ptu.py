@@ -12,7 +12,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from jaxrecog.hardware.devices.pan_tilt import PanTilt, PanTiltConnectionError
-from jaxrecog.hardware.devices.ptu import (
+from jaxrecog.hardware.devices.pan_tilt_drivers.ptu_d46 import (
     PTU,
     PTUConnectionError,
     PTUError,
@@ -346,7 +346,7 @@ def test_the_d46_driver_is_a_pan_tilt(ptu):
 def test_limit_message_inside_a_reply_is_parsed_out_counted_and_warned(sim, ptu, caplog, fault, axis):
     ptu.move_to(20.0, -10.0)
     sim.inject(fault)  # the answer to PP arrives as "* 3!P89" (for 389)
-    with caplog.at_level(logging.WARNING, logger="jaxrecog.hardware.devices.ptu"):
+    with caplog.at_level(logging.WARNING, logger="jaxrecog.hardware.devices.pan_tilt_drivers.ptu_d46"):
         assert ptu.query_int("PP") == pos(20.0)  # never taken as (or for a part of) the answer
     assert sim.stats[fault] == 1
     assert ptu.limit_events == {axis: 1}

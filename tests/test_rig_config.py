@@ -18,7 +18,7 @@ from jaxrecog.hardware.devices import pan_tilt
 from jaxrecog.hardware.physical.config import ConfigError, load_config
 from jaxrecog.hardware.physical.hardware_rig import SimulatedHardwareRig
 from jaxrecog.hardware.devices.pan_tilt import ENTRY_POINT_GROUP, pan_tilt_driver, pan_tilt_drivers
-from jaxrecog.hardware.devices.ptu import PTU
+from jaxrecog.hardware.devices.pan_tilt_drivers.ptu_d46 import PTU
 
 MOUNTS = """
 [[ptu]]
@@ -248,13 +248,37 @@ def test_a_driver_registered_as_an_entry_point_is_found_and_imported_only_when_n
     assert pan_tilt_driver("test-unit").__module__ == "jaxrecog_test_unit"
 
 
-def test_the_built_in_driver_is_an_entry_point_and_works_without_the_metadata(monkeypatch):
-    import importlib.metadata
-
-    (ep,) = [e for e in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP) if e.name == "ptu-d46"]
-    assert ep.value == "jaxrecog.hardware.devices.ptu:PTU"  # pyproject.toml [project.entry-points."jaxrecog.pan_tilt"]
+def test_the_built_in_driver_works_without_any_metadata(monkeypatch):
     monkeypatch.setattr(pan_tilt, "_entry_points", lambda: {})  # stale or missing metadata
     assert pan_tilt_driver("ptu-d46") is PTU and pan_tilt_drivers() == ("ptu-d46",)
+
+
+def test_a_new_pan_tilt_protocol_is_one_module_in_pan_tilt_drivers(tmp_path, monkeypatch):
+    """Issue 29's change cost: a new built-in driver is its module in
+    hardware/devices/pan_tilt_drivers/ (here a folder added to that package's path)
+    plus the rig file's driver key; listing imports nothing, naming it imports it."""
+    from jaxrecog.hardware.devices import pan_tilt_drivers as package
+
+    marker = tmp_path / "imported"
+    (tmp_path / "acme_pt9.py").write_text(f"""
+open({str(marker)!r}, 'w').close()
+class AcmePT9:
+    url = ""
+    @classmethod
+    def from_config(cls, config, port=None):
+        return cls()
+DRIVER = AcmePT9
+""")
+    (tmp_path / "_acme_wire.py").write_text("raise AssertionError('a helper module is not a driver')\n")
+    monkeypatch.setattr(package, "__path__", [*package.__path__, str(tmp_path)])
+    monkeypatch.delitem(sys.modules, f"{package.__name__}.acme_pt9", raising=False)
+    assert pan_tilt_drivers() == ("acme-pt9", "ptu-d46") and not marker.exists()  # listing imports nothing
+    path = write(tmp_path, 'kind = "simulated"\n' + MOUNTS.format(ptu1='driver = "acme-pt9"', ptu2=""))
+    cfg = load_config(path)
+    assert marker.exists() and cfg.ptus[0].driver == "acme-pt9"
+    assert pan_tilt_driver("acme-pt9").__name__ == "AcmePT9"
+    with pytest.raises(KeyError, match="unknown pan-tilt driver"):  # the driver's name, not its module's
+        pan_tilt_driver("acme_pt9")
 
 
 def test_a_broken_registered_driver_is_a_clear_error(tmp_path, monkeypatch):

@@ -16,7 +16,7 @@ from jaxrecog.hardware.physical.hardware_rig import HardwareRig, Reconnect, Simu
 from jaxrecog.hardware.geometry.kinematics import ptu_angles
 from jaxrecog.hardware.devices.pan_tilt import PanTilt, open_pan_tilt, pan_tilt_driver, register_pan_tilt
 from jaxrecog.hardware.geometry.positions import default_table
-from jaxrecog.hardware.devices.ptu import PTU
+from jaxrecog.hardware.devices.pan_tilt_drivers.ptu_d46 import PTU
 from jaxrecog.hardware.sim.ptu_sim import PTUSimulator
 from jaxrecog.hardware.devices.udp_link import ControllerLink
 
@@ -219,7 +219,7 @@ source = 1
 def test_the_default_driver_is_the_ptu_d46_and_old_files_load_unchanged():
     assert pan_tilt_driver(PTUConfig().driver) is PTU
     with pytest.raises(KeyError, match="not a module to import"):  # a module path is no driver name (issue 32)
-        pan_tilt_driver("jaxrecog.hardware.devices.ptu:PTU")
+        pan_tilt_driver("jaxrecog.hardware.devices.pan_tilt_drivers.ptu_d46:PTU")
     cfg = load_config("examples/simulated_rig.toml")
     assert {p.driver for p in cfg.ptus} == {"ptu-d46"}
     with PTUSimulator(time_scale=0.001) as sim:

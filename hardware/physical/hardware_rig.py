@@ -7,7 +7,7 @@
   camera-2 pan and the turn-table angle to the motion controller over UDP
   (:class:`..devices.udp_link.ControllerLink`), waits for ``IN_POSITION`` (the capture
   signal, §6.6), then points each pan-tilt unit (a :class:`..devices.pan_tilt.PanTilt`,
-  by default :class:`..devices.ptu.PTU`) from the *achieved* camera position at the object:
+  by default :class:`..devices.pan_tilt_drivers.ptu_d46.PTU`) from the *achieved* camera position at the object:
   ``az = atan2(dx, dy)``, ``el = atan2(dz, hypot(dx, dy))`` with
   ``d = object - eye``, turned into PTU angles by the mount
   (:class:`.config.PTUConfig`).

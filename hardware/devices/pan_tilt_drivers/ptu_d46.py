@@ -1,7 +1,7 @@
 """Driver for Directed Perception PTU-D46 pan-tilt units (thesis §6.4) over a serial line.
 
 The command protocol, the strict reply parser and the errors are in
-:mod:`.ptu_protocol` (re-exported here).
+:mod:`..ptu_protocol` (re-exported here).
 
 Asynchronous output.  A unit that reaches a limit switch sends ``!P`` or
 ``!T`` (two bytes, no line end) at once, whatever is on the line -- also in
@@ -49,7 +49,7 @@ import time
 
 import serial
 
-from .ptu_protocol import (
+from ..ptu_protocol import (
     ARCSEC_PER_POSITION_D46_17_5,
     PTUConnectionError,
     PTUError,
@@ -155,7 +155,7 @@ class PTU:
 
     @classmethod
     def from_config(cls, config, port: str | None = None) -> "PTU":
-        """The unit of a ``[[ptu]]`` entry (:class:`..physical.config.PTUConfig`); ``port`` overrides its ``port``."""
+        """The unit of a ``[[ptu]]`` entry (:class:`...physical.config.PTUConfig`); ``port`` overrides its ``port``."""
         return cls(
             config.port if port is None else port,
             baudrate=config.baudrate,
@@ -529,3 +529,7 @@ class PTU:
             self._expect_markers = False
         self._target = (0, 0)
         self._unsure = [False, False]
+
+
+#: the class the registry (:mod:`..pan_tilt`) hands out for ``driver = "ptu-d46"``
+DRIVER = PTU
