@@ -1,9 +1,20 @@
 """Appendix-C kinematics: planner angles <-> camera positions in the workspace.
 
-The planner outputs three angles (thesis eq. 4.21): camera 1 pan ``theta1`` and
-tilt ``nu1`` (a pan-tilt unit on an x-y gantry at fixed height) and camera 2 pan
-``theta2`` (a pan-tilt unit on a linear track along y, fixed x and z).  Both
-cameras always look at the object, so the positions follow from the angles.
+Every camera rides a *carrier* that its pan-tilt unit sits on; the planner
+gives each camera a pan ``theta`` and a tilt ``nu`` and, since every camera
+looks at the object, the carrier's position follows from the angles.  The
+thesis rig (eq. 4.21) has two carriers, and this module has both kinds:
+
+* :class:`Gantry` -- an x-y gantry at fixed height (camera 1: pan ``theta1``
+  and tilt ``nu1``);
+* :class:`Track` -- a linear track along y at fixed x and z (camera 2: pan
+  ``theta2``; its tilt follows).
+
+A :class:`Workspace` holds the object's position and one carrier per camera
+(default: the thesis's gantry and track), so a rig of more cameras lists more
+carriers (a rig file's ``[[table.workspace.carrier]]``); a new kind of carrier
+is a class here with the members of :class:`Carrier`, added to
+:data:`CARRIERS`.
 
 With ``Delta = camera - object`` the thesis defines (eq. C.27-C.28)::
 
@@ -21,10 +32,10 @@ so the horizontal distance is ``d = dz / tan(nu)`` and ``dx = d sin(theta)``,
    implement the consistent form above and test the round trip
    angles -> positions -> angles.
 
-Camera 2 (eq. C.34-C.40) has fixed ``x_c2`` and ``z_c2``; with
+A track camera (eq. C.34-C.40) has fixed ``x_c`` and ``z_c``; with
 ``tan(theta2) = dy / dx``::
 
-    y_c2 = y_o + dx tan(theta2),   nu2 = atan(dz / sqrt(dx^2 + dy^2))
+    y_c = y_o + dx tan(theta2),   nu2 = atan(dz / sqrt(dx^2 + dy^2))
 
 Angles are in radians throughout this module (its error messages give them in
 degrees, the unit of rig files), except the pan-tilt unit's own angles of
@@ -36,15 +47,20 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Iterable
+from typing import ClassVar, Iterable, Protocol, runtime_checkable
 
 import numpy as np
 
 __all__ = [
+    "CARRIERS",
+    "Carrier",
     "DEFAULT_MOUNTS",
+    "Gantry",
     "Mount",
+    "Track",
     "WorkspaceError",
     "Workspace",
+    "default_mounts",
     "line_of_sight",
     "ptu_angles",
     "camera1_position",
@@ -53,38 +69,11 @@ __all__ = [
     "camera2_angles",
 ]
 
+Point = tuple[float, float, float]
+
 
 class WorkspaceError(ValueError):
     """A requested camera placement lies outside the workspace limits."""
-
-
-@dataclasses.dataclass(frozen=True)
-class Workspace:
-    """Fixed geometry of the rig (thesis ch. 6, fig. C.1).  Metres.
-
-    Attributes:
-        object_xyz: centre of the object on the turn-table.
-        cam1_z: height of camera 1 (the gantry does not move in z).
-        gantry_x, gantry_y: (min, max) travel of the x-y gantry.
-        cam2_x, cam2_z: fixed x and z of camera 2 on its linear track.
-        track_y: (min, max) travel of the linear track.
-        tilt1_range: (min, max) tilt of camera 1 (radians, elevation, > 0).
-    """
-
-    object_xyz: tuple[float, float, float] = (0.0, 0.0, 0.10)
-    cam1_z: float = 0.70
-    gantry_x: tuple[float, float] = (-1.5, 1.5)
-    gantry_y: tuple[float, float] = (-1.5, 1.5)
-    cam2_x: float = 0.75
-    cam2_z: float = 0.25
-    track_y: tuple[float, float] = (-1.5, 1.5)
-    tilt1_range: tuple[float, float] = (math.radians(10.0), math.radians(89.0))
-
-    def __post_init__(self):
-        if self.cam1_z <= self.object_xyz[2]:
-            raise WorkspaceError("camera 1 must fly above the object (cam1_z > object z)")
-        if abs(self.cam2_x - self.object_xyz[0]) < 1e-9:
-            raise WorkspaceError("camera 2's track must not pass through the object (cam2_x != object x)")
 
 
 def _check(name: str, value: float, bounds: tuple[float, float], angle: bool = False) -> None:
@@ -97,49 +86,217 @@ def _check(name: str, value: float, bounds: tuple[float, float], angle: bool = F
         raise WorkspaceError(f"{name} = {value:.4f} m is outside the workspace limits [{lo:.4f}, {hi:.4f}] m")
 
 
+# ---- carriers: where a camera sits for its planner angles ---------------------------
+
+
+@runtime_checkable
+class Carrier(Protocol):
+    """What a camera rides on (a :class:`Workspace` holds one per camera).
+
+    ``kind`` names it in rig files; ``FIELDS`` lists its plain-data keys (the
+    number of values: 0 a number, 2 a ``[min, max]`` range; a key ending in
+    ``_deg`` holds the degrees of the radian field without the suffix);
+    ``ENTRY`` describes one table entry (``camera<i>`` of a rig file's
+    ``[table]``) and ``takes_tilt`` says whether the entry gives a tilt."""
+
+    kind: ClassVar[str]
+    FIELDS: ClassVar[dict[str, int]]
+    ENTRY: ClassVar[str]
+    takes_tilt: ClassVar[bool]
+
+    def validate(self, target: Point, camera: int) -> None:
+        """Raise :class:`WorkspaceError` if this carrier cannot see ``target`` at all."""
+        ...
+
+    def place(self, target: Point, pan: float, tilt: float, *, camera: int = 0,
+              check: bool = True) -> tuple[Point, float]:
+        """The eye (x, y, z) for planner ``pan`` / ``tilt`` (radians) and the tilt it
+        then looks at ``target`` with; :class:`WorkspaceError` outside its limits."""
+        ...
+
+    def angles(self, target: Point, eye: Point) -> tuple[float, float]:
+        """The planner (pan, tilt) that put the camera at ``eye`` (inverse of :meth:`place`)."""
+        ...
+
+    def axes(self, eye: Point) -> tuple[float, ...]:
+        """The coordinates its motors set at ``eye`` (what the encoders read)."""
+        ...
+
+    def eye(self, axes: tuple[float, ...]) -> Point:
+        """The eye at motor coordinates ``axes`` (inverse of :meth:`axes`)."""
+        ...
+
+    def default_mount(self, target: Point) -> "Mount":
+        """A pan-tilt mount that keeps its usual positions inside the PTU-D46's range."""
+        ...
+
+
+@dataclasses.dataclass(frozen=True)
+class Gantry:
+    """A pan-tilt unit on an x-y gantry at height ``z`` (camera 1 of the thesis,
+    eq. C.27-C.28): planner pan and tilt give the gantry's (x, y).
+
+    Attributes:
+        z: camera height (the gantry does not move in z).
+        x_range, y_range: (min, max) travel of the gantry.
+        tilt_range: (min, max) tilt (radians, elevation, > 0).
+    """
+
+    kind: ClassVar[str] = "gantry"
+    FIELDS: ClassVar[dict[str, int]] = {"z": 0, "x_range": 2, "y_range": 2, "tilt_range_deg": 2}
+    ENTRY: ClassVar[str] = "a [pan, tilt] pair"
+    takes_tilt: ClassVar[bool] = True
+
+    z: float = 0.70
+    x_range: tuple[float, float] = (-1.5, 1.5)
+    y_range: tuple[float, float] = (-1.5, 1.5)
+    tilt_range: tuple[float, float] = (math.radians(10.0), math.radians(89.0))
+
+    def validate(self, target: Point, camera: int) -> None:
+        if self.z <= target[2]:
+            raise WorkspaceError(f"camera {camera + 1} must fly above the object (gantry z > object z)")
+        lo, hi = (math.degrees(v) for v in self.tilt_range)
+        if not 0 < lo <= hi < 90:
+            raise WorkspaceError(f"camera {camera + 1}: tilt range [{lo:g}, {hi:g}] deg must lie in (0, 90) deg")
+
+    def place(self, target: Point, pan: float, tilt: float, *, camera: int = 0,
+              check: bool = True) -> tuple[Point, float]:
+        if check:
+            _check(f"camera {camera + 1} tilt", tilt, self.tilt_range, angle=True)
+        xo, yo, zo = target
+        d = (self.z - zo) / math.tan(tilt)
+        x = xo + d * math.sin(pan)
+        y = yo + d * math.cos(pan)
+        if check:
+            _check("gantry x", x, self.x_range)
+            _check("gantry y", y, self.y_range)
+        return (x, y, self.z), tilt
+
+    def angles(self, target: Point, eye: Point) -> tuple[float, float]:
+        dx, dy, dz = (e - t for e, t in zip(eye, target))
+        return math.atan2(dx, dy), math.atan2(dz, math.hypot(dx, dy))
+
+    def axes(self, eye: Point) -> tuple[float, ...]:
+        return (eye[0], eye[1])
+
+    def eye(self, axes: tuple[float, ...]) -> Point:
+        x, y = axes
+        return (x, y, self.z)
+
+    def default_mount(self, target: Point) -> "Mount":
+        """Looking along azimuth -22.5 deg, 45 deg down at PTU (0, 0): the 8 pans x
+        30-75 deg tilts of the default table stay inside the PTU-D46's range."""
+        return Mount(pan_zero_deg=-22.5, tilt_zero_deg=-45.0)
+
+
+@dataclasses.dataclass(frozen=True)
+class Track:
+    """A pan-tilt unit on a linear track along y at fixed ``x`` and ``z`` (camera 2
+    of the thesis, eq. C.34-C.40): the planner pan gives the track's y, the tilt
+    follows (a table entry is a pan alone).
+
+    Attributes:
+        x, z: the track's fixed x and height.
+        y_range: (min, max) travel of the track.
+    """
+
+    kind: ClassVar[str] = "track"
+    FIELDS: ClassVar[dict[str, int]] = {"x": 0, "z": 0, "y_range": 2}
+    ENTRY: ClassVar[str] = "a pan"
+    takes_tilt: ClassVar[bool] = False
+
+    x: float = 0.75
+    z: float = 0.25
+    y_range: tuple[float, float] = (-1.5, 1.5)
+
+    def validate(self, target: Point, camera: int) -> None:
+        if abs(self.x - target[0]) < 1e-9:
+            raise WorkspaceError(f"camera {camera + 1}'s track must not pass through the object (track x != object x)")
+
+    def place(self, target: Point, pan: float, tilt: float = 0.0, *, camera: int = 0,
+              check: bool = True) -> tuple[Point, float]:
+        """``tilt`` is not used: on a track the pan fixes the eye."""
+        if check and not (-math.pi / 2 < pan < math.pi / 2):
+            raise WorkspaceError(f"camera {camera + 1} pan = {math.degrees(pan):.4g} deg must lie in (-90, 90) deg")
+        xo, yo, zo = target
+        dx, dz = self.x - xo, self.z - zo
+        y = yo + dx * math.tan(pan)
+        if check:
+            _check("track y", y, self.y_range)
+        return (self.x, y, self.z), math.atan2(dz, math.hypot(dx, y - yo))
+
+    def angles(self, target: Point, eye: Point) -> tuple[float, float]:
+        dx, dy, dz = (e - t for e, t in zip(eye, target))
+        return math.atan2(dy, dx), math.atan2(dz, math.hypot(dx, dy))
+
+    def axes(self, eye: Point) -> tuple[float, ...]:
+        return (eye[1],)
+
+    def eye(self, axes: tuple[float, ...]) -> Point:
+        (y,) = axes
+        return (self.x, y, self.z)
+
+    def default_mount(self, target: Point) -> "Mount":
+        """Level, looking across the table at the object's x (azimuth -90 deg from
+        x > object x), pan mirrored as the thesis's camera 2."""
+        return Mount(pan_zero_deg=math.degrees(math.atan2(target[0] - self.x, 0.0)), pan_sign=-1)
+
+
+#: The carrier kinds a rig file's ``[[table.workspace.carrier]] kind`` can name.
+CARRIERS: dict[str, type] = {c.kind: c for c in (Gantry, Track)}
+
+
+@dataclasses.dataclass(frozen=True)
+class Workspace:
+    """Fixed geometry of the rig (thesis ch. 6, fig. C.1).  Metres.
+
+    Attributes:
+        object_xyz: centre of the object on the turn-table.
+        carriers: one :class:`Carrier` per camera of the rig, camera 1 first
+            (default: the thesis's :class:`Gantry` and :class:`Track`).  A table
+            of fewer cameras uses the first ones.
+    """
+
+    object_xyz: tuple[float, float, float] = (0.0, 0.0, 0.10)
+    carriers: tuple[Carrier, ...] = (Gantry(), Track())
+
+    def __post_init__(self):
+        for i, c in enumerate(self.carriers):
+            c.validate(self.object_xyz, i)
+
+    def carrier(self, camera: int) -> Carrier:
+        if not 0 <= camera < len(self.carriers):
+            raise WorkspaceError(f"camera {camera + 1}: the workspace has carriers for {len(self.carriers)} cameras")
+        return self.carriers[camera]
+
+
+def _thesis(ws: Workspace, camera: int, kind: type):
+    c = ws.carrier(camera)
+    if not isinstance(c, kind):
+        raise WorkspaceError(f"camera {camera + 1} rides a {c.kind}, not a {kind.kind}")
+    return c
+
+
 def camera1_position(ws: Workspace, pan: float, tilt: float, *, check: bool = True) -> tuple[float, float, float]:
     """Gantry position (x, y, z) of camera 1 for pan ``theta1`` and tilt ``nu1`` (consistent eq. C.27-C.28)."""
-    if check:
-        _check("camera 1 tilt", tilt, ws.tilt1_range, angle=True)
-    xo, yo, zo = ws.object_xyz
-    dz = ws.cam1_z - zo
-    d = dz / math.tan(tilt)
-    x = xo + d * math.sin(pan)
-    y = yo + d * math.cos(pan)
-    if check:
-        _check("gantry x", x, ws.gantry_x)
-        _check("gantry y", y, ws.gantry_y)
-    return (x, y, ws.cam1_z)
+    return _thesis(ws, 0, Gantry).place(ws.object_xyz, pan, tilt, camera=0, check=check)[0]
 
 
 def camera1_angles(ws: Workspace, x: float, y: float) -> tuple[float, float]:
     """Pan and tilt (eq. C.27-C.28) that make camera 1 at gantry (x, y) look at the object."""
-    xo, yo, zo = ws.object_xyz
-    dx, dy, dz = x - xo, y - yo, ws.cam1_z - zo
-    pan = math.atan2(dx, dy)
-    tilt = math.atan2(dz, math.hypot(dx, dy))
-    return pan, tilt
+    g = _thesis(ws, 0, Gantry)
+    return g.angles(ws.object_xyz, g.eye((x, y)))
 
 
 def camera2_position(ws: Workspace, pan: float, *, check: bool = True) -> tuple[tuple[float, float, float], float]:
     """Track position (x, y, z) and tilt ``nu2`` of camera 2 for pan ``theta2`` (eq. C.39-C.40)."""
-    if check and not (-math.pi / 2 < pan < math.pi / 2):
-        raise WorkspaceError(f"camera 2 pan = {math.degrees(pan):.4g} deg must lie in (-90, 90) deg")
-    xo, yo, zo = ws.object_xyz
-    dx = ws.cam2_x - xo
-    dz = ws.cam2_z - zo
-    y = yo + dx * math.tan(pan)
-    if check:
-        _check("track y", y, ws.track_y)
-    tilt = math.atan2(dz, math.hypot(dx, y - yo))
-    return (ws.cam2_x, y, ws.cam2_z), tilt
+    return _thesis(ws, 1, Track).place(ws.object_xyz, pan, camera=1, check=check)
 
 
 def camera2_angles(ws: Workspace, y: float) -> tuple[float, float]:
     """Pan (eq. C.34) and tilt (eq. C.35) of camera 2 at track position ``y``."""
-    xo, yo, zo = ws.object_xyz
-    dx, dy, dz = ws.cam2_x - xo, y - yo, ws.cam2_z - zo
-    return math.atan2(dy, dx), math.atan2(dz, math.hypot(dx, dy))
+    t = _thesis(ws, 1, Track)
+    return t.angles(ws.object_xyz, t.eye((y,)))
 
 
 # ---- the pan-tilt unit's own angles (degrees) for a line of sight -----------------
@@ -163,6 +320,13 @@ class Mount:
 #: pan, -46.6..+31.1 deg tilt): camera 1 looks along azimuth -22.5 deg, 45 deg
 #: down at (0, 0); camera 2 along azimuth -90 deg (towards -x), level, pan mirrored.
 DEFAULT_MOUNTS = (Mount(pan_zero_deg=-22.5, tilt_zero_deg=-45.0), Mount(pan_zero_deg=-90.0, pan_sign=-1))
+
+
+def default_mounts(workspace: Workspace, n_cameras: int | None = None) -> tuple[Mount, ...]:
+    """A mount per camera (the first ``n_cameras``), each its carrier's
+    :meth:`~Carrier.default_mount`: :data:`DEFAULT_MOUNTS` for the thesis's two."""
+    n = len(workspace.carriers) if n_cameras is None else n_cameras
+    return tuple(workspace.carrier(i).default_mount(workspace.object_xyz) for i in range(n))
 
 
 def _wrap_deg(a: float) -> float:

@@ -3,11 +3,12 @@
 :class:`HardwareRig` (thesis ch. 6):
 
 * ``move(configuration)`` looks up the planner angles of each camera's
-  position in the :class:`..geometry.positions.CameraTable`, sends camera-1 pan/tilt,
-  camera-2 pan and the turn-table angle to the motion controller over UDP
+  position in the :class:`..geometry.positions.CameraTable`, sends every camera's
+  pan and tilt and the turn-table angle to the motion controller over UDP
   (:class:`..devices.udp_link.ControllerLink`), waits for ``IN_POSITION`` (the capture
   signal, §6.6), then points each pan-tilt unit (a :class:`..devices.pan_tilt.PanTilt`,
-  by default :class:`..devices.pan_tilt_drivers.ptu_d46.PTU`) from the *achieved* camera position at the object:
+  by default :class:`..devices.pan_tilt_drivers.ptu_d46.PTU`) from the *achieved*
+  camera position (each carrier's, as the controller reports it) at the object:
   ``az = atan2(dx, dy)``, ``el = atan2(dz, hypot(dx, dy))`` with
   ``d = object - eye``, turned into PTU angles by the mount
   (:class:`.config.PTUConfig`).
@@ -57,6 +58,7 @@ from ..geometry.kinematics import line_of_sight, ptu_angles  # re-exported: the 
 from ..devices.pan_tilt import PanTilt, PanTiltConnectionError, PanTiltError, open_pan_tilt
 from ..geometry.positions import CameraTable
 from ..rigs.rig import Capture, RigError
+from ..devices.datagram import Move
 from ..devices.udp_link import ControllerLink, LinkError, MoveResult
 
 __all__ = [
@@ -114,7 +116,7 @@ def _check_config(configuration: Sequence[int], positions: tuple[int, ...]) -> t
 
 
 class HardwareRig:
-    """A real rig (1 or 2 cameras on PTUs, gantry / track / turn-table on a UDP controller).
+    """A real rig (n cameras on PTUs on their carriers, and a turn-table, on a UDP controller).
 
     Args:
         config: a :class:`.config.RigConfig` (``load_config("rig.toml")``) or a path.
@@ -209,14 +211,11 @@ class HardwareRig:
         cfg = _check_config(configuration, self.positions)
         self.in_position = False
         views = [self.table.views[i][v] for i, v in enumerate(cfg)]
-        cam2_pan = views[1].pan if len(views) > 1 else 0.0
         try:
-            res = self.link.move(views[0].pan, views[0].tilt, cam2_pan, self._turntable)
+            res = self.link.move(Move(tuple((v.pan, v.tilt) for v in views), self._turntable))
         except LinkError as e:
             raise RigError(f"motion controller: move to configuration {cfg} failed: {e}") from e
-        ws = self.table.workspace
-        eyes = [(res.gantry_xy[0], res.gantry_xy[1], ws.cam1_z), (ws.cam2_x, res.track_y, ws.cam2_z)]
-        self.eyes = eyes[: len(cfg)]
+        self.eyes = list(res.eyes(self.table.carriers))[: len(cfg)]
         try:
             self._point()
         except _UnitLost as lost:  # the device vanished: bring it back, then point once more
