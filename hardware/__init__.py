@@ -25,7 +25,7 @@ import importlib
 
 # name -> the module of this package that defines it (imported on first access)
 _EXPORTS: dict[str, str] = {
-    **dict.fromkeys(["camera1_angles", "camera1_position", "camera2_angles", "camera2_position",
+    **dict.fromkeys(["camera1_angles", "camera1_position", "camera2_angles", "camera2_position", "Gantry", "Track",
                      "Workspace", "WorkspaceError"], "geometry.kinematics"),
     **dict.fromkeys(["Board", "OccluderLayout", "random_occluders"], "render.occluders"),
     **dict.fromkeys(["Capture", "CaptureJob", "config_from_index", "index_from_config", "Rig", "RigError", "RigPool",

@@ -12,8 +12,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from jaxrecog.hardware.devices.pan_tilt import PanTilt, PanTiltConnectionError
-from jaxrecog.hardware.devices.pan_tilt_drivers.ptu_d46 import (
-    PTU,
+from jaxrecog.hardware.devices.pan_tilt_drivers.ptu_d46 import PTU
+from jaxrecog.hardware.devices.ptu_protocol import (
     PTUConnectionError,
     PTUError,
     PTUErrorReply,

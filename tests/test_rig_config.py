@@ -218,17 +218,22 @@ def test_a_module_path_as_driver_imports_nothing(tmp_path, monkeypatch):
     assert "jaxrecog_test_side_effect" not in sys.modules and "this" not in sys.modules
 
 
-def _install_fake_distribution(tmp_path, monkeypatch):
-    """A package that declares a pan-tilt driver entry point, as pip would install it."""
-    marker = tmp_path / "imported"
-    (tmp_path / "jaxrecog_test_unit.py").write_text(f"""
+def _fake_driver(path, marker, cls: str = "Unit", extra: str = "") -> None:
+    """A driver module at ``path`` that touches ``marker`` when it is imported."""
+    path.write_text(f"""
 open({str(marker)!r}, 'w').close()
-class Unit:
+class {cls}:
     url = ""
     @classmethod
     def from_config(cls, config, port=None):
         return cls()
-""")
+{extra}""")
+
+
+def _install_fake_distribution(tmp_path, monkeypatch):
+    """A package that declares a pan-tilt driver entry point, as pip would install it."""
+    marker = tmp_path / "imported"
+    _fake_driver(tmp_path / "jaxrecog_test_unit.py", marker)
     info = tmp_path / "jaxrecog_test_unit-1.0.dist-info"
     info.mkdir()
     (info / "METADATA").write_text("Metadata-Version: 2.1\nName: jaxrecog-test-unit\nVersion: 1.0\n")
@@ -260,15 +265,7 @@ def test_a_new_pan_tilt_protocol_is_one_module_in_pan_tilt_drivers(tmp_path, mon
     from jaxrecog.hardware.devices import pan_tilt_drivers as package
 
     marker = tmp_path / "imported"
-    (tmp_path / "acme_pt9.py").write_text(f"""
-open({str(marker)!r}, 'w').close()
-class AcmePT9:
-    url = ""
-    @classmethod
-    def from_config(cls, config, port=None):
-        return cls()
-DRIVER = AcmePT9
-""")
+    _fake_driver(tmp_path / "acme_pt9.py", marker, "AcmePT9", "DRIVER = AcmePT9\n")
     (tmp_path / "_acme_wire.py").write_text("raise AssertionError('a helper module is not a driver')\n")
     monkeypatch.setattr(package, "__path__", [*package.__path__, str(tmp_path)])
     monkeypatch.delitem(sys.modules, f"{package.__name__}.acme_pt9", raising=False)

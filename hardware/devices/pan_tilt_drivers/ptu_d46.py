@@ -1,7 +1,7 @@
 """Driver for Directed Perception PTU-D46 pan-tilt units (thesis §6.4) over a serial line.
 
-The command protocol, the strict reply parser and the errors are in
-:mod:`..ptu_protocol` (re-exported here).
+The command protocol, the strict reply parser and the errors this driver
+raises are in :mod:`..ptu_protocol`.
 
 Asynchronous output.  A unit that reaches a limit switch sends ``!P`` or
 ``!T`` (two bytes, no line end) at once, whatever is on the line -- also in
@@ -74,20 +74,7 @@ _IO_ERRORS: tuple[type[BaseException], ...] = (serial.SerialException, OSError) 
     (termios.error,) if termios is not None else ()
 )
 
-# the protocol's errors and parser are re-exported: they are this driver's errors
-__all__ = [
-    "PTU",
-    "PTUError",
-    "PTUTimeoutError",
-    "PTUErrorReply",
-    "PTUGarbageError",
-    "PTULimitError",
-    "PTUConnectionError",
-    "PTUHomingTimeout",
-    "PTULimits",
-    "parse_reply",
-    "ARCSEC_PER_POSITION_D46_17_5",
-]
+__all__ = ["PTU", "DRIVER"]
 
 log = logging.getLogger(__name__)
 
