@@ -76,6 +76,7 @@ __all__ = [
     "Datagram",
     "DatagramError",
     "Move",
+    "no_move",
     "Moving",
     "InPosition",
     "Rejected",
@@ -221,8 +222,9 @@ class Move:
         return Move(((pan1, tilt1), (pan2, 0.0)), self.turntable)
 
 
-#: What a REJECTED echoes for a request that is no move (a PING), per version.
 def no_move(version: int) -> Move:
+    """What a REJECTED echoes for a request that is no move (a PING): no cameras in
+    version 3, the four zeros of versions 1-2."""
     return Move((), 0.0).for_version(version)
 
 
