@@ -245,7 +245,7 @@ def test_in_position_layout_of_version_2():
     assert decode(raw).payload == p
 
 
-@settings(max_examples=300, deadline=None)
+@settings(max_examples=200, deadline=None)
 @given(datagrams)
 def test_round_trip(dg):
     keys = [None, KEY] if dg.version >= 2 else [None]
