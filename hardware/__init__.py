@@ -1,13 +1,22 @@
 """Rigs: the ``Rig`` interface, appendix-C kinematics, the synthetic (rendered)
 rig, the dataset replay rig and the real hardware (PTU serial, UDP controller,
-cameras) with device simulators.
+cameras) with device simulators, in one subpackage per area:
+
+============  ===============================================================
+``rigs``      the ``Rig`` interface (``rig.py``), rig pools, the dataset rig
+``geometry``  kinematics, carriers, the configuration table, travel times
+``devices``   pan-tilt drivers, cameras, the controller datagrams and link
+``sim``       the PTU and motion-controller simulators
+``render``    the pybullet scene, the synthetic rig, rendered databases
+``physical``  the rig file and ``HardwareRig`` / ``SimulatedHardwareRig``
+============  ===============================================================
 
 The package imports its modules lazily (PEP 562): ``from jaxrecog.hardware
-import SyntheticRig`` imports ``synthetic.py`` (and pybullet when a scene is
-built) on first use, so importing the recognition core, which needs only the
-rig interface (:mod:`.rig`), loads neither OpenCV (cameras), pyserial (the
-PTU driver), sockets (the UDP link) nor the renderer.  :data:`__all__` lists
-every name; :data:`_EXPORTS` says which module holds it.
+import SyntheticRig`` imports ``render/synthetic.py`` (and pybullet when a
+scene is built) on first use, so importing the recognition core, which needs
+only the rig interface (:mod:`.rigs.rig`), loads neither OpenCV (cameras),
+pyserial (the PTU driver), sockets (the UDP link) nor the renderer.
+:data:`__all__` lists every name; :data:`_EXPORTS` says which module holds it.
 """
 
 from __future__ import annotations
@@ -16,27 +25,28 @@ import importlib
 
 # name -> the module of this package that defines it (imported on first access)
 _EXPORTS: dict[str, str] = {
-    **dict.fromkeys(["camera1_angles", "camera1_position", "camera2_angles", "camera2_position",
-                     "Workspace", "WorkspaceError"], "kinematics"),
-    **dict.fromkeys(["Board", "OccluderLayout", "random_occluders"], "occluders"),
+    **dict.fromkeys(["camera1_angles", "camera1_position", "camera2_angles", "camera2_position", "Gantry", "Track",
+                     "Workspace", "WorkspaceError"], "geometry.kinematics"),
+    **dict.fromkeys(["Board", "OccluderLayout", "random_occluders"], "render.occluders"),
     **dict.fromkeys(["Capture", "CaptureJob", "config_from_index", "index_from_config", "Rig", "RigError", "RigPool",
-                     "SceneSpec"], "rig"),
-    **dict.fromkeys(["Camera", "CameraError", "CameraLostError", "ImageSequenceCamera", "VideoCamera"], "camera"),
-    **dict.fromkeys(["ConfigError", "load_config", "RigConfig"], "config"),
-    **dict.fromkeys(["ControllerSimulator", "LinkFaults"], "controller_sim"),
-    **dict.fromkeys(["HardwareRig", "Reconnect", "rig_from_config", "SimulatedHardwareRig"], "hardware_rig"),
-    **dict.fromkeys(["PanTilt", "PanTiltConnectionError", "PanTiltError", "register_pan_tilt"], "pan_tilt"),
-    **dict.fromkeys(["PTU", "PTUError", "PTUErrorReply", "PTUGarbageError", "PTUHomingTimeout",
-                     "PTULimitError", "PTUTimeoutError"], "ptu"),
-    **dict.fromkeys(["PTUSimulator"], "ptu_sim"),
-    **dict.fromkeys(["SharedKey"], "datagram"),
+                     "SceneSpec"], "rigs.rig"),
+    **dict.fromkeys(["Camera", "CameraError", "CameraLostError", "ImageSequenceCamera", "VideoCamera"], "devices.camera"),
+    **dict.fromkeys(["ConfigError", "load_config", "RigConfig"], "physical.config"),
+    **dict.fromkeys(["ControllerSimulator", "LinkFaults"], "sim.controller_sim"),
+    **dict.fromkeys(["HardwareRig", "Reconnect", "rig_from_config", "SimulatedHardwareRig"], "physical.hardware_rig"),
+    **dict.fromkeys(["PanTilt", "PanTiltConnectionError", "PanTiltError", "register_pan_tilt"], "devices.pan_tilt"),
+    **dict.fromkeys(["PTU"], "devices.pan_tilt_drivers.ptu_d46"),
+    **dict.fromkeys(["PTUError", "PTUErrorReply", "PTUGarbageError", "PTUHomingTimeout", "PTULimitError",
+                     "PTUTimeoutError"], "devices.ptu_protocol"),
+    **dict.fromkeys(["PTUSimulator"], "sim.ptu_sim"),
+    **dict.fromkeys(["SharedKey"], "devices.datagram"),
     **dict.fromkeys(["ControllerLink", "ControllerRejected", "ControllerRestarted", "LinkError",
-                     "LinkTimeoutError", "SessionClosed", "SessionRefused"], "udp_link"),
-    **dict.fromkeys(["contact_sheet", "lookalike_distances", "render_database"], "render_db"),
-    **dict.fromkeys(["default_objects", "Intrinsics", "Lighting", "ObjectSpec", "Part", "Scene"], "scene"),
-    **dict.fromkeys(["Noise", "SyntheticRig"], "synthetic"),
-    **dict.fromkeys(["DatasetRig"], "dataset_rig"),
-    **dict.fromkeys(["LocalRigs", "ProcessRigs"], "rig_pool"),
+                     "LinkTimeoutError", "SessionClosed", "SessionRefused"], "devices.udp_link"),
+    **dict.fromkeys(["contact_sheet", "lookalike_distances", "render_database"], "render.render_db"),
+    **dict.fromkeys(["default_objects", "Intrinsics", "Lighting", "ObjectSpec", "Part", "Scene"], "render.scene"),
+    **dict.fromkeys(["Noise", "SyntheticRig"], "render.synthetic"),
+    **dict.fromkeys(["DatasetRig"], "rigs.dataset_rig"),
+    **dict.fromkeys(["LocalRigs", "ProcessRigs"], "rigs.rig_pool"),
 }
 
 __all__ = sorted(_EXPORTS, key=str.lower)

@@ -15,7 +15,7 @@ from typing import Any, Callable, Iterable, Sequence
 import numpy as np
 
 from .driver import TrialSpec, batched_step, run_trials
-from .hardware.rig import Rig, RigPool
+from .hardware.rigs.rig import Rig, RigPool
 from .recognizer import Recognizer
 from .results import TrialResult, TrialStore
 
@@ -41,7 +41,7 @@ def plan_trials(
     for its pose, initial configuration and occluder layout, so campaigns with
     different planners see the same scenes.
 
-    ``yaw_deg > 0`` (off-grid captures, :class:`~jaxrecog.hardware.synthetic.OffGrid`):
+    ``yaw_deg > 0`` (off-grid captures, :class:`~jaxrecog.hardware.render.synthetic.OffGrid`):
     each trial's object also gets a yaw offset ``U(-yaw_deg, yaw_deg)``
     degrees (``TrialSpec.yaw_offset``), drawn last from the same generator,
     so pose, start and occluders are those of the on-grid trial and the
@@ -84,7 +84,7 @@ def run_campaign(
         rig: a :class:`~jaxrecog.hardware.Rig` with the same positions, or
             several identical ones (one per lockstep slot: each trial's scene
             is then set up once; see :func:`jaxrecog.driver.run_trials`), or
-            a :class:`~jaxrecog.hardware.rig_pool.RigPool` (e.g. rendering in
+            a :class:`~jaxrecog.hardware.rigs.rig_pool.RigPool` (e.g. rendering in
             worker processes: :func:`jaxrecog.experiments.capture_pool`).
         specs: from :func:`plan_trials`.
         key: PRNG key; trial ``t`` step ``n`` uses ``fold_in(fold_in(key, t), n)``.

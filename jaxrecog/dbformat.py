@@ -6,7 +6,7 @@
 OpenCV, imported when an image is read or written, and the standard library
 only; of this package it imports only :mod:`.problems`) is the one
 definition of the format and of the in-memory :class:`ImageDatabase`: the
-renderer (:mod:`jaxrecog.hardware.render_db`) writes it, :func:`read_folder` reads and validates it for the dataset rig and
+renderer (:mod:`jaxrecog.hardware.render.render_db`) writes it, :func:`read_folder` reads and validates it for the dataset rig and
 for :func:`jaxrecog.load_database`, :func:`write_folder` writes an
 :class:`ImageDatabase`.
 

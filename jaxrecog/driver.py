@@ -3,7 +3,7 @@
 One loop serves the campaigns (:func:`jaxrecog.campaign.run_campaign`), the
 ``jaxrecog recognize`` command, the demo's trace and the Gymnasium
 environment.  It talks to rigs only through the :class:`~jaxrecog.hardware.Rig`
-protocol, by way of a rig pool (:mod:`jaxrecog.hardware.rig_pool`) that takes
+protocol, by way of a rig pool (:mod:`jaxrecog.hardware.rigs.rig_pool`) that takes
 one step's captures at once, in this process or in worker processes.
 
 Trials run in ``batch`` lockstep *slots*; the steps of all slots are one
@@ -65,7 +65,7 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from jaxtyping import ArrayLike, Bool, Int, PRNGKeyArray, Shaped
 
-from .hardware.rig import Capture, CaptureJob, Rig, RigPool, SceneSpec  # the rig interface: all the driver needs
+from .hardware.rigs.rig import Capture, CaptureJob, Rig, RigPool, SceneSpec  # the rig interface: all the driver needs
 from .recognizer import Decision, Recognizer, RecognizerState, StaticParts
 from .results import TrialResult
 
@@ -85,7 +85,7 @@ class TrialSpec:
     initial: tuple[int, ...]
     occluders: Any = None  # rig-specific layout, None = clean scene
     #: degrees the object is turned off its training pose for the whole trial
-    #: (:class:`~jaxrecog.hardware.synthetic.OffGrid`); None = on the grid
+    #: (:class:`~jaxrecog.hardware.render.synthetic.OffGrid`); None = on the grid
     #: (the rig's ``reset`` is then called without it, as every rig allows)
     yaw_offset: float | None = None
 
@@ -290,7 +290,7 @@ def run_trials(
     Args:
         recognizer: the recognizer (its model fixes the cameras and positions).
         rigs: one :class:`~jaxrecog.hardware.Rig`, several identical ones,
-            or a :class:`~jaxrecog.hardware.rig_pool.RigPool` (e.g. rendering
+            or a :class:`~jaxrecog.hardware.rigs.rig_pool.RigPool` (e.g. rendering
             in worker processes; the results are the same)
             (slot ``b`` uses rig ``b % n_rigs``; one per slot means one
             ``reset`` per trial).
@@ -309,8 +309,8 @@ def run_trials(
             steps one half while the host captures the other's images (the
             results are the same; off with one slot or several devices).
     """
-    from .hardware.motion import path_travel_s
-    from .hardware.rig_pool import as_rig_pool
+    from .hardware.geometry.motion import path_travel_s
+    from .hardware.rigs.rig_pool import as_rig_pool
 
     pool = as_rig_pool(rigs)
     positions = tuple(recognizer.positions)

@@ -35,7 +35,7 @@ jitter-occluded DB2     occluders,  both    mi-class, mi-class-pairwise, random
 Off-grid cases (issue 18, item 4; not in the thesis): every trial's object
 sits turned ``U(-20°, 20°)`` off its training pose (drawn per trial, the same
 for every planner), and every capture moves each camera's eye and jitters the
-light (:class:`~jaxrecog.hardware.synthetic.OffGrid`, :data:`JITTER`), so no
+light (:class:`~jaxrecog.hardware.render.synthetic.OffGrid`, :data:`JITTER`), so no
 test image is a training view.  ``Settings.off_grid_deg`` /
 ``off_grid_eye`` / ``off_grid_light`` override a case's amounts (``None``:
 the case's; 0 for the thesis cases).
@@ -86,7 +86,7 @@ class Case:
     cameras: tuple[int, ...] | None  # None = all cameras
     planners: tuple[str, ...]
     #: (yaw bound in degrees, eye offset, light jitter) of the captures
-    #: (:class:`~jaxrecog.hardware.synthetic.OffGrid`); zeros = on the grid
+    #: (:class:`~jaxrecog.hardware.render.synthetic.OffGrid`); zeros = on the grid
     off_grid: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
 
@@ -94,7 +94,7 @@ class Case:
 #: training pose (per trial; the table's poses are 90° apart and camera 1's
 #: positions ~11° apart in azimuth), eye offset 0.04 (rms 4 % of the eye-object
 #: distance, ~2.3° of viewing direction) and light jitter 0.2 per capture: twice
-#: :class:`~jaxrecog.hardware.synthetic.Perturb`'s defaults (0.02, 0.1) for eye
+#: :class:`~jaxrecog.hardware.render.synthetic.Perturb`'s defaults (0.02, 0.1) for eye
 #: and light, as the yaw is ~7x its 3°.  ``scripts/difficulty_sweep.py`` scales
 #: all three with the angle A: (A, 0.002 A, 0.01 A).
 JITTER: tuple[float, float, float] = (20.0, 0.04, 0.2)
@@ -171,7 +171,7 @@ class Settings:
             default).  The results are the same; on a rendered rig the
             captures are most of a campaign's time.
         off_grid_deg, off_grid_eye, off_grid_light: off-grid captures
-            (:class:`~jaxrecog.hardware.synthetic.OffGrid`): the bound of each
+            (:class:`~jaxrecog.hardware.render.synthetic.OffGrid`): the bound of each
             trial's object yaw offset (degrees), the per-capture eye offset and
             light jitter; ``None`` = the case's (``Case.off_grid``: 0 for the
             thesis cases, :data:`JITTER` for ``jitter``); each finite, >= 0.
@@ -195,7 +195,7 @@ class Settings:
             their own file names and cache keys (:func:`prepare`).
         view_jitter, view_jitter_deg: render this many views *near* each
             training view (the object turned up to ±``view_jitter_deg``
-            degrees, :func:`~jaxrecog.hardware.render_db.jitter_offsets`) into
+            degrees, :func:`~jaxrecog.hardware.render.render_db.jitter_offsets`) into
             the database's ``jitter`` split and train on them as extra base
             images of their view (``train_model(view_jitter=True)``): the
             neighbouring views of the turn-table between the training poses.
@@ -272,7 +272,7 @@ class Settings:
             object.__setattr__(self, k, float(v))
 
     def _check_view_jitter(self) -> None:
-        from .hardware.render_db import jitter_offsets
+        from .hardware.render.render_db import jitter_offsets
 
         try:
             jitter_offsets(self.view_jitter, self.view_jitter_deg)
@@ -339,9 +339,9 @@ def case_settings(case: "Case", settings: Settings) -> Settings:
 
 
 def off_grid(settings: Settings):
-    """The :class:`~jaxrecog.hardware.synthetic.OffGrid` of ``settings``
+    """The :class:`~jaxrecog.hardware.render.synthetic.OffGrid` of ``settings``
     (``None`` amounts count as 0), or ``None`` when all are 0 (on the grid)."""
-    from .hardware.synthetic import OffGrid
+    from .hardware.render.synthetic import OffGrid
 
     og = OffGrid(*(getattr(settings, k) or 0.0 for k in _OFF_GRID_FIELDS))
     return None if og.off else og
@@ -460,9 +460,9 @@ def _run_id(settings: Settings, model_path: Path | str) -> str:
 
 
 def rig_table(settings: Settings):
-    """The thesis table (:func:`~jaxrecog.hardware.positions.default_table`)
+    """The thesis table (:func:`~jaxrecog.hardware.geometry.positions.default_table`)
     with every ``settings.stride``-th position of each camera."""
-    from .hardware.positions import CameraTable, default_table
+    from .hardware.geometry.positions import CameraTable, default_table
 
     table = default_table()
     if settings.stride == 1:
@@ -552,7 +552,7 @@ def make_rig(settings: Settings, cameras: tuple[int, ...] | None = None, *, seed
     position; or a subset of its cameras).  ``clean_counts``: a dict shared
     by identical rigs (:class:`~jaxrecog.hardware.SyntheticRig`)."""
     from .hardware import Noise, SyntheticRig
-    from .hardware.positions import CameraTable
+    from .hardware.geometry.positions import CameraTable
 
     table = rig_table(settings)
     if cameras is not None:
@@ -575,13 +575,13 @@ def rig_pool(settings: Settings, cameras: tuple[int, ...] | None = None, *, seed
 
 
 def capture_pool(settings: Settings, cameras: tuple[int, ...] | None = None, *, seed: int = 0):
-    """:func:`rig_pool`'s rigs as a :class:`~jaxrecog.hardware.rig_pool.RigPool`
+    """:func:`rig_pool`'s rigs as a :class:`~jaxrecog.hardware.rigs.rig_pool.RigPool`
     for the trial driver: in this process (``settings.render_workers == 0``)
     or spread over that many worker processes, which render side by side
     (the results are the same).  Close it when done (it is a context manager)."""
     import functools
 
-    from .hardware.rig_pool import LocalRigs, ProcessRigs
+    from .hardware.rigs.rig_pool import LocalRigs, ProcessRigs
 
     if settings.render_workers:
         factory = functools.partial(make_rig, settings, cameras, seed=seed, clean_counts={})
@@ -598,10 +598,10 @@ def occluder_factory(rig, size: tuple[float, float] | None = None, offset: tuple
     camera facing a random other position, so moving is not a guaranteed
     escape.  ``size`` / ``offset``: the boards' half-size and offset ranges
     (:func:`~jaxrecog.hardware.random_occluders`; default the campaign's,
-    ``OCCLUDER_SIZE`` / ``OCCLUDER_OFFSET`` of :mod:`jaxrecog.hardware.occluders`)."""
+    ``OCCLUDER_SIZE`` / ``OCCLUDER_OFFSET`` of :mod:`jaxrecog.hardware.render.occluders`)."""
     from .hardware import OccluderLayout, random_occluders
-    from .hardware.occluders import OCCLUDER_OFFSET, OCCLUDER_SIZE
-    from .hardware.positions import CameraTable
+    from .hardware.render.occluders import OCCLUDER_OFFSET, OCCLUDER_SIZE
+    from .hardware.geometry.positions import CameraTable
 
     size = OCCLUDER_SIZE if size is None else size
     offset = OCCLUDER_OFFSET if offset is None else offset
@@ -896,7 +896,7 @@ def _turntable_name(n_objects: int, cameras: int, occluded: bool, poses: int, st
 def prepare_turntable(settings: Settings, n_objects: int = 50, cameras: int = 1, occluded: bool = False, *,
                       poses: int = 4, step_deg: int = 20, test_per_view: int = 2, calib_per_view: int = 1,
                       object_seed: int = 0, kind: str | None = None, progress: bool = False) -> Prepared:
-    """Render a turntable set (:func:`jaxrecog.hardware.turntable.render_turntable`:
+    """Render a turntable set (:func:`jaxrecog.hardware.render.turntable.render_turntable`:
     ``n_objects`` random_urdfs meshes, ``360 / step_deg`` positions per camera,
     test views halfway between training views, with a board in front of every
     test view when ``occluded``) into ``workdir/turntable-...`` and train its
@@ -907,8 +907,8 @@ def prepare_turntable(settings: Settings, n_objects: int = 50, cameras: int = 1,
     one entry, ``"turntable"``."""
     from .calibration import calibrate_model
     from .database import load_database
-    from .hardware.random_objects import random_objects
-    from .hardware.turntable import render_turntable
+    from .hardware.render.random_objects import random_objects
+    from .hardware.render.turntable import render_turntable
     from .modelfile import save_model
 
     kind = kind or ("DB2" if occluded else "DB1")

@@ -1,7 +1,7 @@
 """Motion-cost-aware planning: score(a) − λ · (seconds to move to a).
 
 A :class:`MotionCost` holds the per-camera travel-time tables of a rig
-(:func:`jaxrecog.hardware.motion.camera_travel_times`: appendix-C kinematics,
+(:func:`jaxrecog.hardware.geometry.motion.camera_travel_times`: appendix-C kinematics,
 PTU / gantry / track speeds) and the weight λ.  The recognizer applies it to
 *any* planner's scores in its step (``Recognizer(..., motion=...)``), so every
 planner of the registry becomes motion-aware without a change.
@@ -78,7 +78,7 @@ class MotionCost(eqx.Module):
 
     def path_seconds(self, configurations: Sequence[Sequence[int]]) -> float:
         """Seconds to visit ``configurations`` in order (host side; the first costs nothing)."""
-        from .hardware.motion import path_travel_s
+        from .hardware.geometry.motion import path_travel_s
 
         return path_travel_s([np.asarray(t) for t in self.times], configurations)
 
@@ -97,7 +97,7 @@ def rig_travel_times(rig) -> tuple[np.ndarray, ...] | None:
     :class:`~jaxrecog.hardware.HardwareRig` (its rig file's table, mounts and
     ``[motion]`` speeds) or a synthetic rig (its table, the default mounts and
     speeds); ``None`` for a rig without one (a replayed database)."""
-    from .hardware.motion import camera_travel_times
+    from .hardware.geometry.motion import camera_travel_times
 
     config = getattr(rig, "config", None)
     if config is not None and hasattr(config, "travel_times"):

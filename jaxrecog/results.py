@@ -31,7 +31,7 @@ class TrialResult:
     object_probs: tuple[tuple[float, ...], ...] = ()  # per step (optional trace)
     invalid_steps: int = 0  # image sets the recognizer could not use (belief left unchanged)
     #: seconds the trial's moves took under the recognizer's motion model
-    #: (:mod:`jaxrecog.hardware.motion`; the initial configuration is free);
+    #: (:mod:`jaxrecog.hardware.geometry.motion`; the initial configuration is free);
     #: NaN where unknown (no travel-time tables, or a store written before)
     travel_s: float = math.nan
     #: the trial's object yaw offset off the training pose, degrees

@@ -36,12 +36,12 @@ from jaxrecog.campaign import run_campaign
 from jaxrecog.database import load_database
 from jaxrecog.experiments import CASES, Settings, make_recognizer, case_settings, case_trials, make_rig, prepare
 from jaxrecog.hardware import OccluderLayout, random_occluders
-from jaxrecog.hardware.occluders import OCCLUDER_OFFSET, OCCLUDER_SIZE
-from jaxrecog.hardware.positions import CameraTable
-from jaxrecog.hardware.scene import default_objects, object_radius
+from jaxrecog.hardware.render.occluders import OCCLUDER_OFFSET, OCCLUDER_SIZE
+from jaxrecog.hardware.geometry.positions import CameraTable
+from jaxrecog.hardware.render.scene import default_objects, object_radius
 from jaxrecog.hardware import render_database
-from jaxrecog.hardware.positions import default_table
-from jaxrecog.hardware.synthetic import Noise, Perturb
+from jaxrecog.hardware.geometry.positions import default_table
+from jaxrecog.hardware.render.synthetic import Noise, Perturb
 from jaxrecog.metrics import campaign_metrics
 from jaxrecog.modelfile import load_model, save_model
 from jaxrecog.recognizer import restrict_cameras

@@ -17,7 +17,7 @@ deterministic class-MI estimate, standing in for MI; and ``random``):
 * **off-grid angle** A in :data:`ANGLES` (degrees): clean scenes, each
   trial's object turned ``U(-A, A)`` off its training pose, and per capture
   the eye offset ``0.002 A`` and light jitter ``0.01 A``
-  (:class:`~jaxrecog.hardware.synthetic.OffGrid`; A = 20 is case ``jitter``,
+  (:class:`~jaxrecog.hardware.render.synthetic.OffGrid`; A = 20 is case ``jitter``,
   :data:`jaxrecog.experiments.JITTER`).  A = 0 is case (i)'s on-grid capture.
 
 Within one camera count every model and planner sees the same trials (poses,

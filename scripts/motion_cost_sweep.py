@@ -5,7 +5,7 @@ For each λ (score units per second: nats/s for the MI planners) the same
 trials (poses, initial configurations, occluders, capture noise) run with
 ``score(a) − λ · seconds to move to a`` (:mod:`jaxrecog.motion`; travel times
 from the appendix-C kinematics and the default axis speeds of
-:mod:`jaxrecog.hardware.motion`).  One recognizer is built and λ is swapped
+:mod:`jaxrecog.hardware.geometry.motion`).  One recognizer is built and λ is swapped
 as an array leaf, so the step compiles once for the whole sweep.
 
 Writes ``motion_cost_sweep.json`` (per λ: recognition rate, mean views, mean

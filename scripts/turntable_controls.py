@@ -6,8 +6,8 @@ and the uncalibrated model off and on the grid.  Run after
 import time, os
 from pathlib import Path
 from jaxrecog.experiments import Settings, run_dataset
-from jaxrecog.hardware.random_objects import random_objects
-from jaxrecog.hardware.turntable import render_turntable
+from jaxrecog.hardware.render.random_objects import random_objects
+from jaxrecog.hardware.render.turntable import render_turntable
 from jaxrecog.metrics import campaign_metrics
 from jaxrecog.calibration import uncalibrated
 from jaxrecog.modelfile import load_model, save_model

@@ -98,7 +98,7 @@ def make_database(
     ``hardware.render_db.alternating_offsets(n_jitter, jitter_offset)``
     (positions; the same offsets at every view, in the same order, as the
     rendered databases' view jitter)."""
-    from jaxrecog.hardware.render_db import alternating_offsets
+    from jaxrecog.hardware.render.render_db import alternating_offsets
 
     rng = np.random.default_rng(seed)
     jitter = alternating_offsets(n_jitter, jitter_offset) if n_jitter else ()

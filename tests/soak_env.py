@@ -68,7 +68,7 @@ def make_rig(seed: int = 0):
 def train(folder: Path):
     """The rig's train split rendered into ``folder`` and its DB1 model."""
     from jaxrecog import load_database, train_model
-    from jaxrecog.hardware.render_db import render_database
+    from jaxrecog.hardware.render.render_db import render_database
 
     rig = make_rig()
     try:

@@ -56,9 +56,10 @@ def test_kernels_import_nothing_from_jaxrecog_or_hardware():
 # (docs/architecture.md, "Layers"):
 #   kernels  (kernels/)         imports nothing else of jaxrecog;
 #   core     (jaxrecog/*.py)    kernels; of hardware only the rig interface
-#                               (hardware/rig.py) at module level, the rest inside
+#                               (hardware/rigs/rig.py) at module level, the rest inside
 #                               functions; never cli or envs;
-#   hardware (hardware/)        of the rest only the leaf modules LEAVES;
+#   hardware (hardware/)        of the rest only the leaf modules LEAVES; its
+#                               subpackages import one another along HARDWARE_AREAS;
 #   envs     (jaxrecog/envs/)   core, kernels, hardware; never cli;
 #   cli      (jaxrecog/cli/)    anything; nothing imports it.
 
@@ -169,9 +170,9 @@ def test_the_import_graph_is_complete_enough_to_trust():
     graph = _graph(module_level_only=False)
     assert len(graph) > 80
     assert "jaxrecog.kernels.config_grid" in graph["jaxrecog.recognizer"]
-    assert "jaxrecog.hardware.rig" in graph["jaxrecog.driver"]
-    assert "jaxrecog.hardware.rig_pool" in graph["jaxrecog.driver"]  # inside run_trials
-    assert "jaxrecog.hardware.rig_pool" not in _graph(module_level_only=True)["jaxrecog.driver"]
+    assert "jaxrecog.hardware.rigs.rig" in graph["jaxrecog.driver"]
+    assert "jaxrecog.hardware.rigs.rig_pool" in graph["jaxrecog.driver"]  # inside run_trials
+    assert "jaxrecog.hardware.rigs.rig_pool" not in _graph(module_level_only=True)["jaxrecog.driver"]
     assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
 
 
@@ -195,8 +196,8 @@ def test_layers_import_only_what_they_may():
                 bad.append(f"{module} -> {target} (kernels import nothing else of jaxrecog)")
             elif here == "core" and there in ("cli", "envs"):
                 bad.append(f"{module} -> {target} (the core never imports the {there} layer)")
-            elif here == "core" and there == "hardware" and top and target not in ("jaxrecog.hardware.rig",):
-                bad.append(f"{module} -> {target} (at module level the core imports only hardware.rig)")
+            elif here == "core" and there == "hardware" and top and target not in ("jaxrecog.hardware.rigs.rig",):
+                bad.append(f"{module} -> {target} (at module level the core imports only hardware.rigs.rig)")
             elif here == "hardware" and target not in LEAVES:
                 bad.append(f"{module} -> {target} (hardware imports only the leaf modules {sorted(LEAVES)})")
             elif here == "envs" and there == "cli":
@@ -229,7 +230,7 @@ def test_importing_the_core_loads_no_device_renderer_or_plotting_library(module)
             "print(json.dumps(sorted(k for k in sys.modules if k.split('.')[0] in {heavy!r} "
             "or k.startswith('jaxrecog.hardware.'))))").format(m=module, heavy=HEAVY)
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
-    assert json.loads(out.stdout.splitlines()[-1]) == ["jaxrecog.hardware.rig"]
+    assert json.loads(out.stdout.splitlines()[-1]) == ["jaxrecog.hardware.rigs", "jaxrecog.hardware.rigs.rig"]
 
 
 def test_hardware_names_resolve_lazily_from_their_modules():
@@ -243,14 +244,63 @@ def test_hardware_names_resolve_lazily_from_their_modules():
         home = getattr(value, "__module__", None)
         if home is not None and home.startswith("jaxrecog."):
             assert getattr(importlib.import_module(home), name) is value, name
-    from jaxrecog.hardware import Capture, RigPool, SyntheticRig, dbformat, problems
-    from jaxrecog.hardware.rig_pool import RigPool as pool_protocol
-    import jaxrecog.dbformat
-    import jaxrecog.problems
+    from jaxrecog.hardware import Capture, RigPool, SyntheticRig
+    from jaxrecog.hardware.rigs.rig_pool import RigPool as pool_protocol
 
-    assert Capture is H.rig.Capture and RigPool is pool_protocol and SyntheticRig is H.synthetic.SyntheticRig
-    # the moved modules' old paths are re-exports
-    assert dbformat.read_folder is jaxrecog.dbformat.read_folder and dbformat.__all__ == jaxrecog.dbformat.__all__
-    assert problems.problem_message is jaxrecog.problems.problem_message
+    assert Capture is H.rigs.rig.Capture and RigPool is pool_protocol
+    assert SyntheticRig is H.render.synthetic.SyntheticRig
     with pytest.raises(AttributeError, match="has no attribute 'NoSuchRig'"):
         H.NoSuchRig  # noqa: B018
+
+
+# which hardware subpackage may import which (docs/architecture.md, "Layers"): a DAG,
+# so each area can be read and tested with only the areas below it
+HARDWARE_AREAS = {
+    "rigs": set(),  # the Rig interface, pools, the dataset rig
+    "geometry": set(),  # kinematics, carriers, the configuration table, travel times
+    "devices": set(),  # pan-tilt drivers, cameras, controller datagrams and link
+    "sim": {"devices", "geometry"},  # device simulators
+    "render": {"geometry", "rigs"},  # the synthetic rig and rendered databases
+    "physical": {"rigs", "geometry", "devices", "sim", "render"},  # the rig file, HardwareRig
+}
+
+
+def _area(module: str) -> str | None:
+    parts = module.split(".")
+    return parts[2] if len(parts) > 3 and parts[1] == "hardware" else None
+
+
+def test_hardware_subpackages_import_along_their_dag():
+    areas = {_area(m) for m in _modules()} - {None}
+    assert areas == set(HARDWARE_AREAS), "every hardware module lives in one of the areas"
+    assert not [p for p in (ROOT / "hardware").glob("*.py") if p.name != "__init__.py"], "no module outside an area"
+    bad = []
+    for module, imports in _imports_by_module().items():
+        here = _area(module)
+        for target, _ in imports:
+            there = _area(target)
+            if here is not None and there is not None and there != here and there not in HARDWARE_AREAS[here]:
+                bad.append(f"{module} -> {target} ({here} may import only {sorted(HARDWARE_AREAS[here])})")
+    assert bad == [], "\n".join(bad)
+
+
+def test_every_subpackage_is_installed():
+    """pyproject.toml lists every package folder (a missing one installs without it)."""
+    import tomllib
+
+    listed = set(tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"])
+    found = set()
+    for package, folder in PACKAGE_DIRS.items():
+        for init in folder.rglob("__init__.py"):
+            parts = init.parent.relative_to(folder).parts
+            if package == "jaxrecog" and parts[:1] in (("kernels",), ("hardware",)):
+                continue
+            found.add(".".join([package, *parts]))
+    assert found == listed
+
+
+def test_no_hardware_module_is_over_600_lines():
+    """STYLE: one concept per file, none over 600 lines (issue 29: ptu.py was 650)."""
+    long = {str(p.relative_to(ROOT)): n for p in (ROOT / "hardware").rglob("*.py")
+            if (n := len(p.read_text().splitlines())) > 600}
+    assert long == {}

@@ -337,9 +337,9 @@ def test_synthetic_calib_split_is_perturbed_near_the_training_view(tmp_path):
     pytest.importorskip("pybullet")
     from jaxrecog.database import load_database
     from jaxrecog.hardware import SyntheticRig, render_database
-    from jaxrecog.hardware.positions import CameraTable, default_table
-    from jaxrecog.hardware.scene import default_objects
-    from jaxrecog.hardware.synthetic import Noise, Perturb
+    from jaxrecog.hardware.geometry.positions import CameraTable, default_table
+    from jaxrecog.hardware.render.scene import default_objects
+    from jaxrecog.hardware.render.synthetic import Noise, Perturb
 
     t = default_table()
     small = CameraTable(t.workspace, (t.views[0][::16], t.views[1][::4]))      # 2 + 2 positions

@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from jaxrecog.hardware.camera import CameraError, ImageSequenceCamera, VideoCamera, to_gray
+from jaxrecog.hardware.devices.camera import CameraError, ImageSequenceCamera, VideoCamera, to_gray
 
 H, W = 120, 160
 

@@ -277,7 +277,7 @@ def test_the_same_file_as_two_train_images_of_one_view_is_an_error(folder):
 def test_the_renderer_and_the_loader_share_one_format(tmp_path):
     from jaxrecog import database
     from jaxrecog import dbformat
-    from jaxrecog.hardware import render_db
+    from jaxrecog.hardware.render import render_db
 
     assert render_db.MANIFEST_COLUMNS is dbformat.COLUMNS is database.COLUMNS
     assert database.DatabaseError is dbformat.DatabaseError

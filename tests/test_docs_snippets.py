@@ -34,7 +34,8 @@ The checks (``check_of``; the blocks each one takes today in brackets):
   [docs/architecture.md ``CameraModel``, ``SensorModel``];
 - ``toml-rig`` / ``toml-experiment`` (here): a rig file loads through
   :func:`jaxrecog.hardware.load_config` (a ``[simulation]`` fragment as part
-  of a ``kind = "simulated"`` file) [docs/hardware.md (2)], an experiment
+  of a ``kind = "simulated"`` file) [docs/hardware.md (3); the third camera's
+  also runs in tests/test_three_cameras.py], an experiment
   file resolves with ``jaxrecog experiment FILE --print-config``
   [docs/campaigns.md];
 - ``envs-example`` (tests/test_envs_synthetic.py): docs/envs.md's python
@@ -50,9 +51,9 @@ The checks (``check_of``; the blocks each one takes today in brackets):
 - ``math``: a ```math block is a formula (LaTeX), not code: nothing runs
   [docs/campaigns.md (3), docs/results.md (1)].
 
-59 blocks today: 10 cli-reference, 23 commands, 6 envs-example, 4
+61 blocks today: 10 cli-reference, 23 commands, 6 envs-example, 4
 tutorial-run, 3 tutorial-output, 1 manifest-example, 4 math, 1 ppo-output,
-2 protocol-dump, 1 python, 1 schema, 2 toml-rig, 1 toml-experiment.
+3 protocol-dump, 1 python, 1 schema, 3 toml-rig, 1 toml-experiment.
 """
 
 from __future__ import annotations
@@ -430,4 +431,4 @@ def test_the_claims_of_the_other_test_modules_hold():
 
     envs = [b.text for b in blocks_of("envs-example")]
     assert envs == [x for pair in test_envs_synthetic.docs_blocks() for x in pair if x is not None]
-    assert len(blocks_of("protocol-dump")) == len(test_datagram.documented_examples()) == 2
+    assert len(blocks_of("protocol-dump")) == len(test_datagram.documented_examples()) == 3

@@ -24,9 +24,9 @@ from jaxrecog.hardware import (  # noqa: E402
     random_occluders,
     render_database,
 )
-from jaxrecog.hardware.occluders import OCCLUDER_OFFSET, OCCLUDER_SIZE  # noqa: E402
-from jaxrecog.hardware.config import RigConfig  # noqa: E402
-from jaxrecog.hardware.positions import CameraTable, default_table  # noqa: E402
+from jaxrecog.hardware.render.occluders import OCCLUDER_OFFSET, OCCLUDER_SIZE  # noqa: E402
+from jaxrecog.hardware.physical.config import RigConfig  # noqa: E402
+from jaxrecog.hardware.geometry.positions import CameraTable, default_table  # noqa: E402
 from jaxrecog.planners import make_planner  # noqa: E402
 from jaxrecog.recognizer import Recognizer  # noqa: E402
 from jaxrecog.results import summarize  # noqa: E402

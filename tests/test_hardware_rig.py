@@ -11,19 +11,19 @@ import numpy as np
 import pytest
 
 from jaxrecog.hardware import Rig, RigError
-from jaxrecog.hardware.camera import CameraError
-from jaxrecog.hardware.config import ConfigError, ControllerConfig, PTUConfig, RigConfig, default_mounts, load_config
-from jaxrecog.hardware.controller_sim import LINEAR_RESOLUTION_M, ControllerSimulator
-from jaxrecog.hardware.hardware_rig import (
+from jaxrecog.hardware.devices.camera import CameraError
+from jaxrecog.hardware.physical.config import ConfigError, ControllerConfig, PTUConfig, RigConfig, default_mounts, load_config
+from jaxrecog.hardware.sim.controller_sim import LINEAR_RESOLUTION_M, ControllerSimulator
+from jaxrecog.hardware.physical.hardware_rig import (
     HardwareRig,
     SimulatedHardwareRig,
     rig_from_config,
 )
-from jaxrecog.hardware.kinematics import DEFAULT_MOUNTS, Mount, Workspace, line_of_sight, ptu_angles
-from jaxrecog.hardware.positions import default_table
-from jaxrecog.hardware.ptu import PTU
-from jaxrecog.hardware.ptu_sim import PTUSimulator
-from jaxrecog.hardware.udp_link import ControllerLink, ControllerRejected
+from jaxrecog.hardware.geometry.kinematics import DEFAULT_MOUNTS, Mount, Workspace, line_of_sight, ptu_angles
+from jaxrecog.hardware.geometry.positions import default_table
+from jaxrecog.hardware.devices.pan_tilt_drivers.ptu_d46 import PTU
+from jaxrecog.hardware.sim.ptu_sim import PTUSimulator
+from jaxrecog.hardware.devices.udp_link import ControllerLink, ControllerRejected
 
 EXAMPLE = os.path.join(os.path.dirname(__file__), "..", "examples", "simulated_rig.toml")
 H, W = 120, 160
@@ -72,7 +72,7 @@ def test_ptu_angles_and_line_of_sight_are_inverse(rng):
 def test_the_rig_file_default_mounts_are_the_kinematic_defaults():
     """config.default_mounts (PTU entries) and kinematics.DEFAULT_MOUNTS (the travel
     times' default) hold the same angles; the old import path of the angle functions works."""
-    from jaxrecog.hardware import hardware_rig
+    from jaxrecog.hardware.physical import hardware_rig
 
     assert [Mount(m.pan_zero_deg, m.tilt_zero_deg, m.pan_sign) for m in default_mounts(2)] == list(DEFAULT_MOUNTS)
     assert default_mounts(1) == default_mounts(2)[:1]
@@ -112,8 +112,9 @@ def test_images_are_rendered_where_the_simulators_put_the_cameras(rig):
         assert cap.occluded == (0.0, 0.1)
     # the controller executed exactly the planner angles of each configuration
     executed = [e.move for e in rig.controller_sim.executed][1:]  # the first is reset's
-    assert [(m.cam1_pan, m.cam1_tilt, m.cam2_pan) for m in executed] == [
-        (table.views[0][a].pan, table.views[0][a].tilt, table.views[1][b].pan) for a, b in configs
+    assert [m.cameras for m in executed] == [
+        ((table.views[0][a].pan, table.views[0][a].tilt), (table.views[1][b].pan, table.views[1][b].tilt))
+        for a, b in configs
     ]
     # and each PTU simulator ends where the driver pointed it
     for cam, sim in enumerate(rig.ptu_sims):
@@ -225,7 +226,9 @@ def test_camera_error_becomes_a_rig_error_naming_the_camera(hardware):
     assert len(rig.capture().images) == 2  # the rig is still usable
 
 
-NARROW = dataclasses.replace(default_table().workspace, gantry_x=(-0.05, 0.05))
+_WS = default_table().workspace
+NARROW = dataclasses.replace(_WS, carriers=(dataclasses.replace(_WS.carriers[0], x_range=(-0.05, 0.05)),
+                                            *_WS.carriers[1:]))
 
 
 @pytest.mark.parametrize("hardware", [NARROW], indirect=True)
@@ -247,7 +250,7 @@ def test_controller_rejection_becomes_a_rig_error_naming_the_motion_controller(h
     with pytest.raises(RigError, match="in position"):
         rig.capture()
     assert [s.position() for s in sims] == before  # nothing was pointed
-    assert [x.move.cam1_pan for x in ctl.executed] == [views[inside].pan]
+    assert [x.move.cameras[0][0] for x in ctl.executed] == [views[inside].pan]
     rig.move((inside, 4))  # a move the controller accepts still works
     assert rig.in_position
 
@@ -314,7 +317,7 @@ kind = "sequence"
             for f, img in zip(frames, imgs):
                 np.testing.assert_array_equal(img, cv2.resize(f, (W, H), interpolation=cv2.INTER_AREA))
             assert ctl.executed[-1].move.turntable == pytest.approx(math.pi / 2)
-            assert ctl.executed[-1].reply.gantry_x == pytest.approx(rig.table.views[0][12].eye[0], abs=1e-5)
+            assert ctl.executed[-1].reply.reached[0][0] == pytest.approx(rig.table.views[0][12].eye[0], abs=1e-5)
 
 
 def write(tmp_path, text):

@@ -21,7 +21,7 @@ def test_camera1_round_trip(pan_deg, tilt_deg):
     ws = Workspace()
     pan, tilt = math.radians(pan_deg), math.radians(tilt_deg)
     x, y, z = camera1_position(ws, pan, tilt)
-    assert z == ws.cam1_z
+    assert z == ws.carriers[0].z
     pan2, tilt2 = camera1_angles(ws, x, y)
     # pan is periodic: compare on the circle
     assert abs(math.remainder(pan2 - pan, 2 * math.pi)) < 1e-12
@@ -36,7 +36,7 @@ def test_printed_c32_c33_are_inconsistent():
     """Document why we do not use the printed C.32-C.33: they fail C.27."""
     ws = Workspace()
     pan, tilt = math.radians(30), math.radians(45)
-    dz = ws.cam1_z - ws.object_xyz[2]
+    dz = ws.carriers[0].z - ws.object_xyz[2]
     x_printed = dz * math.cos(pan) / math.tan(tilt)
     y_printed = dz * math.cos(pan) / (math.tan(tilt) * math.tan(pan))
     # C.27 holds for the printed form ...
@@ -50,7 +50,7 @@ def test_printed_c32_c33_are_inconsistent():
 def test_camera2_round_trip(pan_deg):
     ws = Workspace()
     (x, y, z), tilt = camera2_position(ws, math.radians(pan_deg))
-    assert (x, z) == (ws.cam2_x, ws.cam2_z)
+    assert (x, z) == (ws.carriers[1].x, ws.carriers[1].z)
     pan2, tilt2 = camera2_angles(ws, y)
     assert pan2 == pytest.approx(math.radians(pan_deg), abs=1e-12)
     assert tilt2 == pytest.approx(tilt, abs=1e-12)
@@ -81,7 +81,7 @@ def test_configuration_index_is_row_major():
 
 
 def test_default_table_is_thesis_sized_and_round_trips():
-    from jaxrecog.hardware.positions import CameraTable, default_table
+    from jaxrecog.hardware.geometry.positions import CameraTable, default_table
 
     table = default_table()
     assert table.positions == (32, 7)

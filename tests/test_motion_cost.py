@@ -18,10 +18,10 @@ import pytest
 from compiles import count_compiles
 
 from jaxrecog.hardware import RigConfig
-from jaxrecog.hardware.kinematics import Workspace
-from jaxrecog.hardware.motion import (MotionSpeeds, camera_travel_times, configuration_travel_times,
+from jaxrecog.hardware.geometry.kinematics import Workspace
+from jaxrecog.hardware.geometry.motion import (MotionSpeeds, camera_travel_times, configuration_travel_times,
                                       path_travel_s)
-from jaxrecog.hardware.positions import CameraTable, default_table
+from jaxrecog.hardware.geometry.positions import CameraTable, default_table
 from jaxrecog.motion import MotionCost, check_weight, rig_travel_times, with_motion_cost
 from jaxrecog.planners import make_planner
 from jaxrecog.recognizer import Recognizer

@@ -11,7 +11,7 @@ import pytest
 
 from jaxrecog import experiments as ex
 from jaxrecog.campaign import plan_trials
-from jaxrecog.hardware.synthetic import OffGrid
+from jaxrecog.hardware.render.synthetic import OffGrid
 from jaxrecog.results import TrialResult, TrialStore
 
 #: small models on the stride-8 table (the session's rendered database)

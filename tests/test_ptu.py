@@ -11,9 +11,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from jaxrecog.hardware.pan_tilt import PanTilt, PanTiltConnectionError
-from jaxrecog.hardware.ptu import (
-    PTU,
+from jaxrecog.hardware.devices.pan_tilt import PanTilt, PanTiltConnectionError
+from jaxrecog.hardware.devices.pan_tilt_drivers.ptu_d46 import PTU
+from jaxrecog.hardware.devices.ptu_protocol import (
     PTUConnectionError,
     PTUError,
     PTUErrorReply,
@@ -23,7 +23,7 @@ from jaxrecog.hardware.ptu import (
     PTUTimeoutError,
     parse_reply,
 )
-from jaxrecog.hardware.ptu_sim import PTUSimulator
+from jaxrecog.hardware.sim.ptu_sim import PTUSimulator
 
 TIME_SCALE = 0.002
 
@@ -346,7 +346,7 @@ def test_the_d46_driver_is_a_pan_tilt(ptu):
 def test_limit_message_inside_a_reply_is_parsed_out_counted_and_warned(sim, ptu, caplog, fault, axis):
     ptu.move_to(20.0, -10.0)
     sim.inject(fault)  # the answer to PP arrives as "* 3!P89" (for 389)
-    with caplog.at_level(logging.WARNING, logger="jaxrecog.hardware.ptu"):
+    with caplog.at_level(logging.WARNING, logger="jaxrecog.hardware.devices.pan_tilt_drivers.ptu_d46"):
         assert ptu.query_int("PP") == pos(20.0)  # never taken as (or for a part of) the answer
     assert sim.stats[fault] == 1
     assert ptu.limit_events == {axis: 1}

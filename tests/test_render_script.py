@@ -17,7 +17,7 @@ from jaxrecog import load_database
 pytest.importorskip("pybullet")
 
 from jaxrecog.hardware import SyntheticRig, contact_sheet  # noqa: E402
-from jaxrecog.hardware.positions import CameraTable, default_table  # noqa: E402
+from jaxrecog.hardware.geometry.positions import CameraTable, default_table  # noqa: E402
 
 SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "render_database.py"
 

@@ -14,11 +14,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from jaxrecog.hardware import pan_tilt
-from jaxrecog.hardware.config import ConfigError, load_config
-from jaxrecog.hardware.hardware_rig import SimulatedHardwareRig
-from jaxrecog.hardware.pan_tilt import ENTRY_POINT_GROUP, pan_tilt_driver, pan_tilt_drivers
-from jaxrecog.hardware.ptu import PTU
+from jaxrecog.hardware.devices import pan_tilt
+from jaxrecog.hardware.physical.config import ConfigError, load_config
+from jaxrecog.hardware.physical.hardware_rig import SimulatedHardwareRig
+from jaxrecog.hardware.devices.pan_tilt import ENTRY_POINT_GROUP, pan_tilt_driver, pan_tilt_drivers
+from jaxrecog.hardware.devices.pan_tilt_drivers.ptu_d46 import PTU
 
 MOUNTS = """
 [[ptu]]
@@ -88,7 +88,7 @@ def test_two_names_of_one_device_are_the_same_port(tmp_path):
         ("[controller]", "max_motion_s = 1e300", r"max_motion_s = 1e\+300 must be a number > 0 and <= 86400 seconds"),
         ("[controller]", "retries = 2.5", "retries = 2.5 must be an integer >= 0 and <= 10000"),
         ("[controller]", "port = 70000", "port = 70000 must be an integer >= 0 and <= 65535"),
-        ("[controller]", "protocol_version = 3", "protocol_version = 3 must be one of 1, 2"),
+        ("[controller]", "protocol_version = 4", "protocol_version = 4 must be one of 1, 2, 3"),
         ("[[ptu]]", "timeout_s = inf", "timeout_s = inf must be a number > 0 and <= 3600 seconds"),
         ("[[ptu]]", "timeout_s = -1", "timeout_s = -1 must be a number > 0 and <= 3600 seconds"),
         ("[[ptu]]", "speed_deg_s = -5", "speed_deg_s = -5 must be a number > 0 and <= 100000 degrees/s"),
@@ -218,17 +218,22 @@ def test_a_module_path_as_driver_imports_nothing(tmp_path, monkeypatch):
     assert "jaxrecog_test_side_effect" not in sys.modules and "this" not in sys.modules
 
 
-def _install_fake_distribution(tmp_path, monkeypatch):
-    """A package that declares a pan-tilt driver entry point, as pip would install it."""
-    marker = tmp_path / "imported"
-    (tmp_path / "jaxrecog_test_unit.py").write_text(f"""
+def _fake_driver(path, marker, cls: str = "Unit", extra: str = "") -> None:
+    """A driver module at ``path`` that touches ``marker`` when it is imported."""
+    path.write_text(f"""
 open({str(marker)!r}, 'w').close()
-class Unit:
+class {cls}:
     url = ""
     @classmethod
     def from_config(cls, config, port=None):
         return cls()
-""")
+{extra}""")
+
+
+def _install_fake_distribution(tmp_path, monkeypatch):
+    """A package that declares a pan-tilt driver entry point, as pip would install it."""
+    marker = tmp_path / "imported"
+    _fake_driver(tmp_path / "jaxrecog_test_unit.py", marker)
     info = tmp_path / "jaxrecog_test_unit-1.0.dist-info"
     info.mkdir()
     (info / "METADATA").write_text("Metadata-Version: 2.1\nName: jaxrecog-test-unit\nVersion: 1.0\n")
@@ -248,13 +253,29 @@ def test_a_driver_registered_as_an_entry_point_is_found_and_imported_only_when_n
     assert pan_tilt_driver("test-unit").__module__ == "jaxrecog_test_unit"
 
 
-def test_the_built_in_driver_is_an_entry_point_and_works_without_the_metadata(monkeypatch):
-    import importlib.metadata
-
-    (ep,) = [e for e in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP) if e.name == "ptu-d46"]
-    assert ep.value == "jaxrecog.hardware.ptu:PTU"  # pyproject.toml [project.entry-points."jaxrecog.pan_tilt"]
+def test_the_built_in_driver_works_without_any_metadata(monkeypatch):
     monkeypatch.setattr(pan_tilt, "_entry_points", lambda: {})  # stale or missing metadata
     assert pan_tilt_driver("ptu-d46") is PTU and pan_tilt_drivers() == ("ptu-d46",)
+
+
+def test_a_new_pan_tilt_protocol_is_one_module_in_pan_tilt_drivers(tmp_path, monkeypatch):
+    """Issue 29's change cost: a new built-in driver is its module in
+    hardware/devices/pan_tilt_drivers/ (here a folder added to that package's path)
+    plus the rig file's driver key; listing imports nothing, naming it imports it."""
+    from jaxrecog.hardware.devices import pan_tilt_drivers as package
+
+    marker = tmp_path / "imported"
+    _fake_driver(tmp_path / "acme_pt9.py", marker, "AcmePT9", "DRIVER = AcmePT9\n")
+    (tmp_path / "_acme_wire.py").write_text("raise AssertionError('a helper module is not a driver')\n")
+    monkeypatch.setattr(package, "__path__", [*package.__path__, str(tmp_path)])
+    monkeypatch.delitem(sys.modules, f"{package.__name__}.acme_pt9", raising=False)
+    assert pan_tilt_drivers() == ("acme-pt9", "ptu-d46") and not marker.exists()  # listing imports nothing
+    path = write(tmp_path, 'kind = "simulated"\n' + MOUNTS.format(ptu1='driver = "acme-pt9"', ptu2=""))
+    cfg = load_config(path)
+    assert marker.exists() and cfg.ptus[0].driver == "acme-pt9"
+    assert pan_tilt_driver("acme-pt9").__name__ == "AcmePT9"
+    with pytest.raises(KeyError, match="unknown pan-tilt driver"):  # the driver's name, not its module's
+        pan_tilt_driver("acme_pt9")
 
 
 def test_a_broken_registered_driver_is_a_clear_error(tmp_path, monkeypatch):
@@ -275,5 +296,5 @@ def test_the_rig_file_of_docs_hardware_md_loads(tmp_path):
     text = (Path(__file__).parents[1] / "docs" / "hardware.md").read_text(encoding="utf-8")
     block = text[text.index("## The TOML file"):].split("```toml\n", 1)[1].split("```", 1)[0]
     cfg = load_config(write(tmp_path, block))
-    assert cfg.kind == "hardware" and cfg.controller.protocol_version == 2 and cfg.controller.key is None
+    assert cfg.kind == "hardware" and cfg.controller.protocol_version == 3 and cfg.controller.key is None
     assert [p.port for p in cfg.ptus] == ["/dev/ttyUSB0", "/dev/ttyUSB1"] and cfg.cameras[0].reconnect_s == 5.0

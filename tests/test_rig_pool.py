@@ -1,4 +1,4 @@
-"""Rig pools (jaxrecog.hardware.rig_pool): a step's captures in this process
+"""Rig pools (jaxrecog.hardware.rigs.rig_pool): a step's captures in this process
 or in worker processes give the same images, fractions and trial results;
 a failing, killed or closed worker is a clear error."""
 
@@ -13,7 +13,7 @@ import pytest
 from jaxrecog import Recognizer, plan_trials, run_trials
 from jaxrecog.experiments import Settings, capture_pool, make_rig, occluder_factory, rig_pool
 from jaxrecog.hardware import DatasetRig, RigError
-from jaxrecog.hardware.rig_pool import CaptureJob, LocalRigs, ProcessRigs, SceneSpec, as_rig_pool
+from jaxrecog.hardware.rigs.rig_pool import CaptureJob, LocalRigs, ProcessRigs, SceneSpec, as_rig_pool
 from jaxrecog.planners import RandomPlanner
 
 STRIDED = Settings(stride=8)  # the thesis table at stride 8: 4 x 1 positions

@@ -10,15 +10,15 @@ import numpy as np
 import pytest
 
 from jaxrecog.hardware import RigError
-from jaxrecog.hardware.config import ConfigError, ControllerConfig, PTUConfig, RigConfig, default_mounts, load_config
-from jaxrecog.hardware.controller_sim import ControllerSimulator
-from jaxrecog.hardware.hardware_rig import HardwareRig, Reconnect, SimulatedHardwareRig
-from jaxrecog.hardware.kinematics import ptu_angles
-from jaxrecog.hardware.pan_tilt import PanTilt, open_pan_tilt, pan_tilt_driver, register_pan_tilt
-from jaxrecog.hardware.positions import default_table
-from jaxrecog.hardware.ptu import PTU
-from jaxrecog.hardware.ptu_sim import PTUSimulator
-from jaxrecog.hardware.udp_link import ControllerLink
+from jaxrecog.hardware.physical.config import ConfigError, ControllerConfig, PTUConfig, RigConfig, default_mounts, load_config
+from jaxrecog.hardware.sim.controller_sim import ControllerSimulator
+from jaxrecog.hardware.physical.hardware_rig import HardwareRig, Reconnect, SimulatedHardwareRig
+from jaxrecog.hardware.geometry.kinematics import ptu_angles
+from jaxrecog.hardware.devices.pan_tilt import PanTilt, open_pan_tilt, pan_tilt_driver, register_pan_tilt
+from jaxrecog.hardware.geometry.positions import default_table
+from jaxrecog.hardware.devices.pan_tilt_drivers.ptu_d46 import PTU
+from jaxrecog.hardware.sim.ptu_sim import PTUSimulator
+from jaxrecog.hardware.devices.udp_link import ControllerLink
 
 H, W = 120, 160
 
@@ -176,7 +176,7 @@ def fake_driver():
     FakePanTilt.opened = []
     register_pan_tilt("fake-unit", FakePanTilt)
     yield FakePanTilt
-    from jaxrecog.hardware import pan_tilt
+    from jaxrecog.hardware.devices import pan_tilt
 
     del pan_tilt._DRIVERS["fake-unit"]
 
@@ -219,7 +219,7 @@ source = 1
 def test_the_default_driver_is_the_ptu_d46_and_old_files_load_unchanged():
     assert pan_tilt_driver(PTUConfig().driver) is PTU
     with pytest.raises(KeyError, match="not a module to import"):  # a module path is no driver name (issue 32)
-        pan_tilt_driver("jaxrecog.hardware.ptu:PTU")
+        pan_tilt_driver("jaxrecog.hardware.devices.pan_tilt_drivers.ptu_d46:PTU")
     cfg = load_config("examples/simulated_rig.toml")
     assert {p.driver for p in cfg.ptus} == {"ptu-d46"}
     with PTUSimulator(time_scale=0.001) as sim:
@@ -289,8 +289,8 @@ class USBCamera:
 def usb_rig():
     """A HardwareRig (controller simulator, fake pan-tilt units) with two VideoCameras on
     USBCamera devices; camera 1's reconnect_s is 0.4 s."""
-    from jaxrecog.hardware.camera import VideoCamera
-    from jaxrecog.hardware.config import CameraConfig
+    from jaxrecog.hardware.devices.camera import VideoCamera
+    from jaxrecog.hardware.physical.config import CameraConfig
 
     table = default_table()
     devices = [USBCamera(120), USBCamera(130)]

@@ -10,7 +10,7 @@ import numpy as np
 from soak_env import make_rig, pybullet_clients, rss_mb
 
 from jaxrecog.experiments import occluder_factory
-from jaxrecog.hardware import scene as scene_mod
+from jaxrecog.hardware.render import scene as scene_mod
 
 
 def _capture(rig, obj, pose, layout, config=(1, 0)):

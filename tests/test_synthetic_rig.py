@@ -23,7 +23,7 @@ from jaxrecog.hardware import (
     random_occluders,
     render_database,
 )
-from jaxrecog.hardware.positions import CameraTable, default_table
+from jaxrecog.hardware.geometry.positions import CameraTable, default_table
 
 pytest.importorskip("pybullet")
 

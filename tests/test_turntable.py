@@ -11,15 +11,15 @@ import numpy as np
 import pytest
 
 from jaxrecog import load_database
-from jaxrecog.hardware.random_objects import (
+from jaxrecog.hardware.render.random_objects import (
     N_RANDOM,
     RESTING_ROTATIONS,
     parse_objects,
     random_objects,
     rested,
 )
-from jaxrecog.hardware.scene import Intrinsics, default_objects, object_radius
-from jaxrecog.hardware.turntable import render_turntable, turntable_angles, turntable_rig
+from jaxrecog.hardware.render.scene import Intrinsics, default_objects, object_radius
+from jaxrecog.hardware.render.turntable import render_turntable, turntable_angles, turntable_rig
 
 pytest.importorskip("pybullet")
 

@@ -9,13 +9,13 @@ import time
 
 import pytest
 
-from jaxrecog.hardware.controller_sim import (
+from jaxrecog.hardware.sim.controller_sim import (
     LINEAR_RESOLUTION_M,
     TURNTABLE_COUNTS,
     ControllerSimulator,
     LinkFaults,
 )
-from jaxrecog.hardware.datagram import (
+from jaxrecog.hardware.devices.datagram import (
     Datagram,
     Hello,
     InPosition,
@@ -26,31 +26,31 @@ from jaxrecog.hardware.datagram import (
     decode,
     encode,
 )
-from jaxrecog.hardware.kinematics import Workspace, camera1_position, camera2_position
-from jaxrecog.hardware.positions import default_table
-from jaxrecog.hardware.udp_link import ControllerLink, ControllerRejected, ControllerRestarted, LinkTimeoutError
+from jaxrecog.hardware.geometry.kinematics import Workspace
+from jaxrecog.hardware.geometry.positions import default_table
+from jaxrecog.hardware.devices.udp_link import ControllerLink, ControllerRejected, ControllerRestarted, LinkTimeoutError
 
 TABLE = default_table()
 
 
 def expected(move: Move, ws: Workspace = TABLE.workspace):
-    """Oracle: achieved positions = kinematics of the commanded angles, quantised to the encoders."""
-    x, y, _ = camera1_position(ws, move.cam1_pan, move.cam1_tilt)
-    (_, ty, _), _ = camera2_position(ws, move.cam2_pan)
-    return x, y, ty, move.turntable % (2 * math.pi)
+    """Oracle: each camera's eye = its carrier's kinematics of the commanded angles (the
+    controller quantises to the encoders), and the turn-table angle."""
+    eyes = tuple(c.place(ws.object_xyz, pan, tilt)[0] for c, (pan, tilt) in zip(ws.carriers, move.cameras))
+    return eyes, move.turntable % (2 * math.pi)
 
 
 def assert_matches(res, move):
-    x, y, ty, tt = expected(move)
+    eyes, tt = expected(move)
     assert res.move == move
-    assert res.gantry_xy == pytest.approx((x, y), abs=LINEAR_RESOLUTION_M)
-    assert res.track_y == pytest.approx(ty, abs=LINEAR_RESOLUTION_M)
+    for got, want in zip(res.eyes(TABLE.carriers), eyes, strict=True):
+        assert got == pytest.approx(want, abs=LINEAR_RESOLUTION_M)
     assert abs(math.remainder(res.turntable - tt, 2 * math.pi)) <= math.pi / TURNTABLE_COUNTS + 1e-12
 
 
 def move_of(i: int) -> Move:
     v1, v2 = TABLE.views[0][(i * 7) % 32], TABLE.views[1][(i * 3) % 7]
-    return Move(v1.pan, v1.tilt, v2.pan, (i % 4) * math.pi / 2)
+    return Move(((v1.pan, v1.tilt), (v2.pan, v2.tilt)), (i % 4) * math.pi / 2)
 
 
 def test_moves_report_the_kinematics_positions():
@@ -58,7 +58,7 @@ def test_moves_report_the_kinematics_positions():
         assert link.ping() < 0.2
         for i in range(10):
             m = move_of(i)
-            res = link.move(*m.astuple())
+            res = link.move(m)
             assert_matches(res, m)
             assert res.attempts == 1 and res.seq == i + 2  # the ping used seq 1
         assert [e.move for e in sim.executed] == [move_of(i) for i in range(10)]
@@ -67,13 +67,13 @@ def test_moves_report_the_kinematics_positions():
 def test_workspace_violation_is_rejected_not_retried():
     with ControllerSimulator(time_scale=0.001) as sim, ControllerLink(sim.address, timeout=0.2, retries=3) as link:
         with pytest.raises(ControllerRejected, match="camera 1 tilt") as e:
-            link.move(0.0, math.radians(5.0), 0.0, 0.0)  # tilt below the 10 deg limit
+            link.move(Move(((0.0, math.radians(5.0)), (0.0, 0.0)), 0.0))  # tilt below the 10 deg limit
         assert e.value.code == 1
         with pytest.raises(ControllerRejected, match="track y"):
-            link.move(0.0, math.radians(45), math.radians(80), 0.0)  # track runs out
+            link.move(Move(((0.0, math.radians(45)), (math.radians(80), 0.0)), 0.0))  # track runs out
         assert link.stats["sent"] == 1 + 2 and not sim.executed  # the HELLO, then each move once
-        with pytest.raises(ValueError, match="cam1_tilt"):
-            link.move(0.0, math.nan, 0.0, 0.0)
+        with pytest.raises(ValueError, match="camera 1 tilt"):
+            link.move(Move(((0.0, math.nan), (0.0, 0.0)), 0.0))
         assert link.stats["sent"] == 3
 
 
@@ -89,7 +89,7 @@ def _moves_under_faults(seed: int, n: int = 200):
             t0 = time.monotonic()
             for i in range(n):
                 m = move_of(i)
-                assert_matches(link.move(*m.astuple()), m)  # no wrong move accepted
+                assert_matches(link.move(m), m)  # no wrong move accepted
             total = time.monotonic() - t0
     # every move executed exactly once, in order (idempotent retransmissions)
     assert [e.move for e in sim.executed] == [move_of(i) for i in range(n)]
@@ -160,7 +160,7 @@ def test_held_back_request_copy_is_stale_and_never_moves_the_rig_back():
         with ControllerLink(sim.address, timeout=0.2, retries=3) as link:
             for i in range(20):
                 m = move_of(i)
-                assert_matches(link.move(*m.astuple()), m)
+                assert_matches(link.move(m), m)
                 time.sleep(0.005)
             time.sleep(0.08)  # let the last held-back copies arrive
     assert [e.move for e in sim.executed] == [move_of(i) for i in range(20)]
@@ -171,15 +171,15 @@ def test_held_back_request_copy_is_stale_and_never_moves_the_rig_back():
 
 def test_silent_controller_times_out_in_bounded_time_then_recovers():
     with ControllerSimulator(time_scale=0.001) as sim, ControllerLink(sim.address, timeout=0.03, retries=3) as link:
-        link.move(*move_of(0).astuple())
+        link.move(move_of(0))
         sim.silent = True
         t0 = time.monotonic()
         with pytest.raises(LinkTimeoutError, match="after 4 transmissions"):
-            link.move(*move_of(1).astuple())
+            link.move(move_of(1))
         assert 0.12 * 0.9 <= time.monotonic() - t0 < 1.0
         sim.silent = False
         m = move_of(2)
-        assert_matches(link.move(*m.astuple()), m)
+        assert_matches(link.move(m), m)
         # the move sent into the void was never executed, the others exactly once
         assert [e.move for e in sim.executed] == [move_of(0), move_of(2)]
 
@@ -190,16 +190,16 @@ def test_nobody_listening_is_a_timeout():
     addr = s.getsockname()
     s.close()
     with ControllerLink(addr, timeout=0.02, retries=2) as link, pytest.raises(LinkTimeoutError):
-        link.move(*move_of(0).astuple())
+        link.move(move_of(0))
 
 
 def test_long_move_is_acknowledged_with_moving_and_not_retransmitted():
     # a 0.25 s motion with a 0.05 s timeout and a single retry: only MOVING makes it possible
     with ControllerSimulator(time_scale=0.1, moving_after_s=0.01) as sim:
         with ControllerLink(sim.address, timeout=0.05, retries=1) as link:
-            m = Move(math.radians(180), math.radians(30), 0.0, math.pi)
+            m = Move(((math.radians(180), math.radians(30)), (0.0, 0.0)), math.pi)
             t0 = time.monotonic()
-            assert_matches(link.move(*m.astuple()), m)
+            assert_matches(link.move(m), m)
             assert time.monotonic() - t0 >= 0.1
             assert link.stats["moving"] >= 1 and link.stats["sent"] == 1 + 1  # the HELLO and the move
 
@@ -256,7 +256,7 @@ def test_same_seed_same_faults():
         with ControllerSimulator(faults=faults, seed=seed, time_scale=0.0) as sim:
             with ControllerLink(sim.address, timeout=0.25, retries=30) as link:
                 for i in range(12):
-                    link.move(*move_of(i).astuple())
+                    link.move(move_of(i))
                 time.sleep(0.01)
                 return dict(link.stats), dict(sim.stats)
 
@@ -298,7 +298,8 @@ class HostileController:
         dg = decode(data)
         m = dg.payload
         right = InPosition(m, *expected(m))
-        wrong = InPosition(Move(m.cam1_pan + 0.1, m.cam1_tilt, m.cam2_pan, m.turntable), *expected(m))
+        (pan, tilt), *rest = m.cameras
+        wrong = InPosition(Move(((pan + 0.1, tilt), *rest), m.turntable), *expected(m))
         burst = [
             encode(Datagram(MsgType.IN_POSITION, dg.session ^ 1, dg.seq, right)),  # foreign session
             encode(Datagram(MsgType.IN_POSITION, dg.session, dg.seq - 1, right)),  # stale
@@ -324,7 +325,7 @@ def test_only_the_right_reply_is_accepted():
         link.open_session()  # (the HELLO the hostile controller answers first)
         link._seq = 10
         m = move_of(3)
-        res = link.move(*m.astuple())
+        res = link.move(m)
     srv.close()
     assert_matches(res, m)
     assert {k: link.stats[k] for k in ("foreign", "stale", "future", "mismatched", "unexpected_type", "corrupt")} == {
@@ -346,7 +347,7 @@ def test_wrong_replies_alone_never_complete_a_move(crc_ends_in_zero):
     with ControllerLink(srv.address, timeout=0.1, retries=0) as link, pytest.raises(LinkTimeoutError):
         link.open_session()  # (the HELLO the hostile controller answers first)
         link._seq = 10
-        link.move(*move_of(3).astuple())
+        link.move(move_of(3))
     srv.close()
 
 
@@ -357,16 +358,16 @@ def test_restart_between_request_and_reply_fails_the_move_and_never_runs_it_twic
     never answers it: the link's retransmission meets a controller that does not know
     the session; the move is failed, not resent, and the link is usable at once."""
     with ControllerSimulator(time_scale=0.001) as sim, ControllerLink(sim.address, timeout=0.03, retries=5) as link:
-        assert_matches(link.move(*move_of(0).astuple()), move_of(0))
+        assert_matches(link.move(move_of(0)), move_of(0))
         old_session, old_boot = link.session, link.boot
         sim.inject_restart(when)
         with pytest.raises(ControllerRestarted, match=r"restarted while move seq 2 .* not resent") as e:
-            link.move(*move_of(1).astuple())
+            link.move(move_of(1))
         assert e.value.move == move_of(1)
         assert link.stats["controller_restart"] == 1 and "restarted" in caplog.text
         # re-handshaken: a new session issued by the new boot, seq starting over
         assert link.session not in (None, old_session) and link.boot == sim.boot != old_boot
-        res = link.move(*move_of(2).astuple())
+        res = link.move(move_of(2))
         assert_matches(res, move_of(2))
         assert res.seq == 1
     ran = [move_of(0), move_of(1), move_of(2)] if when == "after_execute" else [move_of(0), move_of(2)]
@@ -376,11 +377,11 @@ def test_restart_between_request_and_reply_fails_the_move_and_never_runs_it_twic
 
 def test_restart_after_the_reply_confirms_the_move_and_the_next_one_finds_out():
     with ControllerSimulator(time_scale=0.001) as sim, ControllerLink(sim.address, timeout=0.03, retries=5) as link:
-        assert_matches(link.move(*move_of(0).astuple()), move_of(0))  # confirmed
+        assert_matches(link.move(move_of(0)), move_of(0))  # confirmed
         sim.restart()
         with pytest.raises(ControllerRestarted):
-            link.move(*move_of(1).astuple())  # rejected by the new boot: it never ran
-        assert_matches(link.move(*move_of(3).astuple()), move_of(3))
+            link.move(move_of(1))  # rejected by the new boot: it never ran
+        assert_matches(link.move(move_of(3)), move_of(3))
     assert [e.move for e in sim.executed] == [move_of(0), move_of(3)]
 
 
@@ -393,7 +394,7 @@ def test_restart_under_network_faults_runs_every_move_at_most_once():
                 if i % 10 == 5:
                     sim.inject_restart("after_execute" if i % 20 == 5 else "before_execute")
                 try:
-                    link.move(*move_of(i).astuple())
+                    link.move(move_of(i))
                     outcome.append(True)
                 except ControllerRestarted:
                     outcome.append(False)
@@ -428,7 +429,7 @@ def test_a_controller_that_answers_moving_forever_cannot_hold_the_link():
     with ControllerLink(srv.getsockname(), timeout=0.05, retries=1, max_motion_s=0.2) as link:
         t0 = time.monotonic()
         with pytest.raises(LinkTimeoutError, match="max_motion_s 0.2"):
-            link.move(*move_of(0).astuple())
+            link.move(move_of(0))
         waited = time.monotonic() - t0
     stop.set()
     t.join(2.0)

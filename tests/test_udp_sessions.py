@@ -1,6 +1,6 @@
-"""Protocol version 2 sessions: bound to the client's address, refused to strangers while
+"""Protocol sessions (versions 2 and 3): bound to the client's address, refused to strangers while
 live, taken over only after an idle timeout (the displaced client is told and
-re-handshakes), an optional shared key (HMAC-SHA256), version 1 still spoken.
+re-handshakes), an optional shared key (HMAC-SHA256), versions 1 and 2 still spoken.
 
 Issue 32, finding 2: one HELLO from any address used to open a new session and
 retire the client's; the stranger's MOVE ran and the client then only timed out."""
@@ -13,8 +13,8 @@ import time
 
 import pytest
 
-from jaxrecog.hardware.controller_sim import ControllerSimulator
-from jaxrecog.hardware.datagram import (
+from jaxrecog.hardware.sim.controller_sim import ControllerSimulator
+from jaxrecog.hardware.devices.datagram import (
     Datagram,
     DatagramError,
     Hello,
@@ -25,8 +25,8 @@ from jaxrecog.hardware.datagram import (
     decode,
     encode,
 )
-from jaxrecog.hardware.positions import default_table
-from jaxrecog.hardware.udp_link import ControllerLink, LinkError, LinkTimeoutError, SessionClosed, SessionRefused
+from jaxrecog.hardware.geometry.positions import default_table
+from jaxrecog.hardware.devices.udp_link import ControllerLink, LinkError, LinkTimeoutError, SessionClosed, SessionRefused
 
 TABLE = default_table()
 KEY = SharedKey(b"a shared key of the rig, 32 byte")
@@ -34,7 +34,7 @@ KEY = SharedKey(b"a shared key of the rig, 32 byte")
 
 def move_of(i: int) -> Move:
     v1, v2 = TABLE.views[0][(i * 7) % 32], TABLE.views[1][(i * 3) % 7]
-    return Move(v1.pan, v1.tilt, v2.pan, (i % 4) * math.pi / 2)
+    return Move(((v1.pan, v1.tilt), (v2.pan, v2.tilt)), (i % 4) * math.pi / 2)
 
 
 class Stranger:
@@ -69,7 +69,7 @@ class Stranger:
 def test_datagrams_from_a_second_socket_move_nothing_and_the_client_is_unaffected():
     with ControllerSimulator(time_scale=0.001, session_idle_s=30.0) as sim, \
             ControllerLink(sim.address, timeout=0.1, retries=3) as link:
-        link.move(*move_of(0).astuple())
+        link.move(move_of(0))
         session = link.session
         evil = Stranger(sim.address)
         try:
@@ -90,7 +90,7 @@ def test_datagrams_from_a_second_socket_move_nothing_and_the_client_is_unaffecte
         finally:
             evil.close()
         for i in (1, 2, 3):  # the client goes on as if nothing happened
-            res = link.move(*move_of(i).astuple())
+            res = link.move(move_of(i))
             assert res.seq == i + 1
         assert link.session == session and link.stats["handshake"] == 1
         assert link.stats["session_closed"] == link.stats["controller_restart"] == 0
@@ -104,21 +104,21 @@ def test_after_the_idle_timeout_another_client_takes_over_and_the_first_is_told(
     with ControllerSimulator(time_scale=0.001, session_idle_s=idle) as sim, \
             ControllerLink(sim.address, timeout=0.05, retries=3) as a, \
             ControllerLink(sim.address, timeout=0.05, retries=3) as b:
-        a.move(*move_of(0).astuple())
+        a.move(move_of(0))
         with pytest.raises(SessionRefused, match=r"refused a session \(code 6\): another client's session is live"):
-            b.move(*move_of(1).astuple())  # a's session is live: b is refused, nothing moved
+            b.move(move_of(1))  # a's session is live: b is refused, nothing moved
         time.sleep(idle + 0.1)
-        b.move(*move_of(2).astuple())  # a went idle: b takes over
+        b.move(move_of(2))  # a went idle: b takes over
         # a is told its session is gone; it re-handshakes (refused now: b is live) and does not resend
         with pytest.raises(SessionClosed, match=r"closed this link's session .* not resent .*\(re-handshake failed: "
                                                 r".*refused a session"):
-            a.move(*move_of(3).astuple())
+            a.move(move_of(3))
         assert a.stats["session_closed"] == 1 and a.session is None and "closed session" in caplog.text
         time.sleep(idle + 0.1)
-        res = a.move(*move_of(4).astuple())  # b idle: a opens a new session and moves
+        res = a.move(move_of(4))  # b idle: a opens a new session and moves
         assert res.seq == 1 and a.stats["handshake"] == 2
         with pytest.raises(SessionClosed):
-            b.move(*move_of(5).astuple())
+            b.move(move_of(5))
     assert [e.move for e in sim.executed] == [move_of(0), move_of(2), move_of(4)]
     assert sim.stats["takeover"] == 2 and sim.stats["retired"] == 2
 
@@ -132,7 +132,7 @@ def test_a_ping_of_a_closed_session_says_so_and_the_next_request_opens_a_new_one
         with pytest.raises(LinkError, match="no longer knows this link's session .*code 5"):
             a.ping()
         assert a.session is None
-        a.move(*move_of(0).astuple())
+        a.move(move_of(0))
         assert a.stats["handshake"] == 2
 
 
@@ -142,19 +142,19 @@ def test_with_a_shared_key_nobody_without_it_gets_an_answer_or_the_session(who):
     other = {"no key": None, "another key": SharedKey(b"not the rig's key, but long")}.get(who)
     with ControllerSimulator(time_scale=0.001, key=KEY, session_idle_s=0.0) as sim, \
             ControllerLink(sim.address, timeout=0.1, retries=3, key=KEY) as link:
-        link.move(*move_of(0).astuple())
+        link.move(move_of(0))
         session = link.session
         evil = Stranger(sim.address)
         try:
             v = 1 if who == "version 1" else 2
             evil.send(Datagram(MsgType.HELLO, 0, 0, Hello(99), version=v), other)
-            evil.send(Datagram(MsgType.MOVE, session, link._seq + 1, move_of(5), version=v), other)
-            evil.send(Datagram(MsgType.MOVE, 12345, 1, move_of(5), version=v), other)
+            evil.send(Datagram(MsgType.MOVE, session, link._seq + 1, move_of(5).for_version(v), version=v), other)
+            evil.send(Datagram(MsgType.MOVE, 12345, 1, move_of(5).for_version(v), version=v), other)
             assert evil.replies() == []
         finally:
             evil.close()
         assert sim.stats["unauthenticated"] == 3 and sim.stats["hello"] == 1
-        assert link.move(*move_of(1).astuple()).seq == 2 and link.session == session
+        assert link.move(move_of(1)).seq == 2 and link.session == session
     assert [e.move for e in sim.executed] == [move_of(0), move_of(1)]
 
 
@@ -163,7 +163,7 @@ def test_a_client_without_the_key_times_out_and_moves_nothing(key):
     with ControllerSimulator(time_scale=0.001, key=KEY) as sim, \
             ControllerLink(sim.address, timeout=0.03, retries=1, key=key) as link:
         with pytest.raises(LinkTimeoutError, match="no valid WELCOME"):
-            link.move(*move_of(0).astuple())
+            link.move(move_of(0))
     assert sim.executed == [] and sim.stats["unauthenticated"] == 2
 
 
@@ -171,11 +171,11 @@ def test_the_key_is_never_in_a_message_or_a_repr():
     secret = b"a shared key of the rig, 32 byte"
     with ControllerSimulator(time_scale=0.001, key=secret) as sim, \
             ControllerLink(sim.address, timeout=0.03, retries=0, key=secret) as link:
-        link.move(*move_of(0).astuple())
+        link.move(move_of(0))
         texts = [repr(link.key), repr(sim.key), str(link.__dict__), str(sim.__dict__)]
     with ControllerLink(sim.address, timeout=0.02, retries=0, key=secret) as link:
         with pytest.raises(LinkTimeoutError) as e:
-            link.move(*move_of(0).astuple())  # (the simulator is closed)
+            link.move(move_of(0))  # (the simulator is closed)
         texts.append(str(e.value))
     assert not any(secret.decode() in t for t in texts)
 
@@ -183,17 +183,34 @@ def test_the_key_is_never_in_a_message_or_a_repr():
 def test_a_version_1_client_is_answered_in_version_1():
     with ControllerSimulator(time_scale=0.001, session_idle_s=30.0) as sim:
         with ControllerLink(sim.address, timeout=0.1, retries=3, version=1) as old:
-            res = old.move(*move_of(0).astuple())
+            res = old.move(move_of(0))
             assert res.seq == 1 and old.stats["version"] == 0 and old.ping() >= 0
             raw = Stranger(sim.address)
             try:
                 raw.send(Datagram(MsgType.HELLO, 0, 0, Hello(5), version=1))
                 assert raw.replies() == []  # refused (old's session is live), and version 1 has no REFUSED
-                raw.send(Datagram(MsgType.MOVE, 777, 1, move_of(1), version=1))
+                raw.send(Datagram(MsgType.MOVE, 777, 1, move_of(1).for_version(1), version=1))
                 (rej,) = raw.replies()
                 assert rej.version == 1 and rej.type == MsgType.REJECTED
             finally:
                 raw.close()
-    assert [e.move for e in sim.executed] == [move_of(0)]
-    with pytest.raises(ValueError, match="needs protocol version 2"):
+    assert [e.move for e in sim.executed] == [move_of(0).for_version(1)] == [res.move]
+    with pytest.raises(ValueError, match="needs protocol version 2 or 3"):
         ControllerLink(("127.0.0.1", 9), key=KEY, version=1)
+
+
+def test_a_version_2_client_moves_the_thesis_rig_as_before():
+    """A version-2 link sends camera-1 pan, tilt and camera-2 pan (camera 2's tilt is not
+    on the wire); the controller answers in version 2 with the gantry's x, y and the track's
+    y, which the link completes into eyes with the carriers' fixed coordinates."""
+    with ControllerSimulator(time_scale=0.001, key=KEY) as sim, \
+            ControllerLink(sim.address, timeout=0.1, retries=3, key=KEY, version=2) as link:
+        res = link.move(move_of(2))
+        assert res.move == move_of(2).for_version(2) and res.move.cameras[1] == (move_of(2).cameras[1][0], 0.0)
+        assert res.version == 2 and [len(r) for r in res.reached] == [2, 1]
+        carriers = TABLE.workspace.carriers
+        for eye, c, (pan, tilt) in zip(res.eyes(carriers), carriers, move_of(2).cameras, strict=True):
+            assert eye == pytest.approx(c.place(TABLE.workspace.object_xyz, pan, tilt)[0], abs=1e-5)
+        with pytest.raises(ValueError, match="protocol version 2 moves at most 2 cameras"):
+            link.move(Move(move_of(2).cameras * 2, 0.0))
+    assert [e.move for e in sim.executed] == [res.move] and sim.executed[0].reply.reached == res.reached

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from jaxrecog.experiments import Settings, model_path, prepare
-from jaxrecog.hardware.render_db import jitter_offsets
+from jaxrecog.hardware.render.render_db import jitter_offsets
 from jaxrecog.modelfile import load_model_meta
 
 

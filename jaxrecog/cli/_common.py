@@ -9,7 +9,7 @@ import jax.random as jr
 import numpy as np
 
 from ..hardware import SyntheticRig, default_objects
-from ..hardware.positions import CameraTable, default_table
+from ..hardware.geometry.positions import CameraTable, default_table
 from ..modelfile import load_model, load_model_meta
 from ..recipes import recipe_from_meta
 
@@ -59,7 +59,7 @@ def _table(cameras: int, stride: int) -> CameraTable:
 def synthetic_rig(args, **kw) -> SyntheticRig:
     """The synthetic rig of the layout options (``--cameras/--stride/--objects/--poses``)."""
     if isinstance(args.objects, str):  # "random:N" (_options.object_choice)
-        from ..hardware.random_objects import parse_objects, random_objects
+        from ..hardware.render.random_objects import parse_objects, random_objects
 
         _, n = parse_objects(args.objects)
         objs = random_objects(n, seed=getattr(args, "object_seed", 0))

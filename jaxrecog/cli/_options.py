@@ -65,7 +65,7 @@ nonneg = int_at_least(0, "an integer >= 0")
 def object_choice(text: str | int) -> int | str:
     """An argparse type: ``N`` (the first N thesis objects, an int) or
     ``random:N`` (N random_urdfs meshes, kept as the string ``"random:N"``)."""
-    from ..hardware.random_objects import parse_objects
+    from ..hardware.render.random_objects import parse_objects
 
     if isinstance(text, int) and not isinstance(text, bool):
         text = str(text)

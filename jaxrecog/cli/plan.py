@@ -6,7 +6,7 @@ import jax.random as jr
 import numpy as np
 
 from .. import plots
-from ..hardware.rig import config_from_index
+from ..hardware.rigs.rig import config_from_index
 from ..modelfile import load_model
 from ..planners import DEFAULT_PLANNER, make_planner
 from ..recognizer import Recognizer

@@ -20,7 +20,7 @@ DESCRIPTION = ("Render every (camera, position, object, pose) of the synthetic p
                "--turntable --objects random:N renders a turntable set instead: N gray random_urdfs\n"
                "meshes, a camera circling each at --step degrees (training views), test views halfway\n"
                "between them, calib views a quarter step off, poses = resting orientations (turned\n"
-               "about x by 0, 90, 180, 270 degrees); see hardware/turntable.py.")
+               "about x by 0, 90, 180, 270 degrees); see hardware/render/turntable.py.")
 
 #: Per-view counts when not given: the thesis rig renders the train split only;
 #: a turntable set is meant for a campaign, so it has test and calib views.
@@ -86,8 +86,8 @@ def run(args) -> int:
 
 
 def _turntable(args, test_per_view: int, calib_per_view: int, t0: float) -> int:
-    from ..hardware.random_objects import RESTING_ROTATIONS, parse_objects, random_objects
-    from ..hardware.turntable import DISTANCE, ELEVATIONS, TURNTABLE_PERTURB, render_turntable
+    from ..hardware.render.random_objects import RESTING_ROTATIONS, parse_objects, random_objects
+    from ..hardware.render.turntable import DISTANCE, ELEVATIONS, TURNTABLE_PERTURB, render_turntable
 
     if not isinstance(args.objects, str):
         raise UsageError("--turntable needs --objects random:N (the poses turn one-mesh objects over; "

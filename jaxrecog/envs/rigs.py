@@ -42,7 +42,7 @@ def build_rig(rig: Any, case: str, settings, cameras: tuple[int, ...] | None) ->
             rig = experiments.make_rig(settings, cameras, seed=settings.seed)
         elif rig == "hardware-sim":
             from ..hardware import SimulatedHardwareRig
-            from ..hardware.config import RigConfig
+            from ..hardware.physical.config import RigConfig
 
             renderer = experiments.make_rig(settings, cameras, seed=settings.seed)
             rig = SimulatedHardwareRig(renderer, RigConfig("simulated", renderer.table))

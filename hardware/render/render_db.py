@@ -20,9 +20,9 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from ..dbformat import COLUMNS, SPLITS, manifest_text, write_image
+from ...dbformat import COLUMNS, SPLITS, manifest_text, write_image
 from .occluders import random_occluders
-from .positions import CameraTable
+from ..geometry.positions import CameraTable
 from .scene import ObjectSpec
 from .synthetic import Noise, Perturb, SyntheticRig
 

@@ -1,26 +1,29 @@
 """The ``PanTilt`` interface every pan-tilt unit driver implements, and the driver registry.
 
-:class:`.hardware_rig.HardwareRig` talks to its pan-tilt units only through
+:class:`..physical.hardware_rig.HardwareRig` talks to its pan-tilt units only through
 this protocol, and builds them from the rig file's ``[[ptu]] driver`` key
 through :func:`open_pan_tilt`.  The key is a *registered name*, never a
 module path: a rig file cannot make the program import anything.  A driver
 is registered
 
+* as a module of :mod:`.pan_tilt_drivers` (the built-in drivers): the module
+  ``my_unit.py`` there is the driver ``"my-unit"``, its ``DRIVER`` the class --
+  one file, nothing else to edit;
 * as an entry point of group :data:`ENTRY_POINT_GROUP` (``jaxrecog.pan_tilt``)
-  in its package's ``pyproject.toml``::
+  in another package's ``pyproject.toml``::
 
       [project.entry-points."jaxrecog.pan_tilt"]
       my-unit = "my_package.my_module:MyUnit"
 
-  (found through ``importlib.metadata``; the module is imported only when a
-  rig file names ``driver = "my-unit"``), or
+  (found through ``importlib.metadata``); or
 * from code, with :func:`register_pan_tilt` (``register_pan_tilt("my-unit", MyUnit)``).
 
-The built-in driver is ``"ptu-d46"`` (:class:`.ptu.PTU`, the Directed
-Perception PTU-D46 of thesis §6.4), the default when the key is left out; it
-is registered in this module (and as an entry point of the package, for
-listing tools), so it works whatever the installed metadata says.  A name
-that is not registered is refused before anything is imported.
+Listing the drivers imports nothing; a driver's module is imported only when
+a rig file names it.  The built-in ``"ptu-d46"``
+(:class:`.pan_tilt_drivers.ptu_d46.PTU`, the Directed Perception PTU-D46 of
+thesis §6.4) is the default when the key is left out; built-in drivers are
+found in their folder, so they work whatever the installed metadata says.  A
+name that is not registered is refused before anything is imported.
 
 A driver class may declare ``nominal_range_deg = ((pan_lo, pan_hi), (tilt_lo,
 tilt_hi))``: the rig file's table is checked against it when it is loaded
@@ -36,10 +39,13 @@ from __future__ import annotations
 
 import importlib
 import importlib.metadata
+import pkgutil
 from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
+from . import pan_tilt_drivers as builtin_drivers  # the package of the built-in drivers
+
 if TYPE_CHECKING:
-    from .config import PTUConfig
+    from ..physical.config import PTUConfig
 
 __all__ = [
     "PanTilt",
@@ -56,8 +62,6 @@ __all__ = [
 DEFAULT_PAN_TILT = "ptu-d46"
 ENTRY_POINT_GROUP = "jaxrecog.pan_tilt"
 
-# the built-in drivers: name -> "module:Class" of this package, imported on first use
-_BUILTIN: dict[str, str] = {DEFAULT_PAN_TILT: "jaxrecog.hardware.ptu:PTU"}
 # registered from code (register_pan_tilt): name -> class, or "module:Class"
 _DRIVERS: dict[str, type | str] = {}
 
@@ -114,6 +118,14 @@ def register_pan_tilt(name: str, driver: type | str) -> None:
     _DRIVERS[name] = driver
 
 
+def _builtin() -> dict[str, str]:
+    """The built-in drivers: name -> ``"module:DRIVER"``, one per module of
+    :mod:`.pan_tilt_drivers` (``ptu_d46.py`` is ``"ptu-d46"``; ``_*.py`` are helpers).
+    Listing imports nothing."""
+    return {m.name.replace("_", "-"): f"{builtin_drivers.__name__}.{m.name}:DRIVER"
+            for m in pkgutil.iter_modules(builtin_drivers.__path__) if not m.name.startswith("_")}
+
+
 def _entry_points() -> dict[str, importlib.metadata.EntryPoint]:
     """The drivers installed packages declare (group ``jaxrecog.pan_tilt``); listing imports nothing."""
     try:
@@ -125,7 +137,7 @@ def _entry_points() -> dict[str, importlib.metadata.EntryPoint]:
 
 def pan_tilt_drivers() -> tuple[str, ...]:
     """The registered driver names: built-in, registered from code, entry points."""
-    return tuple(sorted({*_BUILTIN, *_DRIVERS, *_entry_points()}))
+    return tuple(sorted({*_builtin(), *_DRIVERS, *_entry_points()}))
 
 
 def pan_tilt_driver(name: str) -> type:
@@ -138,8 +150,9 @@ def pan_tilt_driver(name: str) -> type:
     """
     if not isinstance(name, str):
         raise KeyError(f"a pan-tilt driver is named by a string, not {type(name).__name__}")
-    if name in _BUILTIN:
-        entry: type | str | importlib.metadata.EntryPoint = _BUILTIN[name]
+    builtin = _builtin()
+    if name in builtin:
+        entry: type | str | importlib.metadata.EntryPoint = builtin[name]
     elif name in _DRIVERS:
         entry = _DRIVERS[name]
     else:

@@ -1,11 +1,11 @@
 """Versioned binary datagrams between the vision PC and the motion controller (thesis §6.6).
 
 Wire format (network byte order; full description in ``docs/protocol.md``),
-version 2::
+version 3::
 
     offset size field
     0      2    magic          b"JR"
-    2      1    version        2
+    2      1    version        3
     3      1    type           MsgType
     4      4    session        u32, issued by the controller (WELCOME)
     8      4    seq            u32, one per move; retransmissions reuse it
@@ -16,23 +16,29 @@ version 2::
                                under the shared key), else 0
     15+n+t 4    crc32          zlib.crc32 of every byte before it
 
-Version 1 (still decoded, and encoded for a ``Datagram`` of version 1) has no
-flags byte and no tag: the payload starts at offset 14.
+Version 2 (still decoded, and encoded for a ``Datagram`` of version 2) has the
+same envelope and the thesis rig's two-camera moves; version 1 in addition has
+no flags byte and no tag: the payload starts at offset 14.
 
-Payloads (IEEE-754 doubles, radians and metres):
+Payloads (IEEE-754 doubles, radians and metres).  A *move* is, in version 3,
+the camera count n (u8, at most :data:`MAX_CAMERAS`), then (pan, tilt) of
+each camera (2n d), then the turn-table angle (d); in versions 1-2, camera-1
+pan and tilt, camera-2 pan and the turn-table angle (4 d).
 
-* ``MOVE``        client -> controller: cam1_pan, cam1_tilt, cam2_pan, turntable (4 d)
-* ``MOVING``      controller -> client: the MOVE echoed (4 d), expected seconds (d)
-* ``IN_POSITION`` controller -> client: the MOVE echoed (4 d), achieved gantry x, y,
-  track y, turntable angle (4 d) -- the capture signal
-* ``REJECTED``    controller -> client: the MOVE echoed (4 d), code (u16), UTF-8 reason
+* ``MOVE``        client -> controller: a move
+* ``MOVING``      controller -> client: the move echoed, expected seconds (d)
+* ``IN_POSITION`` controller -> client: the move echoed, where each camera
+  reached -- version 3: every camera's eye x, y, z (3n d); versions 1-2: the
+  gantry's x, y and the track's y (3 d) -- and the turn-table angle (d): the
+  capture signal
+* ``REJECTED``    controller -> client: the move echoed, code (u16), UTF-8 reason
 * ``PING`` / ``PONG``: empty
 * ``HELLO``       client -> controller: nonce (u32); header session 0, seq 0
 * ``WELCOME``     controller -> client: the nonce echoed (u32), the controller's
   boot id (u32); the header's session is the new session id the controller
   issued, seq 0
-* ``REFUSED``     controller -> client (version 2 only): the HELLO's nonce echoed
-  (u32), code (u16), UTF-8 reason -- no session was opened
+* ``REFUSED``     controller -> client (version 2 and later): the HELLO's nonce
+  echoed (u32), code (u16), UTF-8 reason -- no session was opened
 
 A :class:`SharedKey` given to :func:`encode` tags the datagram; given to
 :func:`decode`, only datagrams with the right tag decode
@@ -40,7 +46,7 @@ A :class:`SharedKey` given to :func:`encode` tags the datagram; given to
 key never appears in a ``repr``, a message or a log line.
 
 :func:`decode` raises :class:`DatagramError` -- and nothing else -- for any
-input that is not a well-formed datagram of version 1 or 2.
+input that is not a well-formed datagram of version 1, 2 or 3.
 """
 
 from __future__ import annotations
@@ -53,12 +59,14 @@ import math
 import os
 import struct
 import zlib
+from collections.abc import Sequence
 
 __all__ = [
     "MAGIC",
     "VERSION",
     "VERSIONS",
     "MAX_DATAGRAM",
+    "MAX_CAMERAS",
     "FLAG_HMAC",
     "TAG_SIZE",
     "SharedKey",
@@ -68,6 +76,7 @@ __all__ = [
     "Datagram",
     "DatagramError",
     "Move",
+    "no_move",
     "Moving",
     "InPosition",
     "Rejected",
@@ -79,20 +88,20 @@ __all__ = [
 ]
 
 MAGIC = b"JR"
-VERSION = 2  # what this end sends
-VERSIONS = (1, 2)  # what it decodes
+VERSION = 3  # what this end sends
+VERSIONS = (1, 2, 3)  # what it decodes
 MAX_DATAGRAM = 512
+MAX_CAMERAS = 8  # cameras of a version-3 move (an IN_POSITION of 8 is 388 bytes with a tag)
 FLAG_HMAC = 0x01
 TAG_SIZE = 32  # HMAC-SHA256
 
 _HEADER_V1 = struct.Struct("!2sBBIIH")
 _HEADER_V2 = struct.Struct("!2sBBIIHB")  # + flags
-_HEADERS = {1: _HEADER_V1, 2: _HEADER_V2}
+_HEADERS = {1: _HEADER_V1, 2: _HEADER_V2, 3: _HEADER_V2}
 _CRC = struct.Struct("!I")
-_MOVE = struct.Struct("!4d")
-_MOVING = struct.Struct("!4dd")
-_INPOS = struct.Struct("!8d")
-_REJ = struct.Struct("!4dH")
+_MOVE_V2 = struct.Struct("!4d")  # camera-1 pan, tilt, camera-2 pan, turn-table
+_D = struct.Struct("!d")
+_CODE = struct.Struct("!H")
 _HELLO = struct.Struct("!I")
 _WELCOME = struct.Struct("!II")
 _REFUSED = struct.Struct("!IH")
@@ -108,7 +117,7 @@ class MsgType(enum.IntEnum):
     PONG = 6
     HELLO = 7
     WELCOME = 8
-    REFUSED = 9  # version 2
+    REFUSED = 9  # version 2 and later
 
 
 _V1_TYPES = frozenset(t for t in MsgType if t != MsgType.REFUSED)
@@ -181,15 +190,42 @@ class SharedKey:
 
 @dataclasses.dataclass(frozen=True)
 class Move:
-    """Desired planner angles (radians): camera-1 pan/tilt, camera-2 pan, turn-table angle."""
+    """Desired planner angles (radians): ``(pan, tilt)`` of each camera, camera 1
+    first, and the turn-table angle.
 
-    cam1_pan: float
-    cam1_tilt: float
-    cam2_pan: float
+    Versions 1-2 carry camera-1 pan and tilt and camera-2 pan: a move of those
+    versions has two cameras and camera 2's tilt 0 (:meth:`for_version` makes one)."""
+
+    # [n] of (pan, tilt), stored as a tuple of float pairs (unparametrised: the run-time
+    # type checker would draw a random element of a parametrised one)
+    cameras: Sequence
     turntable: float
 
-    def astuple(self) -> tuple[float, float, float, float]:
-        return (self.cam1_pan, self.cam1_tilt, self.cam2_pan, self.turntable)
+    def __post_init__(self):
+        object.__setattr__(self, "cameras", tuple((float(pan), float(tilt)) for pan, tilt in self.cameras))
+        object.__setattr__(self, "turntable", float(self.turntable))
+
+    def astuple(self) -> tuple[float, ...]:
+        """Every angle, in wire order: each camera's pan and tilt, then the turn-table."""
+        return (*(a for cam in self.cameras for a in cam), self.turntable)
+
+    def for_version(self, version: int) -> "Move":
+        """This move as ``version`` carries it: itself from version 3 on; for versions
+        1-2 two cameras (a missing camera 2 at pan 0) with camera 2's tilt 0 (the
+        controller derives it).  ``ValueError`` for more than two cameras."""
+        if version >= 3:
+            return self
+        if len(self.cameras) > 2:
+            raise ValueError(f"protocol version {version} moves at most 2 cameras, not {len(self.cameras)}: "
+                             f"a rig of more cameras needs protocol version 3")
+        (pan1, tilt1), (pan2, _) = (*self.cameras, (0.0, 0.0), (0.0, 0.0))[:2]
+        return Move(((pan1, tilt1), (pan2, 0.0)), self.turntable)
+
+
+def no_move(version: int) -> Move:
+    """What a REJECTED echoes for a request that is no move (a PING): no cameras in
+    version 3, the four zeros of versions 1-2."""
+    return Move((), 0.0).for_version(version)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -200,13 +236,19 @@ class Moving:
 
 @dataclasses.dataclass(frozen=True)
 class InPosition:
-    """The capture signal: the move it answers and where the axes actually are."""
+    """The capture signal: the move it answers, where each camera reached, the turn-table angle.
+
+    ``reached``: in version 3 each camera's eye ``(x, y, z)``; in versions 1-2 the
+    thesis rig's motor coordinates ``((gantry x, gantry y), (track y,))``
+    (:meth:`~..geometry.kinematics.Carrier.eye` completes them)."""
 
     move: Move
-    gantry_x: float
-    gantry_y: float
-    track_y: float
+    reached: Sequence  # [n] of (x, y, z) (version 3), stored as a tuple of float tuples
     turntable: float
+
+    def __post_init__(self):
+        object.__setattr__(self, "reached", tuple(tuple(float(v) for v in r) for r in self.reached))
+        object.__setattr__(self, "turntable", float(self.turntable))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -272,6 +314,33 @@ def _finite(values, what: str) -> None:
             raise DatagramError(f"{what}: non-finite number {v!r} in payload")
 
 
+def _pack_move(m: Move, version: int, what: str) -> bytes:
+    if version <= 2:
+        if len(m.cameras) != 2 or m.cameras[1][1] != 0.0:
+            raise DatagramError(f"{what}: a version-{version} move has camera-1 pan, tilt and camera-2 pan "
+                                f"(Move.for_version({version})), got {len(m.cameras)} cameras")
+        vals = (*m.cameras[0], m.cameras[1][0], m.turntable)
+        _finite(vals, what)
+        return _MOVE_V2.pack(*vals)
+    n = len(m.cameras)
+    if n > MAX_CAMERAS:
+        raise DatagramError(f"{what}: {n} cameras, at most {MAX_CAMERAS}")
+    vals = m.astuple()
+    _finite(vals, what)
+    return struct.pack(f"!B{len(vals)}d", n, *vals)
+
+
+def _pack_reached(p: InPosition, version: int) -> bytes:
+    n = len(p.move.cameras)
+    shape = [2, 1] if version <= 2 else [3] * n
+    if [len(r) for r in p.reached] != shape:
+        want = "(gantry x, y), (track y,)" if version <= 2 else f"an (x, y, z) eye for each of the {n} cameras"
+        raise DatagramError(f"IN_POSITION: version {version} reports {want}, got {p.reached!r}")
+    vals = (*(v for r in p.reached for v in r), p.turntable)
+    _finite(vals, "IN_POSITION")
+    return struct.pack(f"!{len(vals)}d", *vals)
+
+
 def _pack_payload(dg: Datagram) -> bytes:
     p = dg.payload
     if not isinstance(p, _PAYLOAD_TYPE[dg.type]):
@@ -290,23 +359,19 @@ def _pack_payload(dg: Datagram) -> bytes:
         if not 0 <= p.code <= 0xFFFF:
             raise DatagramError(f"REFUSED code {p.code} does not fit in u16")
         return _REFUSED.pack(p.nonce, p.code) + _reason(p.reason)
+    name = dg.type.name
     if isinstance(p, Move):
-        vals = p.astuple()
-        _finite(vals, "MOVE")
-        return _MOVE.pack(*vals)
+        return _pack_move(p, dg.version, name)
+    move = _pack_move(p.move, dg.version, name)
     if isinstance(p, Moving):
-        vals = (*p.move.astuple(), p.expected_s)
-        _finite(vals, "MOVING")
-        return _MOVING.pack(*vals)
+        _finite((p.expected_s,), name)
+        return move + _D.pack(p.expected_s)
     if isinstance(p, InPosition):
-        vals = (*p.move.astuple(), p.gantry_x, p.gantry_y, p.track_y, p.turntable)
-        _finite(vals, "IN_POSITION")
-        return _INPOS.pack(*vals)
+        return move + _pack_reached(p, dg.version)
     assert isinstance(p, Rejected)
-    _finite(p.move.astuple(), "REJECTED")
     if not 0 <= p.code <= 0xFFFF:
         raise DatagramError(f"REJECTED code {p.code} does not fit in u16")
-    return _REJ.pack(*p.move.astuple(), p.code) + _reason(p.reason)
+    return move + _CODE.pack(p.code) + _reason(p.reason)
 
 
 def _reason(text: str) -> bytes:
@@ -321,7 +386,7 @@ def _u32(v: int, what: str) -> None:
 def encode(dg: Datagram, key: SharedKey | None = None) -> bytes:
     """Datagram -> bytes (header, payload, [HMAC tag,] CRC32) in ``dg.version``.
 
-    With ``key`` the datagram carries an HMAC-SHA256 tag (version 2 only)."""
+    With ``key`` the datagram carries an HMAC-SHA256 tag (version 2 and later)."""
     for name in ("session", "seq"):
         _u32(getattr(dg, name), name)
     if dg.version not in VERSIONS:
@@ -331,11 +396,11 @@ def encode(dg: Datagram, key: SharedKey | None = None) -> bytes:
     payload = _pack_payload(dg)
     if dg.version == 1:
         if key is not None:
-            raise DatagramError("protocol version 1 carries no HMAC tag: an authenticated link needs version 2")
+            raise DatagramError("protocol version 1 carries no HMAC tag: an authenticated link needs version 2 or 3")
         body = _HEADER_V1.pack(MAGIC, 1, int(dg.type), dg.session, dg.seq, len(payload)) + payload
     else:
         flags = FLAG_HMAC if key is not None else 0
-        body = _HEADER_V2.pack(MAGIC, 2, int(dg.type), dg.session, dg.seq, len(payload), flags) + payload
+        body = _HEADER_V2.pack(MAGIC, dg.version, int(dg.type), dg.session, dg.seq, len(payload), flags) + payload
         if key is not None:
             body += key.tag(body)
     if len(body) + _CRC.size > MAX_DATAGRAM:
@@ -343,12 +408,48 @@ def encode(dg: Datagram, key: SharedKey | None = None) -> bytes:
     return body + _CRC.pack(zlib.crc32(body))
 
 
-def _unpack_payload(t: MsgType, raw: bytes) -> Payload:
+def _size_error(t: MsgType, got: int, want: str) -> DatagramError:
+    return DatagramError(f"{t.name} payload is {got} bytes, expected {want}")
+
+
+def _unpack_move(t: MsgType, raw: bytes, version: int, rest: tuple[int, int]) -> tuple[Move, bytes]:
+    """The move at the start of ``raw`` and the bytes after it.  ``rest = (per_camera,
+    fixed)``: the bytes that must follow the move, ``per_camera`` for each camera plus
+    ``fixed`` (a negative ``fixed``: at least ``-fixed``, e.g. a code and a reason)."""
+    if version <= 2:
+        per, fixed = rest
+        size = _MOVE_V2.size + per + abs(fixed)
+        if (len(raw) < size) if fixed < 0 else (len(raw) != size):
+            raise _size_error(t, len(raw), str(size))
+        vals = _MOVE_V2.unpack_from(raw)
+        _finite(vals, t.name)
+        return Move(((vals[0], vals[1]), (vals[2], 0.0)), vals[3]), raw[_MOVE_V2.size:]
+    if not raw:
+        raise _size_error(t, 0, "a camera count")
+    n = raw[0]
+    if n > MAX_CAMERAS:
+        raise DatagramError(f"{t.name}: {n} cameras, at most {MAX_CAMERAS}")
+    per, fixed = rest
+    head = 1 + 8 * (2 * n + 1)
+    size = head + per * n + abs(fixed)
+    if (len(raw) < size) if fixed < 0 else (len(raw) != size):
+        raise _size_error(t, len(raw), f"{size} for {n} cameras")
+    vals = struct.unpack_from(f"!{2 * n + 1}d", raw, 1)
+    _finite(vals, t.name)
+    return Move(tuple(zip(vals[:-1:2], vals[1:-1:2])), vals[-1]), raw[head:]
+
+
+def _doubles(t: MsgType, raw: bytes) -> tuple[float, ...]:
+    vals = struct.unpack(f"!{len(raw) // 8}d", raw)
+    _finite(vals, t.name)
+    return vals
+
+
+def _unpack_payload(t: MsgType, raw: bytes, version: int) -> Payload:
     def need(s: struct.Struct, exact: bool = True) -> tuple:
         if (len(raw) != s.size) if exact else (len(raw) < s.size):
-            raise DatagramError(f"{t.name} payload is {len(raw)} bytes, expected {s.size}")
-        vals = s.unpack_from(raw)
-        return vals
+            raise _size_error(t, len(raw), str(s.size))
+        return s.unpack_from(raw)
 
     if t in (MsgType.PING, MsgType.PONG):
         if raw:
@@ -362,20 +463,18 @@ def _unpack_payload(t: MsgType, raw: bytes) -> Payload:
         nonce, code = need(_REFUSED, exact=False)
         return Refused(nonce, code, _unpack_reason(t, raw[_REFUSED.size:]))
     if t == MsgType.MOVE:
-        v = need(_MOVE)
-        _finite(v, t.name)
-        return Move(*v)
+        return _unpack_move(t, raw, version, (0, 0))[0]
     if t == MsgType.MOVING:
-        v = need(_MOVING)
-        _finite(v, t.name)
-        return Moving(Move(*v[:4]), v[4])
+        move, rest = _unpack_move(t, raw, version, (0, 8))
+        return Moving(move, *_doubles(t, rest))
     if t == MsgType.IN_POSITION:
-        v = need(_INPOS)
-        _finite(v, t.name)
-        return InPosition(Move(*v[:4]), *v[4:])
-    v = need(_REJ, exact=False)
-    _finite(v[:4], t.name)
-    return Rejected(Move(*v[:4]), v[4], _unpack_reason(t, raw[_REJ.size:]))
+        move, rest = _unpack_move(t, raw, version, (0, 32) if version <= 2 else (24, 8))
+        v = _doubles(t, rest)
+        reached = ((v[0], v[1]), (v[2],)) if version <= 2 else tuple(zip(v[:-1:3], v[1:-1:3], v[2:-1:3]))
+        return InPosition(move, reached, v[-1])
+    move, rest = _unpack_move(t, raw, version, (0, -2))
+    (code,) = _CODE.unpack_from(rest)
+    return Rejected(move, code, _unpack_reason(t, rest[_CODE.size:]))
 
 
 def _unpack_reason(t: MsgType, raw: bytes) -> str:
@@ -389,7 +488,7 @@ def _unpack_reason(t: MsgType, raw: bytes) -> str:
 
 
 def decode(data: bytes, key: SharedKey | None = None) -> Datagram:
-    """bytes -> Datagram (version 1 or 2); raises :class:`DatagramError` for anything malformed.
+    """bytes -> Datagram (version 1, 2 or 3); raises :class:`DatagramError` for anything malformed.
 
     With ``key`` only a version-2 datagram carrying the right HMAC tag decodes;
     without, a tagged one does not (:class:`DatagramAuthError` for both)."""
@@ -411,7 +510,7 @@ def decode(data: bytes, key: SharedKey | None = None) -> Datagram:
                             f"({header.size + _CRC.size})")
     fields = header.unpack_from(data)
     _, _, mtype, session, seq, plen = fields[:6]
-    flags = fields[6] if version == 2 else 0
+    flags = fields[6] if version >= 2 else 0
     if flags & ~FLAG_HMAC:
         raise DatagramError(f"unknown flags 0x{flags:02x}")
     tag_len = TAG_SIZE if flags & FLAG_HMAC else 0
@@ -434,4 +533,4 @@ def decode(data: bytes, key: SharedKey | None = None) -> Datagram:
         raise DatagramError(f"unknown message type {mtype}") from None
     if version == 1 and t not in _V1_TYPES:
         raise DatagramError(f"unknown message type {mtype} in protocol version 1")
-    return Datagram(t, session, seq, _unpack_payload(t, signed[header.size:]), version)
+    return Datagram(t, session, seq, _unpack_payload(t, signed[header.size:], version), version)

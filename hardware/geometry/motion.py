@@ -20,7 +20,7 @@ The cameras move in parallel (one controller ``MOVE`` drives the gantry and
 the track, the PTUs are pointed together, ``docs/hardware.md``), so a change
 of configuration takes ``max_i T_i[c_i, a_i]``.
 
-The controller simulator (:mod:`.controller_sim`) times a move by the
+The controller simulator (:mod:`..sim.controller_sim`) times a move by the
 gantry's straight-line distance, ``hypot(dx, dy) / linear_speed``; the model
 here treats the gantry's x and y as independent axes (thesis §6.1: one DC
 motor and PID loop each), which is at most sqrt(2) shorter on a diagonal.
@@ -34,8 +34,8 @@ from typing import Sequence
 
 import numpy as np
 
-from ..kernels.config_grid import ConfigGrid
-from .kinematics import DEFAULT_MOUNTS, ptu_angles
+from ...kernels.config_grid import ConfigGrid
+from .kinematics import DEFAULT_MOUNTS, default_mounts, ptu_angles
 from .positions import CameraTable
 
 __all__ = ["MotionSpeeds", "DEFAULT_PTU_DEG_S", "DEFAULT_LINEAR_M_S", "camera_travel_times",
@@ -80,9 +80,15 @@ class MotionSpeeds:
             if not (math.isfinite(v) and v > 0):
                 raise ValueError(f"ptu_deg_s_per_camera = {self.ptu_deg_s_per_camera!r}: every speed must be > 0")
 
-    def linear(self, camera: int) -> float:
-        """The linear axes' speed of ``camera`` (0: gantry, 1: track)."""
-        return self.gantry_m_s if camera == 0 else self.track_m_s
+    def linear(self, camera: int, kind: str | None = None) -> float:
+        """The linear axes' speed of ``camera``'s carrier of ``kind`` (``"gantry"``:
+        :attr:`gantry_m_s`, ``"track"``: :attr:`track_m_s`); without ``kind``, as on
+        the thesis rig: camera 0 rides the gantry, any other a track."""
+        kind = kind or ("gantry" if camera == 0 else "track")
+        speed = getattr(self, f"{kind}_m_s", None)
+        if speed is None:
+            raise ValueError(f"camera {camera + 1}: no [motion] speed for a carrier of kind {kind!r}")
+        return speed
 
     def ptu(self, camera: int) -> float:
         if self.ptu_deg_s_per_camera:
@@ -91,7 +97,7 @@ class MotionSpeeds:
 
     @classmethod
     def from_config(cls, config) -> "MotionSpeeds":
-        """The speeds of a :class:`~.config.RigConfig`: its ``[motion]`` table,
+        """The speeds of a :class:`~..physical.config.RigConfig`: its ``[motion]`` table,
         with each ``[[ptu]] speed_deg_s`` that is set (the unit runs at it)."""
         base = config.motion
         n = config.table.n_cameras
@@ -108,18 +114,23 @@ def camera_travel_times(table: CameraTable, speeds: MotionSpeeds | None = None,
     (row) to ``w`` (column) (module doc); the diagonal is 0.
 
     ``mounts``: one PTU mount per camera (``pan_zero_deg``, ``tilt_zero_deg``,
-    ``pan_sign``; default :data:`~.kinematics.DEFAULT_MOUNTS`, the angles of
-    :func:`~.config.default_mounts`)."""
+    ``pan_sign``; default: each carrier's :func:`~.kinematics.default_mounts`,
+    the angles of :func:`~..physical.config.default_mounts`; for a table of more
+    cameras than carriers :data:`~.kinematics.DEFAULT_MOUNTS`)."""
     speeds = speeds or MotionSpeeds()
-    mounts = tuple(mounts) if mounts is not None else DEFAULT_MOUNTS[:table.n_cameras]
-    if len(mounts) != table.n_cameras:
-        raise ValueError(f"{len(mounts)} PTU mounts for {table.n_cameras} cameras")
+    n, carriers = table.n_cameras, table.workspace.carriers
+    if mounts is None:
+        mounts = default_mounts(table.workspace, n) if n <= len(carriers) else DEFAULT_MOUNTS[:n]
+    mounts = tuple(mounts)
+    if len(mounts) != n:
+        raise ValueError(f"{len(mounts)} PTU mounts for {n} cameras")
     target = table.workspace.object_xyz
     out = []
     for i, views in enumerate(table.views):
         eye = np.array([v.eye for v in views], float)  # [V, 3]
         ang = np.array([ptu_angles(v.eye, target, mounts[i]) for v in views], float)  # [V, 2] degrees
-        linear = np.abs(eye[:, None, :] - eye[None, :, :]).max(-1) / speeds.linear(i)
+        kind = carriers[i].kind if i < len(carriers) else None
+        linear = np.abs(eye[:, None, :] - eye[None, :, :]).max(-1) / speeds.linear(i, kind)
         angular = np.abs(ang[:, None, :] - ang[None, :, :]).max(-1) / speeds.ptu(i)
         out.append(np.maximum(linear, angular))
     return tuple(out)

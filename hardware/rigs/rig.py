@@ -22,7 +22,7 @@ from typing import Any, Protocol, Sequence, runtime_checkable
 
 import numpy as np
 
-from ..kernels.config_grid import ConfigGrid
+from ...kernels.config_grid import ConfigGrid
 
 __all__ = ["Capture", "CaptureJob", "Rig", "RigError", "RigPool", "SceneSpec", "SeededCaptures", "config_from_index",
            "index_from_config"]

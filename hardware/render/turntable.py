@@ -44,10 +44,10 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from ..dbformat import SPLITS, manifest_text, write_image
-from .kinematics import Workspace
+from ...dbformat import SPLITS, manifest_text, write_image
+from ..geometry.kinematics import Workspace
 from .occluders import OCCLUDER_OFFSET, OCCLUDER_SIZE, random_occluders
-from .positions import CameraTable, View
+from ..geometry.positions import CameraTable, View
 from .random_objects import RESTING_ROTATIONS, rested
 from .render_db import alternating_offsets
 from .scene import Intrinsics, ObjectSpec

@@ -1,6 +1,6 @@
 """``SyntheticRig``: the thesis's two-camera rig (ch. 6, app. C) as a rendered scene.
 
-Cameras sit at the eye positions of a :class:`~.positions.CameraTable` (the
+Cameras sit at the eye positions of a :class:`~..geometry.positions.CameraTable` (the
 appendix-C kinematics turn planner angles into those positions) and always look
 at the object centre.  Each position has its own zoom (``Intrinsics.fov``), as
 the thesis's predefined zoom tables.  Rendering is pybullet's CPU TinyRenderer
@@ -25,8 +25,8 @@ from typing import Sequence
 import numpy as np
 
 from .occluders import OccluderLayout
-from .positions import CameraTable, default_table
-from .rig import Capture, RigError, SeededCaptures
+from ..geometry.positions import CameraTable, default_table
+from ..rigs.rig import Capture, RigError, SeededCaptures
 from .scene import Intrinsics, Lighting, ObjectSpec, Scene
 
 __all__ = ["Noise", "OffGrid", "Perturb", "SyntheticRig"]
@@ -141,10 +141,10 @@ def _jitter_light(light: Lighting, j: float, rng: np.random.Generator) -> Lighti
 
 
 class SyntheticRig(SeededCaptures):
-    """A :class:`~.rig.Rig` whose images are renders of the scene.
+    """A :class:`~..rigs.rig.Rig` whose images are renders of the scene.
 
     Args:
-        table: camera positions (default :func:`~.positions.default_table`, 32 x 7);
+        table: camera positions (default :func:`~..geometry.positions.default_table`, 32 x 7);
             any number of cameras.
         objects: object specs (default the 8 of :func:`~.scene.default_objects`).
         n_poses: poses per object, pose ``p`` at ``360° p / n_poses``.

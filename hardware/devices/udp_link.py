@@ -1,8 +1,8 @@
 """Client end of the vision-PC <-> motion-controller UDP link (thesis §6.6).
 
-:meth:`ControllerLink.move` sends the desired camera-1 pan/tilt, camera-2 pan
-and turn-table angle and returns only when the controller reports
-``IN_POSITION`` for exactly that move -- the capture signal.
+:meth:`ControllerLink.move` sends a :class:`.datagram.Move` -- the desired pan
+and tilt of each camera and the turn-table angle -- and returns only when the
+controller reports ``IN_POSITION`` for exactly that move -- the capture signal.
 
 Reliability over a lossy, duplicating, reordering network:
 
@@ -45,8 +45,9 @@ Shared key.  With ``key`` (a :class:`.datagram.SharedKey`) every datagram the
 link sends carries an HMAC-SHA256 tag and every reply without the right tag
 is dropped and counted (``stats["unauthenticated"]``); a controller with the
 same key does the same, so nobody without the key can move the rig or take
-its session.  The key is never logged.  ``version=1`` talks to a controller
-that speaks only protocol version 1 (no sessions bound to addresses, no key).
+its session.  The key is never logged.  ``version=2`` talks to a controller
+that speaks only protocol version 2 (the thesis rig's two cameras), ``version=1``
+to one of version 1 (no sessions bound to addresses, no key).
 """
 
 from __future__ import annotations
@@ -58,9 +59,10 @@ import math
 import random
 import socket
 import time
-from typing import Callable
+from typing import Callable, Sequence
 
-from .datagram import VERSION, VERSIONS, Datagram, DatagramAuthError, DatagramError, Hello, InPosition, Move, Moving
+from .datagram import MAX_CAMERAS, VERSION, VERSIONS, Datagram, DatagramAuthError, DatagramError, Hello, InPosition
+from .datagram import Move, Moving
 from .datagram import MsgType, Refused, Rejected, RejectCode, SharedKey, Welcome, decode, encode
 
 __all__ = [
@@ -128,15 +130,35 @@ class SessionRefused(LinkError):
 
 @dataclasses.dataclass(frozen=True)
 class MoveResult:
-    """An accepted ``IN_POSITION``: what was asked and where the axes are (metres, radians)."""
+    """An accepted ``IN_POSITION``: what was sent (``move``, as its protocol version
+    carries it) and where each camera and the turn-table are (metres, radians).
+
+    ``reached`` is the datagram's (:class:`.datagram.InPosition`): each camera's eye
+    in version 3, the gantry's (x, y) and the track's (y,) in versions 1-2;
+    :meth:`eyes` gives the eyes in every version."""
 
     seq: int
     move: Move
-    gantry_xy: tuple[float, float]
-    track_y: float
+    reached: tuple[tuple[float, ...], ...]
     turntable: float
     attempts: int
     elapsed_s: float
+    version: int = VERSION
+
+    def eyes(self, carriers: Sequence) -> tuple[tuple[float, float, float], ...]:
+        """Each camera's eye (x, y, z): as reported (version 3), or completed from the
+        fixed coordinates of each camera's carrier (:class:`~..geometry.kinematics.Carrier`,
+        ``eye(axes)``) in versions 1-2, which report only what the motors set."""
+        if self.version >= 3:
+            return tuple(tuple(r) for r in self.reached)  # type: ignore[misc]
+        return tuple(c.eye(r) for c, r in zip(carriers, self.reached))
+
+
+def _angles(move: Move) -> list[tuple[str, float]]:
+    """(name, value) of every angle of ``move``, for messages."""
+    named = [(f"camera {i + 1} {axis}", v)
+             for i, cam in enumerate(move.cameras) for axis, v in zip(("pan", "tilt"), cam)]
+    return named + [("turntable", move.turntable)]
 
 
 class ControllerLink:
@@ -149,7 +171,7 @@ class ControllerLink:
         max_motion_s: the most seconds ``MOVING`` replies may add to one move's wait.
         key: a :class:`.datagram.SharedKey` (or its bytes): tag every datagram, accept
             only tagged replies.
-        version: the protocol version to speak (2; 1 for a version-1 controller).
+        version: the protocol version to speak (3; 2 or 1 for a controller of that version).
 
     Attributes:
         session: the session id the controller issued (``None`` before the first
@@ -179,7 +201,7 @@ class ControllerLink:
         if isinstance(key, (bytes, bytearray)):
             key = SharedKey(bytes(key))
         if key is not None and version == 1:
-            raise ValueError("a shared key needs protocol version 2 (version 1 carries no HMAC tag)")
+            raise ValueError("a shared key needs protocol version 2 or 3 (version 1 carries no HMAC tag)")
         self.key: SharedKey | None = key
         self.version = int(version)
         self.address = (str(address[0]), int(address[1]))
@@ -351,11 +373,14 @@ class ControllerLink:
         )
 
     # ------------------------------------------------------------ API
-    def move(self, cam1_pan: float, cam1_tilt: float, cam2_pan: float, turntable: float) -> MoveResult:
-        """Command a move (radians) and wait for ``IN_POSITION``.
+    def move(self, move: Move) -> MoveResult:
+        """Command ``move`` (each camera's pan and tilt and the turn-table angle, radians)
+        and wait for ``IN_POSITION``.  On a version-1/2 link the move is sent as
+        :meth:`.datagram.Move.for_version` gives it (two cameras, camera 2's tilt 0).
 
         Raises:
-            ValueError: a non-finite angle (nothing is sent).
+            ValueError: a non-finite angle, or more cameras than the protocol
+                version carries (nothing is sent).
             ControllerRejected: the controller refused the move.
             ControllerRestarted: the controller restarted while the move was in flight.
             SessionClosed: the controller replaced the session while the move was in flight.
@@ -363,10 +388,12 @@ class ControllerLink:
             LinkTimeoutError: no valid answer after every retry (or the session
                 could not be opened).
         """
-        move = Move(float(cam1_pan), float(cam1_tilt), float(cam2_pan), float(turntable))
-        for name, v in zip(("cam1_pan", "cam1_tilt", "cam2_pan", "turntable"), move.astuple()):
+        for name, v in _angles(move):
             if not math.isfinite(v):
                 raise ValueError(f"{name} = {v!r} is not a finite angle")
+        if len(move.cameras) > MAX_CAMERAS:
+            raise ValueError(f"a move of {len(move.cameras)} cameras: the protocol carries at most {MAX_CAMERAS}")
+        move = move.for_version(self.version)
         dg, attempts, elapsed = self._transact(MsgType.MOVE, move, (MsgType.IN_POSITION, MsgType.REJECTED))
         if dg.type == MsgType.REJECTED:
             assert isinstance(dg.payload, Rejected)
@@ -378,7 +405,7 @@ class ControllerLink:
         p = dg.payload
         assert isinstance(p, InPosition)
         self.stats["accepted"] += 1
-        return MoveResult(dg.seq, move, (p.gantry_x, p.gantry_y), p.track_y, p.turntable, attempts, elapsed)
+        return MoveResult(dg.seq, move, p.reached, p.turntable, attempts, elapsed, self.version)
 
     def open_session(self) -> int:
         """Open a session now (``HELLO`` -> ``WELCOME``) unless one is open; its id.

@@ -1,29 +1,7 @@
 """Driver for Directed Perception PTU-D46 pan-tilt units (thesis §6.4) over a serial line.
 
-The unit speaks an ASCII command protocol: a command is a few letters, an
-optional signed integer argument, and a delimiter (space, CR or LF).  With
-echo off (``ED``) and terse feedback (``FT``) every command is answered by one
-line ending in CR LF:
-
-* ``*``               -- an action succeeded (``PP1000``, ``A``, ``I``, ...)
-* ``* <number>``      -- the answer to a query (``PP`` -> ``* 1000``,
-  ``PR`` -> ``* 185.1428``)
-* ``! <message>``     -- an error (``! Maximum allowable Pan position is 3090``)
-
-Commands used here (pan ``P`` / tilt ``T``):
-
-=========  ==============================================================
-``PP n``   absolute position (positions); ``PP`` alone queries it
-``PO n``   offset from the current target
-``PS n``   speed in positions/s; ``PS`` alone queries it
-``PR``     resolution query, arc-seconds per position (185.1428 on -17.5)
-``PN PX``  minimum / maximum position query (``TN TX`` for tilt)
-``PU``     upper speed limit query (positions/s)
-``A``      await: answers once every commanded motion has finished
-``I S``    immediate / slaved execution of position commands
-``FT ED``  terse feedback / echo off (sent on connect)
-``R``      reset (re-calibrates; answers ``!T!T!P!P*`` or similar, then ``*``)
-=========  ==============================================================
+The command protocol, the strict reply parser and the errors this driver
+raises are in :mod:`..ptu_protocol`.
 
 Asynchronous output.  A unit that reaches a limit switch sends ``!P`` or
 ``!T`` (two bytes, no line end) at once, whatever is on the line -- also in
@@ -49,14 +27,11 @@ Angles in this module's public API are **degrees**; the unit works in
 **positions**, ``positions = round(degrees * 3600 / resolution_arcsec)``.
 Limits are queried from the unit on connect and checked before sending.
 
-Every failure is a :class:`PTUError` naming the command: a missing reply is a
-:class:`PTUTimeoutError`, a ``!`` reply is a :class:`PTUErrorReply`, anything
-else (noise, malformed numbers, non-ASCII bytes) is a :class:`PTUGarbageError`.
-After any of them the input buffer is drained and flushed, so the next command
-starts on a clean line; after a timeout the driver keeps draining until the
-line has been quiet for a whole reply timeout, so that a reply that was merely
-late (it arrives after the driver gave up) is discarded instead of being read
-as the answer to the next command.
+After any failure (a :class:`PTUError`) the input buffer is drained and
+flushed, so the next command starts on a clean line; after a timeout the
+driver keeps draining until the line has been quiet for a whole reply
+timeout, so that a reply that was merely late (it arrives after the driver
+gave up) is discarded instead of being read as the answer to the next command.
 
 The driver remembers the commanded target of each axis (relative moves and
 the ``A`` timeout are computed from it).  It is updated after each command
@@ -65,19 +40,28 @@ whether the unit took it (a lost or garbled reply to an executed command, a
 refusal), so before the next move it waits for the unit (``A``) and reads the
 axes back (``PP``, ``TP``).
 """
-
 from __future__ import annotations
 
 import collections
-import dataclasses
 import logging
 import math
-import re
 import time
 
 import serial
 
-from .pan_tilt import PanTiltConnectionError, PanTiltError
+from ..ptu_protocol import (
+    ARCSEC_PER_POSITION_D46_17_5,
+    PTUConnectionError,
+    PTUError,
+    PTUErrorReply,
+    PTUGarbageError,
+    PTUHomingTimeout,
+    PTULimitError,
+    PTULimits,
+    PTUTimeoutError,
+    limit_markers,
+    parse_reply,
+)
 
 try:
     import termios
@@ -90,124 +74,9 @@ _IO_ERRORS: tuple[type[BaseException], ...] = (serial.SerialException, OSError) 
     (termios.error,) if termios is not None else ()
 )
 
-__all__ = [
-    "PTU",
-    "PTUError",
-    "PTUTimeoutError",
-    "PTUErrorReply",
-    "PTUGarbageError",
-    "PTULimitError",
-    "PTUConnectionError",
-    "PTUHomingTimeout",
-    "PTULimits",
-    "parse_reply",
-    "ARCSEC_PER_POSITION_D46_17_5",
-]
-
-#: Nominal resolution of the PTU-D46-17.5 (thesis §6.4: 3.086 arc-minutes); the
-#: driver always queries the unit instead of trusting this number.
-ARCSEC_PER_POSITION_D46_17_5 = 185.1428
+__all__ = ["PTU", "DRIVER"]
 
 log = logging.getLogger(__name__)
-
-
-class PTUError(PanTiltError):
-    """Base class of every PTU failure; ``command`` is the command that failed."""
-
-    def __init__(self, command: str, message: str):
-        self.command = command
-        super().__init__(f"PTU command {command!r}: {message}")
-
-
-class PTUTimeoutError(PTUError):
-    """No complete reply line arrived within the timeout."""
-
-
-class PTUErrorReply(PTUError):
-    """The unit answered ``!`` (it refused or failed the command)."""
-
-    def __init__(self, command: str, reply: str):
-        self.reply = reply
-        super().__init__(command, f"unit reported an error: {reply!r}")
-
-
-class PTUGarbageError(PTUError):
-    """The reply was neither a valid ``*`` answer nor a ``!`` error."""
-
-    def __init__(self, command: str, reply: bytes, why: str):
-        self.reply = reply
-        super().__init__(command, f"{why}; got {reply[:80]!r}")
-
-
-class PTULimitError(PTUError, ValueError):
-    """A requested position or speed lies outside the unit's limits (checked before sending)."""
-
-
-class PTUConnectionError(PTUError, PanTiltConnectionError):
-    """The serial port could not be opened, read or written."""
-
-
-class PTUHomingTimeout(PTUTimeoutError):
-    """The unit was still busy (homing after a reset or power-up) when the wait ran out."""
-
-
-_NUMBER = {
-    "int": re.compile(rb"\*[ \t]*([+-]?[0-9]{1,12})"),
-    "float": re.compile(rb"\*[ \t]*([+-]?[0-9]{1,12}(?:\.[0-9]{1,12})?)"),
-}
-_ERROR_LINE = re.compile(rb"![ \t]*[\x20-\x7e]*")
-_RESET_LINE = re.compile(rb"(?:![PT])*\*")
-_LIMIT_MARKER = re.compile(rb"!([PT])")  # asynchronous limit message; never followed by the space of an error
-
-
-def parse_reply(command: str, line: bytes, expect: str) -> int | float | None:
-    """Parse one reply line (terse feedback, echo off) strictly.
-
-    Args:
-        command: the command sent (for error messages).
-        line: the reply, with or without its trailing CR LF.
-        expect: ``"ack"`` (exactly ``*``), ``"int"`` / ``"float"`` (``* <number>``)
-            or ``"reset"`` (``!T``/``!P`` limit markers, then ``*``).
-
-    Returns:
-        ``None`` for ``ack`` and ``reset``, the number otherwise.
-
-    Raises:
-        PTUErrorReply: the line is a well-formed ``!`` error.
-        PTUGarbageError: anything else that is not the expected answer.
-    """
-    if expect not in ("ack", "int", "float", "reset"):
-        raise ValueError(f"expect must be 'ack', 'int', 'float' or 'reset', not {expect!r}")
-    body = line[:-2] if line.endswith(b"\r\n") else line.rstrip(b"\r\n")
-    body = body.rstrip(b" ")
-    if expect == "reset":
-        if _RESET_LINE.fullmatch(body):
-            return None
-    if body.startswith(b"!"):
-        if _ERROR_LINE.fullmatch(body):
-            raise PTUErrorReply(command, body.decode("ascii"))
-        raise PTUGarbageError(command, line, "malformed error reply (non-printable bytes)")
-    if expect == "ack":
-        if body == b"*":
-            return None
-        raise PTUGarbageError(command, line, "expected '*'")
-    if expect == "reset":
-        raise PTUGarbageError(command, line, "expected '!T'/'!P' markers and '*'")
-    m = _NUMBER[expect].fullmatch(body)
-    if m is None:
-        raise PTUGarbageError(command, line, f"expected '* <{expect}>'")
-    value = int(m.group(1)) if expect == "int" else float(m.group(1))
-    return value
-
-
-@dataclasses.dataclass(frozen=True)
-class PTULimits:
-    """Limits queried from the unit, in positions (speeds in positions/s)."""
-
-    pan: tuple[int, int]
-    tilt: tuple[int, int]
-    pan_speed_max: int
-    tilt_speed_max: int
 
 
 class PTU:
@@ -273,7 +142,7 @@ class PTU:
 
     @classmethod
     def from_config(cls, config, port: str | None = None) -> "PTU":
-        """The unit of a ``[[ptu]]`` entry (:class:`.config.PTUConfig`); ``port`` overrides its ``port``."""
+        """The unit of a ``[[ptu]]`` entry (:class:`...physical.config.PTUConfig`); ``port`` overrides its ``port``."""
         return cls(
             config.port if port is None else port,
             baudrate=config.baudrate,
@@ -436,15 +305,14 @@ class PTU:
 
     def _strip_markers(self, command: str, line: bytes) -> bytes:
         """Remove the asynchronous ``!P`` / ``!T`` limit messages from a reply and account for them."""
-        axes = _LIMIT_MARKER.findall(line)
+        axes, stripped = limit_markers(line)
         if not axes:
             return line
         if self._expect_markers:
             self._homing_markers += len(axes)
             log.debug("PTU %s: %d homing limit markers in the reply to %r", self.url, len(axes), command)
         else:
-            for a in axes:
-                axis = a.decode("ascii")
+            for axis in axes:
                 self.limit_events[axis] += 1
                 self._unsure[0 if axis == "P" else 1] = True  # read the axis back before the next move
                 log.warning(
@@ -452,7 +320,7 @@ class PTU:
                     "its position is read back before the next move",
                     self.url, "pan" if axis == "P" else "tilt", axis, command, self.limit_events[axis],
                 )
-        return _LIMIT_MARKER.sub(b"", line)
+        return stripped
 
     def _checked(self, command: str, expect: str, timeout: float | None = None):
         line = self._exchange(command, timeout)
@@ -648,3 +516,7 @@ class PTU:
             self._expect_markers = False
         self._target = (0, 0)
         self._unsure = [False, False]
+
+
+#: the class the registry (:mod:`..pan_tilt`) hands out for ``driver = "ptu-d46"``
+DRIVER = PTU

@@ -1,7 +1,7 @@
 """A PTU-D46 simulator on a pseudo-terminal, for tests and the simulated rig.
 
 ``PTUSimulator()`` opens a pty pair (``os.openpty``) and serves the unit's
-ASCII protocol (see :mod:`.ptu`) from a thread on the master side; the driver
+ASCII protocol (see :mod:`..devices.ptu_protocol`) from a thread on the master side; the driver
 opens ``sim.port`` (the slave path) like any serial device.
 
 Like a real unit it starts with echo on and verbose feedback, has the

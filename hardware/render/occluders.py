@@ -27,7 +27,7 @@ from typing import Sequence
 
 import numpy as np
 
-from .positions import CameraTable
+from ..geometry.positions import CameraTable
 
 __all__ = ["Board", "OccluderLayout", "OCCLUDER_OFFSET", "OCCLUDER_SIZE", "random_occluders"]
 

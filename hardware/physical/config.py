@@ -23,13 +23,13 @@ import os
 import tomllib
 from typing import Any
 
-from .controller_sim import LinkFaults
-from .datagram import SharedKey
-from .motion import MotionSpeeds
-from .kinematics import DEFAULT_MOUNTS, ptu_angles
-from .pan_tilt import DEFAULT_PAN_TILT, pan_tilt_driver
-from .positions import CameraTable, default_table
-from ..problems import one_line
+from ...problems import one_line
+from ..devices.datagram import MAX_CAMERAS, VERSION, SharedKey
+from ..devices.pan_tilt import DEFAULT_PAN_TILT, pan_tilt_driver
+from ..geometry.kinematics import Gantry, Track, Workspace, default_mounts as kinematic_mounts, ptu_angles
+from ..geometry.motion import MotionSpeeds
+from ..geometry.positions import CameraTable, default_table, entry_text
+from ..sim.controller_sim import LinkFaults
 
 __all__ = [
     "ConfigError",
@@ -58,7 +58,7 @@ class PTUConfig:
     ``tilt = el - tilt_zero_deg``: ``pan_zero_deg`` / ``tilt_zero_deg`` are the
     azimuth / elevation the camera looks along at PTU position (0, 0).
 
-    ``driver`` names the pan-tilt driver (:mod:`.pan_tilt`; default the
+    ``driver`` names the pan-tilt driver (:mod:`..devices.pan_tilt`; default the
     PTU-D46).  When the unit's device disappears, the rig tries ``port``
     and every path matching ``reconnect_glob`` (e.g.
     ``"/dev/serial/by-id/usb-FTDI_*"``) with a bounded backoff for
@@ -103,8 +103,8 @@ class CameraConfig:
 class ControllerConfig:
     """``max_motion_s`` bounds how long ``MOVING`` replies may extend the wait for one move.
 
-    ``protocol_version``: 2 (``docs/protocol.md``), or 1 for a controller that
-    speaks only version 1.  A shared key (HMAC over every datagram) is read
+    ``protocol_version``: 3 (``docs/protocol.md``), or 2 / 1 for a controller
+    that speaks only that version (the thesis rig's two cameras).  A shared key (HMAC over every datagram) is read
     from the file ``key_file`` (relative to the rig file) or the environment
     variable ``key_env``, when the rig file is loaded, into ``key`` (hidden
     from ``repr``; never a key in the rig file itself)."""
@@ -114,7 +114,7 @@ class ControllerConfig:
     timeout_s: float = 0.25
     retries: int = 5
     max_motion_s: float = 600.0
-    protocol_version: int = 2
+    protocol_version: int = VERSION
     key_file: str = ""
     key_env: str = ""
     key: SharedKey | None = dataclasses.field(default=None, repr=False)
@@ -137,7 +137,7 @@ class RigConfig:
     ptus: tuple[PTUConfig, ...] = ()
     cameras: tuple[CameraConfig, ...] = ()
     simulation: SimulationConfig = SimulationConfig()
-    #: axis speeds for planned travel times (``[motion]``; :mod:`.motion`)
+    #: axis speeds for planned travel times (``[motion]``; :mod:`..geometry.motion`)
     motion: MotionSpeeds = MotionSpeeds()
 
     @classmethod
@@ -191,10 +191,15 @@ class RigConfig:
         if not self.controller.max_motion_s > 0:
             raise ConfigError(f"[controller] max_motion_s = {self.controller.max_motion_s!r} must be > 0 seconds")
         if self.controller.key is not None and self.controller.protocol_version == 1:
-            raise ConfigError("[controller]: a shared key (key_file / key_env) needs protocol_version = 2: "
+            raise ConfigError("[controller]: a shared key (key_file / key_env) needs protocol_version = 2 or 3: "
                               "version 1 carries no HMAC tag")
-        if n not in (1, 2):
-            raise ConfigError(f"[table] describes {n} cameras; the controller protocol drives 1 or 2")
+        if not 1 <= n <= MAX_CAMERAS:
+            raise ConfigError(f"[table] describes {n} cameras; the controller protocol drives 1 to {MAX_CAMERAS}")
+        version = self.controller.protocol_version
+        if version <= 2 and [type(c) for c in self.table.carriers] != [Gantry, Track][:n]:
+            kinds = ", ".join(c.kind for c in self.table.carriers)
+            raise ConfigError(f"[controller] protocol_version = {version} moves camera 1 on a gantry and camera 2 on a "
+                              f"track; this table's cameras ride {kinds}: set protocol_version = 3")
         if self.kind == "hardware":
             if len(self.ptus) != n:
                 raise ConfigError(f"{len(self.ptus)} [[ptu]] entries for {n} cameras: give one per camera")
@@ -243,8 +248,7 @@ class RigConfig:
             if bad:
                 v, view, axis, a, lo, hi = bad[0]
                 where = f"[[ptu]] #{i + 1}" if self.ptus else f"the default mount of camera {i + 1}"
-                at = (f"[{math.degrees(view.pan):g}, {math.degrees(view.tilt):g}]" if i == 0
-                      else f"{math.degrees(view.pan):g}")
+                at = entry_text(self.table.carriers[i], view)
                 more = f" (and {len(bad) - 1} more position(s))" if len(bad) > 1 else ""
                 raise ConfigError(
                     f"[table] camera{i + 1}[{v}] = {at} deg: {where} would have to {axis} to {a:.4g} deg, outside "
@@ -253,24 +257,28 @@ class RigConfig:
 
     def travel_times(self):
         """Per camera ``[V_i, V_i]`` travel seconds between its positions
-        (:func:`.motion.camera_travel_times` with this rig's table, mounts and
+        (:func:`..geometry.motion.camera_travel_times` with this rig's table, mounts and
         speeds)."""
-        from .motion import camera_travel_times
+        from ..geometry.motion import camera_travel_times
 
         return camera_travel_times(self.table, MotionSpeeds.from_config(self),
                                    tuple(self.ptu(i) for i in range(self.table.n_cameras)))
 
     def ptu(self, camera: int) -> PTUConfig:
         """The PTU entry of ``camera`` (defaults when a simulated rig leaves them out)."""
-        return self.ptus[camera] if self.ptus else default_mounts(self.table.n_cameras)[camera]
+        if self.ptus:
+            return self.ptus[camera]
+        return default_mounts(self.table.n_cameras, self.table.workspace)[camera]
 
 
-def default_mounts(n_cameras: int) -> tuple[PTUConfig, ...]:
-    """Mounts that keep the default table inside the PTU-D46-17.5 limits (+/-159 deg pan,
-    -46.6..+31.1 deg tilt): camera 1 looks along azimuth -22.5 deg, 45 deg down at
-    (0, 0); camera 2 along azimuth -90 deg (towards -x), level, pan mirrored."""
+def default_mounts(n_cameras: int, workspace: Workspace | None = None) -> tuple[PTUConfig, ...]:
+    """PTU entries with each carrier's default mount (:func:`..geometry.kinematics.default_mounts`):
+    for the thesis rig the mounts that keep the default table inside the PTU-D46-17.5
+    limits (+/-159 deg pan, -46.6..+31.1 deg tilt): camera 1 looks along azimuth
+    -22.5 deg, 45 deg down at (0, 0); camera 2 along azimuth -90 deg (towards -x),
+    level, pan mirrored."""
     return tuple(PTUConfig(pan_zero_deg=m.pan_zero_deg, tilt_zero_deg=m.tilt_zero_deg, pan_sign=m.pan_sign)
-                 for m in DEFAULT_MOUNTS[:n_cameras])
+                 for m in kinematic_mounts(workspace or Workspace(), n_cameras))
 
 
 def load_config(path: str | os.PathLike) -> RigConfig:
@@ -385,7 +393,7 @@ _PROBABILITY = _Number(0, 1)
 _RULES: dict[type, dict[str, Any]] = {
     ControllerConfig: {
         "port": _Number(0, 65535, integer=True), "timeout_s": _SECONDS, "retries": _Number(0, 10_000, integer=True),
-        "max_motion_s": _LONG_SECONDS, "protocol_version": _Choice((1, 2)),
+        "max_motion_s": _LONG_SECONDS, "protocol_version": _Choice((1, 2, 3)),
     },
     PTUConfig: {
         "baudrate": _Number(0, 10_000_000, lo_open=True, integer=True), "timeout_s": _SECONDS,

@@ -1,14 +1,16 @@
 """Simulated motion controller (the thesis's VxWorks side, §6.6) on 127.0.0.1.
 
-It answers the datagrams of :mod:`.datagram`: a ``MOVE`` carries the planner
-angles; the controller converts them with the appendix-C kinematics
-(:func:`.kinematics.camera1_position`, :func:`.kinematics.camera2_position`),
-rejects moves outside the workspace (``REJECTED``), otherwise "moves" the
-gantry, the linear track and the turn-table at finite speed in simulated time
-and then sends ``IN_POSITION`` with the achieved positions (quantised to the
-encoders: 10 um on the linear axes, 20,000 counts a turn on the turn-table,
-thesis §6.3).  Moves that take longer than ``moving_after_s`` are first
-acknowledged with ``MOVING``.
+It answers the datagrams of :mod:`..devices.datagram`: a ``MOVE`` carries the planner
+angles of n cameras; the controller places each camera's carrier with the
+appendix-C kinematics (:meth:`..geometry.kinematics.Carrier.place` of the
+workspace's carrier for that camera: the thesis rig's gantry and track, or
+more), rejects moves outside the workspace (``REJECTED``), otherwise "moves"
+the carriers and the turn-table at finite speed in simulated time and then
+sends ``IN_POSITION`` with the achieved positions (quantised to the encoders:
+10 um on the linear axes, 20,000 counts a turn on the turn-table, thesis
+§6.3): each camera's eye in protocol version 3, the gantry's x, y and the
+track's y in versions 1-2.  Moves that take longer than ``moving_after_s``
+are first acknowledged with ``MOVING``.
 
 Sessions (protocol version 2, ``docs/protocol.md``).  A ``HELLO`` opens a
 session bound to the address (host, port) it came from: the controller issues
@@ -79,9 +81,9 @@ import socket
 import threading
 import time
 
-from .datagram import Datagram, DatagramAuthError, DatagramError, Hello, InPosition, Move, Moving
-from .datagram import MsgType, Refused, Rejected, RejectCode, SharedKey, Welcome, decode, encode
-from .kinematics import Workspace, WorkspaceError, camera1_position, camera2_position
+from ..devices.datagram import VERSION, Datagram, DatagramAuthError, DatagramError, Hello, InPosition, Move, Moving
+from ..devices.datagram import MsgType, Refused, Rejected, RejectCode, SharedKey, Welcome, decode, encode, no_move
+from ..geometry.kinematics import Gantry, Track, Workspace, WorkspaceError
 
 __all__ = ["LinkFaults", "ControllerSimulator", "ExecutedMove"]
 
@@ -127,14 +129,14 @@ class ControllerSimulator:
     """The motion controller, serving UDP on ``host`` (loopback only) and an ephemeral port.
 
     Args:
-        workspace: rig geometry and limits (appendix C).
+        workspace: rig geometry and limits (appendix C): one carrier per camera.
         faults: :class:`LinkFaults`.
         seed: seeds every fault decision.
         time_scale: wall seconds per simulated second.
-        linear_speed: gantry / track speed, m/s (simulated).
+        linear_speed: carrier speed (gantry, track), m/s (simulated).
         turntable_speed: rad/s (simulated).
         moving_after_s: send ``MOVING`` first when a move takes longer (wall seconds).
-        key: a :class:`.datagram.SharedKey` (or its bytes): accept only datagrams
+        key: a :class:`..devices.datagram.SharedKey` (or its bytes): accept only datagrams
             tagged with it, tag every reply.
         session_idle_s: a session is live (HELLOs from other addresses refused)
             until this many wall seconds passed without a request of it.
@@ -170,10 +172,9 @@ class ControllerSimulator:
         self.session_idle_s = float(session_idle_s)
         self._occurrences: dict[tuple[str, bytes], int] = {}
         self.stats: collections.Counter[str] = collections.Counter()
-        # state: gantry (x, y), track y, turn-table angle -- start at the centre
+        # state: each carrier's motor coordinates and the turn-table angle -- start at the centre
         ws = self.workspace
-        self.gantry = (ws.object_xyz[0], ws.object_xyz[1])
-        self.track_y = ws.object_xyz[1]
+        self.axes: list[tuple[float, ...]] = [c.axes(ws.object_xyz) for c in ws.carriers]
         self.turntable = 0.0
         self.executed: list[ExecutedMove] = []
         self.received = 0
@@ -359,7 +360,7 @@ class ControllerSimulator:
             self._version = dg.version
             self._handle(dg, peer)
 
-    _version = 2
+    _version = VERSION  # the version of the request being answered
 
     def _live(self) -> bool:
         """A session is open and was used (or its move ran) less than ``session_idle_s`` ago."""
@@ -375,7 +376,7 @@ class ControllerSimulator:
                 return True
             self._active = time.monotonic()
             return False
-        move = dg.payload if isinstance(dg.payload, Move) else Move(0.0, 0.0, 0.0, 0.0)
+        move = dg.payload if isinstance(dg.payload, Move) else no_move(dg.version)
         if dg.session in self._issued:
             if peer != self._issued[dg.session]:
                 self.stats["wrong_address"] += 1
@@ -470,19 +471,37 @@ class ControllerSimulator:
         move = dg.payload
         assert isinstance(move, Move)
         ws = self.workspace
-        try:
-            x, y, _ = camera1_position(ws, move.cam1_pan, move.cam1_tilt)
-            (_, ty, _), _ = camera2_position(ws, move.cam2_pan)
-        except WorkspaceError as e:
-            return Datagram(MsgType.REJECTED, dg.session, dg.seq, Rejected(move, RejectCode.WORKSPACE, str(e)))
+        carriers = ws.carriers
+
+        def reject(code: int, reason: str) -> Datagram:
+            return Datagram(MsgType.REJECTED, dg.session, dg.seq, Rejected(move, code, reason))
+
+        if len(move.cameras) > len(carriers):
+            return reject(RejectCode.BAD_REQUEST, f"a move of {len(move.cameras)} cameras: this rig has "
+                                                  f"{len(carriers)}")
+        if dg.version <= 2 and [type(c) for c in carriers[:2]] != [Gantry, Track]:
+            return reject(RejectCode.BAD_REQUEST, f"protocol version {dg.version} moves a gantry camera 1 and a "
+                                                  f"track camera 2; this rig needs version 3")
+        axes = []
+        for i, (c, (pan, tilt)) in enumerate(zip(carriers, move.cameras)):
+            try:
+                eye, _ = c.place(ws.object_xyz, pan, tilt, camera=i)
+            except WorkspaceError as e:
+                reason = str(e) if str(e).startswith("camera") else f"camera {i + 1}: {e}"
+                return reject(RejectCode.WORKSPACE, reason)
+            axes.append(c.axes(eye))
         table = move.turntable % (2 * math.pi)
-        dist = max(math.hypot(x - self.gantry[0], y - self.gantry[1]), abs(ty - self.track_y))
+        dist = max([math.hypot(*(a - b for a, b in zip(new, old))) for new, old in zip(axes, self.axes)] or [0.0])
         dturn = abs(math.remainder(table - self.turntable, 2 * math.pi))
         sim_s = max(dist / self.linear_speed, dturn / self.turntable_speed)
         self._duration_s = sim_s * self.time_scale
-        self.gantry = (_quantise(x, LINEAR_RESOLUTION_M), _quantise(y, LINEAR_RESOLUTION_M))
-        self.track_y = _quantise(ty, LINEAR_RESOLUTION_M)
+        for i, a in enumerate(axes):
+            self.axes[i] = tuple(_quantise(v, LINEAR_RESOLUTION_M) for v in a)
         self.turntable = _quantise(table, 2 * math.pi / TURNTABLE_COUNTS) % (2 * math.pi)
-        reply = InPosition(move, self.gantry[0], self.gantry[1], self.track_y, self.turntable)
+        if dg.version <= 2:  # the thesis rig's motor coordinates: gantry (x, y), track (y,)
+            reached = tuple(self.axes[:2])
+        else:
+            reached = tuple(c.eye(a) for c, a in zip(carriers, self.axes[:len(move.cameras)]))
+        reply = InPosition(move, reached, self.turntable)
         self.executed.append(ExecutedMove(dg.session, dg.seq, move, reply))
         return Datagram(MsgType.IN_POSITION, dg.session, dg.seq, reply)

@@ -3,21 +3,22 @@
 :class:`HardwareRig` (thesis ch. 6):
 
 * ``move(configuration)`` looks up the planner angles of each camera's
-  position in the :class:`.positions.CameraTable`, sends camera-1 pan/tilt,
-  camera-2 pan and the turn-table angle to the motion controller over UDP
-  (:class:`.udp_link.ControllerLink`), waits for ``IN_POSITION`` (the capture
-  signal, §6.6), then points each pan-tilt unit (a :class:`.pan_tilt.PanTilt`,
-  by default :class:`.ptu.PTU`) from the *achieved* camera position at the object:
+  position in the :class:`..geometry.positions.CameraTable`, sends every camera's
+  pan and tilt and the turn-table angle to the motion controller over UDP
+  (:class:`..devices.udp_link.ControllerLink`), waits for ``IN_POSITION`` (the capture
+  signal, §6.6), then points each pan-tilt unit (a :class:`..devices.pan_tilt.PanTilt`,
+  by default :class:`..devices.pan_tilt_drivers.ptu_d46.PTU`) from the *achieved*
+  camera position (each carrier's, as the controller reports it) at the object:
   ``az = atan2(dx, dy)``, ``el = atan2(dz, hypot(dx, dy))`` with
   ``d = object - eye``, turned into PTU angles by the mount
   (:class:`.config.PTUConfig`).
-* ``capture()`` reads one frame per camera (:mod:`.camera`), only after the rig
+* ``capture()`` reads one frame per camera (:mod:`..devices.camera`), only after the rig
   reported in position.
 * ``reset(object, pose)`` turns the turn-table to ``360 deg * pose / n_poses``;
   placing the object is a person's job on a real rig (``on_reset`` callback).
 
 A pan-tilt unit whose device disappears during a move (USB unplug, power
-cycle: :class:`.pan_tilt.PanTiltConnectionError`) is reconnected: the rig tries
+cycle: :class:`..devices.pan_tilt.PanTiltConnectionError`) is reconnected: the rig tries
 its ``port`` and the paths matching its ``reconnect_glob`` (not those of the
 other units) with a backoff from ``RECONNECT_FIRST_DELAY_S`` doubling up to
 ``RECONNECT_MAX_DELAY_S``, for at most the unit's ``reconnect_s``
@@ -27,13 +28,13 @@ the speed and repeats the interrupted pointing once.  Each success is logged
 and recorded in :attr:`HardwareRig.reconnects`; a unit that is not back in
 time, or is lost again in the repeat, fails the move with one ``RigError``.
 A camera that delivers no frame at all during ``capture()``
-(:class:`.camera.CameraLostError`: unplugged, stream dropped) is reopened
+(:class:`..devices.camera.CameraLostError`: unplugged, stream dropped) is reopened
 the same way for up to its ``reconnect_s`` (``[[camera]]`` key) and read
 again; that too is recorded in :attr:`HardwareRig.reconnects`.
 
 :class:`SimulatedHardwareRig` runs the same code path against the device
-simulators (:class:`.ptu_sim.PTUSimulator` on ptys,
-:class:`.controller_sim.ControllerSimulator` on 127.0.0.1) and renders each
+simulators (:class:`..sim.ptu_sim.PTUSimulator` on ptys,
+:class:`..sim.controller_sim.ControllerSimulator` on 127.0.0.1) and renders each
 camera's image with a renderer (duck-typed like ``SyntheticRig``:
 ``reset(object, pose, occluders)`` and ``render_at(camera, eye) -> (uint8 image,
 occluded fraction)``) at the eye position the controller reported, after
@@ -51,13 +52,14 @@ from typing import Any, Callable, Protocol, Sequence, runtime_checkable
 
 import numpy as np
 
-from .camera import CameraError, CameraLostError, ImageSequenceCamera, VideoCamera
+from ..devices.camera import CameraError, CameraLostError, ImageSequenceCamera, VideoCamera
 from .config import CameraConfig, ConfigError, RigConfig, load_config
-from .kinematics import line_of_sight, ptu_angles  # re-exported: the angle functions used to live here
-from .pan_tilt import PanTilt, PanTiltConnectionError, PanTiltError, open_pan_tilt
-from .positions import CameraTable
-from .rig import Capture, RigError
-from .udp_link import ControllerLink, LinkError, MoveResult
+from ..geometry.kinematics import line_of_sight, ptu_angles  # re-exported: the angle functions used to live here
+from ..devices.pan_tilt import PanTilt, PanTiltConnectionError, PanTiltError, open_pan_tilt
+from ..geometry.positions import CameraTable
+from ..rigs.rig import Capture, RigError
+from ..devices.datagram import Move
+from ..devices.udp_link import ControllerLink, LinkError, MoveResult
 
 __all__ = [
     "HardwareRig",
@@ -114,7 +116,7 @@ def _check_config(configuration: Sequence[int], positions: tuple[int, ...]) -> t
 
 
 class HardwareRig:
-    """A real rig (1 or 2 cameras on PTUs, gantry / track / turn-table on a UDP controller).
+    """A real rig (n cameras on PTUs on their carriers, and a turn-table, on a UDP controller).
 
     Args:
         config: a :class:`.config.RigConfig` (``load_config("rig.toml")``) or a path.
@@ -209,14 +211,11 @@ class HardwareRig:
         cfg = _check_config(configuration, self.positions)
         self.in_position = False
         views = [self.table.views[i][v] for i, v in enumerate(cfg)]
-        cam2_pan = views[1].pan if len(views) > 1 else 0.0
         try:
-            res = self.link.move(views[0].pan, views[0].tilt, cam2_pan, self._turntable)
+            res = self.link.move(Move(tuple((v.pan, v.tilt) for v in views), self._turntable))
         except LinkError as e:
             raise RigError(f"motion controller: move to configuration {cfg} failed: {e}") from e
-        ws = self.table.workspace
-        eyes = [(res.gantry_xy[0], res.gantry_xy[1], ws.cam1_z), (ws.cam2_x, res.track_y, ws.cam2_z)]
-        self.eyes = eyes[: len(cfg)]
+        self.eyes = list(res.eyes(self.table.carriers))[: len(cfg)]
         try:
             self._point()
         except _UnitLost as lost:  # the device vanished: bring it back, then point once more
@@ -382,9 +381,9 @@ class SimulatedHardwareRig(HardwareRig):
         *,
         pointing_tolerance_deg: float = 0.5,
     ):
-        from .controller_sim import ControllerSimulator
-        from .positions import default_table
-        from .ptu_sim import PTUSimulator
+        from ..sim.controller_sim import ControllerSimulator
+        from ..geometry.positions import default_table
+        from ..sim.ptu_sim import PTUSimulator
 
         if config is None:
             config = RigConfig("simulated", default_table())
@@ -479,7 +478,7 @@ def rig_from_config(config: RigConfig | str, renderer: Renderer | None = None) -
     if config.kind == "hardware":
         return HardwareRig(config)
     if renderer is None:
-        from .synthetic import SyntheticRig  # deferred: pybullet is heavy and optional
+        from ..render.synthetic import SyntheticRig  # deferred: pybullet is heavy and optional
 
         renderer = SyntheticRig(config.table)
     return SimulatedHardwareRig(renderer, config)

@@ -12,7 +12,7 @@ from typing import Sequence
 
 import numpy as np
 
-from ..dbformat import read_folder
+from ...dbformat import read_folder
 from .rig import Capture, RigError, SeededCaptures
 
 __all__ = ["DatasetRig"]
