@@ -131,7 +131,7 @@ def test_black_level_threshold():
 def test_persistent_failure_is_a_clear_error():
     fake = FakeCapture([])
     cam = VideoCamera(3, capture_factory=lambda s: fake, retries=4)
-    with pytest.raises(CameraError, match="camera 3: no usable frame after 5 attempts: VideoCapture.read returned no frame"):
+    with pytest.raises(CameraError, match="source 3: no usable frame after 5 attempts: VideoCapture.read returned no frame"):
         cam.read()
     assert fake.reads == 5
     cam.close()

@@ -127,7 +127,7 @@ def test_capture_needs_in_position(rig):
         rig.capture()
 
 
-@pytest.mark.parametrize("cfg,match", [((0,), "2 cameras"), ((32, 0), "camera 1 position 32"), ((0, -1), "camera 2"),
+@pytest.mark.parametrize("cfg,match", [((0,), "2 cameras"), ((32, 0), "camera 0 position 32"), ((0, -1), "camera 1"),
                                        (("a", 0), "not a sequence")])
 def test_bad_configuration(rig, cfg, match, unchecked):
     with unchecked(), pytest.raises(RigError, match=match):  # ("a", 0): the rig's guard, not the checker
@@ -142,7 +142,7 @@ def test_bad_pose(rig):
 def test_ptu_fault_during_move_is_a_rig_error_and_the_rig_recovers(rig):
     rig.move((0, 0))
     rig.ptu_sims[1].inject("drop")
-    with pytest.raises(RigError, match="camera 2.*PTU command '[PT]P"):
+    with pytest.raises(RigError, match="camera 1.*PTU command '[PT]P"):
         rig.move((9, 6))
     assert not rig.in_position
     rig.move((9, 6))
@@ -162,7 +162,7 @@ def test_silent_controller_is_a_rig_error_and_the_rig_recovers(rig):
 def test_misaimed_camera_is_caught_at_capture(rig):
     rig.move((4, 2))
     rig.ptus[0].move_by(tilt=2.0)  # someone nudged the unit
-    with pytest.raises(RigError, match="camera 1 points 2.0. deg away"):
+    with pytest.raises(RigError, match="camera 0 points 2.0. deg away"):
         rig.capture()
 
 
@@ -219,7 +219,7 @@ def test_camera_error_becomes_a_rig_error_naming_the_camera(hardware):
     rig.move((3, 2))
     assert [i.shape for i in rig.capture().images] == [(H, W), (H, W)]
     cams[1].fail = True
-    with pytest.raises(RigError, match=r"^camera 2: no usable frame after 4 tries") as e:
+    with pytest.raises(RigError, match=r"^camera 1: no usable frame after 4 tries") as e:
         rig.capture()
     assert isinstance(e.value.__cause__, CameraError)
     cams[1].fail = False
@@ -339,7 +339,7 @@ def write(tmp_path, text):
         ('kind = "simulated"\n[simulation.faults]\nloss = 2.0\n', "loss = 2.0"),
         # in the file's units (degrees), naming the entry (issue 32, finding 6: it said radians)
         ('kind = "simulated"\n[table]\ncamera1 = [[0, 5]]\n',
-         r"\[table\]: camera1\[0\] = \[0, 5\] deg: camera 1 tilt = 5 deg is outside the workspace limits \[10, 89\] deg$"),
+         r"\[table\]: camera1\[0\] = \[0, 5\] deg: camera 0 tilt = 5 deg is outside the workspace limits \[10, 89\] deg$"),
         ('kind = "simulated"\n[[camera]]\nkind = "ir"\n', "kind = 'ir'"),
         ("kind = = 1\n", "not valid TOML"),
     ],

@@ -120,7 +120,7 @@ def test_a_bad_number_names_the_file_the_section_and_the_key(tmp_path, section, 
 
 def test_a_camera2_pan_outside_the_workspace_is_reported_in_degrees(tmp_path):
     path = write(tmp_path, 'kind = "simulated"\n[table]\ncamera1 = [[0, 30]]\ncamera2 = [0, 95]\n')
-    with pytest.raises(ConfigError, match=r"\[table\]: camera2\[1\] = 95 deg: camera 2 pan = 95 deg must lie in "
+    with pytest.raises(ConfigError, match=r"\[table\]: camera2\[1\] = 95 deg: camera 1 pan = 95 deg must lie in "
                                           r"\(-90, 90\) deg$"):
         load_config(path)
     path = write(tmp_path, 'kind = "simulated"\n[table]\ncamera1 = [[0, 30]]\n[table.workspace]\ngantry_x = [1, -1]\n')
@@ -154,7 +154,7 @@ gantry_y = [-5, 5]
         assert rig.in_position
     # without [[ptu]] entries the default mounts are checked the same way
     path = write(tmp_path, 'kind = "simulated"\n' + table)
-    with pytest.raises(ConfigError, match=r"the default mount of camera 1 would have to tilt to 33 deg"):
+    with pytest.raises(ConfigError, match=r"the default mount of camera 0 would have to tilt to 33 deg"):
         load_config(path)
 
 

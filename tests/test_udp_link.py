@@ -66,13 +66,13 @@ def test_moves_report_the_kinematics_positions():
 
 def test_workspace_violation_is_rejected_not_retried():
     with ControllerSimulator(time_scale=0.001) as sim, ControllerLink(sim.address, timeout=0.2, retries=3) as link:
-        with pytest.raises(ControllerRejected, match="camera 1 tilt") as e:
+        with pytest.raises(ControllerRejected, match="camera 0 tilt") as e:
             link.move(Move(((0.0, math.radians(5.0)), (0.0, 0.0)), 0.0))  # tilt below the 10 deg limit
         assert e.value.code == 1
         with pytest.raises(ControllerRejected, match="track y"):
             link.move(Move(((0.0, math.radians(45)), (math.radians(80), 0.0)), 0.0))  # track runs out
         assert link.stats["sent"] == 1 + 2 and not sim.executed  # the HELLO, then each move once
-        with pytest.raises(ValueError, match="camera 1 tilt"):
+        with pytest.raises(ValueError, match="camera 0 tilt"):
             link.move(Move(((0.0, math.nan), (0.0, 0.0)), 0.0))
         assert link.stats["sent"] == 3
 

@@ -132,7 +132,7 @@ class _Retrying:
                 continue
             return img
         error = CameraLostError if self._device and not grabbed else CameraError
-        raise error(f"camera {self._name()}: no usable frame after {self.retries + 1} attempts: {why}")
+        raise error(f"source {self._name()}: no usable frame after {self.retries + 1} attempts: {why}")
 
 
 class VideoCamera(_Retrying):
@@ -180,14 +180,14 @@ class VideoCamera(_Retrying):
         self._closed = False
         cap = self._factory(self.source)
         if cap is None or not cap.isOpened():
-            raise CameraLostError(f"camera {self.source!r}: VideoCapture could not open it")
+            raise CameraLostError(f"video source {self.source!r}: VideoCapture could not open it")
         self._cap = cap
 
     def _grab(self):
         if self._cap is None:
             if self._closed:
-                raise CameraError(f"camera {self.source!r} is closed")
-            raise CameraLostError(f"camera {self.source!r} is not open (the last reopen failed)")
+                raise CameraError(f"video source {self.source!r} is closed")
+            raise CameraLostError(f"video source {self.source!r} is not open (the last reopen failed)")
         try:
             ok, frame = self._cap.read()
         except cv2.error as e:

@@ -156,7 +156,7 @@ class MoveResult:
 
 def _angles(move: Move) -> list[tuple[str, float]]:
     """(name, value) of every angle of ``move``, for messages."""
-    named = [(f"camera {i + 1} {axis}", v)
+    named = [(f"camera {i} {axis}", v)
              for i, cam in enumerate(move.cameras) for axis, v in zip(("pan", "tilt"), cam)]
     return named + [("turntable", move.turntable)]
 

@@ -154,15 +154,15 @@ class Gantry:
 
     def validate(self, target: Point, camera: int) -> None:
         if self.z <= target[2]:
-            raise WorkspaceError(f"camera {camera + 1} must fly above the object (gantry z > object z)")
+            raise WorkspaceError(f"camera {camera} must fly above the object (gantry z > object z)")
         lo, hi = (math.degrees(v) for v in self.tilt_range)
         if not 0 < lo <= hi < 90:
-            raise WorkspaceError(f"camera {camera + 1}: tilt range [{lo:g}, {hi:g}] deg must lie in (0, 90) deg")
+            raise WorkspaceError(f"camera {camera}: tilt range [{lo:g}, {hi:g}] deg must lie in (0, 90) deg")
 
     def place(self, target: Point, pan: float, tilt: float, *, camera: int = 0,
               check: bool = True) -> tuple[Point, float]:
         if check:
-            _check(f"camera {camera + 1} tilt", tilt, self.tilt_range, angle=True)
+            _check(f"camera {camera} tilt", tilt, self.tilt_range, angle=True)
         xo, yo, zo = target
         d = (self.z - zo) / math.tan(tilt)
         x = xo + d * math.sin(pan)
@@ -211,13 +211,13 @@ class Track:
 
     def validate(self, target: Point, camera: int) -> None:
         if abs(self.x - target[0]) < 1e-9:
-            raise WorkspaceError(f"camera {camera + 1}'s track must not pass through the object (track x != object x)")
+            raise WorkspaceError(f"camera {camera}'s track must not pass through the object (track x != object x)")
 
     def place(self, target: Point, pan: float, tilt: float = 0.0, *, camera: int = 0,
               check: bool = True) -> tuple[Point, float]:
         """``tilt`` is not used: on a track the pan fixes the eye."""
         if check and not (-math.pi / 2 < pan < math.pi / 2):
-            raise WorkspaceError(f"camera {camera + 1} pan = {math.degrees(pan):.4g} deg must lie in (-90, 90) deg")
+            raise WorkspaceError(f"camera {camera} pan = {math.degrees(pan):.4g} deg must lie in (-90, 90) deg")
         xo, yo, zo = target
         dx, dz = self.x - xo, self.z - zo
         y = yo + dx * math.tan(pan)
@@ -266,14 +266,14 @@ class Workspace:
 
     def carrier(self, camera: int) -> Carrier:
         if not 0 <= camera < len(self.carriers):
-            raise WorkspaceError(f"camera {camera + 1}: the workspace has carriers for {len(self.carriers)} cameras")
+            raise WorkspaceError(f"camera {camera}: the workspace has carriers for {len(self.carriers)} cameras")
         return self.carriers[camera]
 
 
 def _thesis(ws: Workspace, camera: int, kind: type):
     c = ws.carrier(camera)
     if not isinstance(c, kind):
-        raise WorkspaceError(f"camera {camera + 1} rides a {c.kind}, not a {kind.kind}")
+        raise WorkspaceError(f"camera {camera} rides a {c.kind}, not a {kind.kind}")
     return c
 
 

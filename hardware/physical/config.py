@@ -247,7 +247,7 @@ class RigConfig:
                         break
             if bad:
                 v, view, axis, a, lo, hi = bad[0]
-                where = f"[[ptu]] #{i + 1}" if self.ptus else f"the default mount of camera {i + 1}"
+                where = f"[[ptu]] #{i + 1}" if self.ptus else f"the default mount of camera {i}"
                 at = entry_text(self.table.carriers[i], view)
                 more = f" (and {len(bad) - 1} more position(s))" if len(bad) > 1 else ""
                 raise ConfigError(

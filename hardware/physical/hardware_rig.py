@@ -111,7 +111,7 @@ def _check_config(configuration: Sequence[int], positions: tuple[int, ...]) -> t
         raise RigError(f"configuration {cfg} has {len(cfg)} entries; the rig has {len(positions)} cameras")
     for i, (v, n) in enumerate(zip(cfg, positions)):
         if not 0 <= v < n:
-            raise RigError(f"camera {i + 1} position {v} is outside 0..{n - 1}")
+            raise RigError(f"camera {i} position {v} is outside 0..{n - 1}")
     return cfg
 
 
@@ -242,7 +242,7 @@ class HardwareRig:
         except PanTiltConnectionError as e:
             raise _UnitLost(i, e) from e
         except PanTiltError as e:
-            raise RigError(f"pan-tilt unit of camera {i + 1}: {e}") from e
+            raise RigError(f"pan-tilt unit of camera {i}: {e}") from e
 
     def _ports(self, i: int) -> list[str]:
         """Where unit ``i`` may come back: its ``port``, then the ``reconnect_glob`` matches
@@ -257,7 +257,7 @@ class HardwareRig:
     def _reconnect(self, i: int, error: PanTiltConnectionError) -> None:
         """Reopen unit ``i`` with a bounded backoff; one ``RigError`` if it is not back in time."""
         unit, limit = self.ptus[i], self.config.ptu(i).reconnect_s
-        log.warning("pan-tilt unit of camera %d lost its device (%s); reconnecting for up to %.3g s", i + 1, error, limit)
+        log.warning("pan-tilt unit of camera %d lost its device (%s); reconnecting for up to %.3g s", i, error, limit)
         t0 = time.monotonic()
         deadline, delay, attempts, last = t0 + limit, RECONNECT_FIRST_DELAY_S, 0, error
         tried: list[str] = []
@@ -274,21 +274,21 @@ class HardwareRig:
                 done = Reconnect(i, url, time.monotonic() - t0, attempts)
                 self.reconnects.append(done)
                 log.warning("pan-tilt unit of camera %d is back on %s after %.3f s (%d attempts)",
-                            i + 1, url, done.seconds, attempts)
+                            i, url, done.seconds, attempts)
                 return
             left = deadline - time.monotonic()
             if left <= 0:
                 unit.close()
                 where = ", ".join(dict.fromkeys(tried)) or "no port to try (set [[ptu]] port or reconnect_glob)"
                 raise RigError(
-                    f"pan-tilt unit of camera {i + 1}: lost its device and it did not come back within "
+                    f"pan-tilt unit of camera {i}: lost its device and it did not come back within "
                     f"reconnect_s = {limit:.3g} s ({attempts} attempts on {where}); last error: {last}"
                 ) from error
             time.sleep(min(delay, left))
             delay = min(2.0 * delay, RECONNECT_MAX_DELAY_S)
 
     def capture(self) -> Capture:
-        """One ``uint8 [H, W]`` image per camera, camera 1 first (occluded
+        """One ``uint8 [H, W]`` image per camera, camera 0 first (occluded
         fractions are unknown on real images)."""
         if not self.in_position:
             raise RigError("capture() before the rig reported in position: call move() first")
@@ -299,7 +299,7 @@ class HardwareRig:
             except CameraLostError as e:  # the device is gone: reopen it, bounded, and read once more
                 img = self._reconnect_camera(i, cam, e)
             except CameraError as e:
-                raise RigError(f"camera {i + 1}: {e}") from e
+                raise RigError(f"camera {i}: {e}") from e
             images.append(self._checked_image(i, img))
         return Capture.of(images)
 
@@ -311,8 +311,8 @@ class HardwareRig:
         limit = c.reconnect_s
         if reopen is None or limit <= 0:
             why = "it cannot be reopened" if reopen is None else "reconnect_s = 0"
-            raise RigError(f"camera {i + 1}: {error} ({why})") from error
-        log.warning("camera %d delivers no frame (%s); reopening it for up to %.3g s", i + 1, error, limit)
+            raise RigError(f"camera {i}: {error} ({why})") from error
+        log.warning("camera %d delivers no frame (%s); reopening it for up to %.3g s", i, error, limit)
         t0 = time.monotonic()
         deadline, delay, attempts, last = t0 + limit, RECONNECT_FIRST_DELAY_S, 0, error
         while True:
@@ -325,11 +325,11 @@ class HardwareRig:
             else:
                 done = Reconnect(i, str(getattr(cam, "source", "")), time.monotonic() - t0, attempts, "camera")
                 self.reconnects.append(done)
-                log.warning("camera %d is back after %.3f s (%d attempts)", i + 1, done.seconds, attempts)
+                log.warning("camera %d is back after %.3f s (%d attempts)", i, done.seconds, attempts)
                 return img
             left = deadline - time.monotonic()
             if left <= 0:
-                raise RigError(f"camera {i + 1}: lost its device and it did not come back within reconnect_s = "
+                raise RigError(f"camera {i}: lost its device and it did not come back within reconnect_s = "
                                f"{limit:.3g} s ({attempts} attempts); last error: {last}") from error
             time.sleep(min(delay, left))
             delay = min(2.0 * delay, RECONNECT_MAX_DELAY_S)
@@ -341,7 +341,7 @@ class HardwareRig:
     def _checked_image(self, i: int, img: np.ndarray) -> np.ndarray:
         if not isinstance(img, np.ndarray) or img.dtype != np.uint8 or img.shape != self.image_shape:
             raise RigError(
-                f"camera {i + 1} delivered {getattr(img, 'dtype', type(img))} {getattr(img, 'shape', '')};"
+                f"camera {i} delivered {getattr(img, 'dtype', type(img))} {getattr(img, 'shape', '')};"
                 f" expected uint8 {self.image_shape}"
             )
         return img
@@ -455,13 +455,13 @@ class SimulatedHardwareRig(HardwareRig):
             try:
                 pan, tilt = unit.position()
             except PanTiltError as e:
-                raise RigError(f"pan-tilt unit of camera {i + 1}: {e}") from e
+                raise RigError(f"pan-tilt unit of camera {i}: {e}") from e
             want = np.asarray(ws.object_xyz, float) - np.asarray(eye, float)
             want /= np.linalg.norm(want)
             have = line_of_sight(pan, tilt, self.config.ptu(i))
             err = math.degrees(math.acos(float(np.clip(want @ have, -1.0, 1.0))))
             if err > self.pointing_tolerance_deg:
-                raise RigError(f"camera {i + 1} points {err:.2f} deg away from the object (PTU at {pan:.3f}, {tilt:.3f} deg)")
+                raise RigError(f"camera {i} points {err:.2f} deg away from the object (PTU at {pan:.3f}, {tilt:.3f} deg)")
             img, frac = self.renderer.render_at(i, eye)
             images.append(self._checked_image(i, img))
             occl.append(float(frac))

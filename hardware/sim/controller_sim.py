@@ -487,7 +487,7 @@ class ControllerSimulator:
             try:
                 eye, _ = c.place(ws.object_xyz, pan, tilt, camera=i)
             except WorkspaceError as e:
-                reason = str(e) if str(e).startswith("camera") else f"camera {i + 1}: {e}"
+                reason = str(e) if str(e).startswith("camera") else f"camera {i}: {e}"
                 return reject(RejectCode.WORKSPACE, reason)
             axes.append(c.axes(eye))
         table = move.turntable % (2 * math.pi)
