@@ -76,13 +76,13 @@ def check_field_types(obj) -> None:
             raise ValueError(f"{f.name} must be {what}, got {one_line(repr(v), 80)}")
 
 
-#: integer fields of :class:`jaxrecog.experiments.Settings` and their smallest value
+#: integer fields of :class:`jaxrecog.campaigns.Settings` and their smallest value
 _AT_LEAST = {"samples": 1, "batch": 1, "n_components": 1, "min_per_stratum": 1, "max_steps": 1}
 
 
 def check_settings(obj) -> None:
     """:func:`check_field_types`, then the ranges of the
-    :class:`~jaxrecog.experiments.Settings` fields not checked elsewhere
+    :class:`~jaxrecog.campaigns.Settings` fields not checked elsewhere
     (counts >= 1, the seed, ``p_threshold``, ``transition``, ``capture_noise``;
     a field left ``None`` is not checked here)."""
     check_field_types(obj)

@@ -30,7 +30,7 @@ from pathlib import Path
 
 import jax.random as jr
 
-from jaxrecog import experiments as ex
+from jaxrecog import campaigns as ex
 from jaxrecog.campaign import run_campaign
 from jaxrecog.motion import check_weight, rig_travel_times, with_motion_cost
 from jaxrecog.plots import save_png
@@ -51,7 +51,7 @@ def sweep(settings: ex.Settings, case: str = "i", planner: str = "mi-class", lam
     rigs = ex.rig_pool(settings, c.cameras, seed=settings.seed)
     specs = ex.case_trials(c, settings, rigs[0], model.n_objects, model.n_poses)
     travel = rig_travel_times(rigs[0])
-    base = ex.make_recognizer(model, planner, settings, travel)
+    base = ex.campaign_recognizer(model, planner, settings, travel)
     rows = []
     for lam in lambdas:
         rec = with_motion_cost(base, lam)

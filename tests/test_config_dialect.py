@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from jaxrecog import cli
-from jaxrecog import experiments as ex
+from jaxrecog import campaigns as ex
 from jaxrecog._config import OPTION_FIELDS, ConfigFileError
 from jaxrecog.cli import _apply_config, build_parser, subparsers
 

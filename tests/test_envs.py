@@ -16,7 +16,7 @@ from gymnasium.utils.env_checker import check_env
 from jaxrecog import save_model, train_model, write_database
 from jaxrecog.campaign import plan_trials
 from jaxrecog.envs import ENV_ID, ActiveRecognitionEnv, PlannerPolicy, confident_errors, env_vs_campaign
-from jaxrecog.experiments import Settings
+from jaxrecog.campaigns import Settings
 from jaxrecog.hardware import DatasetRig
 from builders import make_database, moving_database
 
@@ -257,7 +257,7 @@ def _bad_reset_options(TrialSpec):
 
 def test_import_jaxrecog_works_without_gymnasium():
     code = ("import sys; sys.modules['gymnasium'] = None\n"
-            "import jaxrecog, jaxrecog.experiments, jaxrecog.envs\n"
+            "import jaxrecog, jaxrecog.campaigns, jaxrecog.envs\n"
             "from jaxrecog.envs import FunctionalEnv\n"
             "try:\n    jaxrecog.envs.ActiveRecognitionEnv\nexcept ImportError as e:\n    print('ERR', e)\n")
     p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)

@@ -24,7 +24,7 @@ import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
-from jaxrecog import experiments as ex
+from jaxrecog import campaigns as ex
 from jaxrecog.cli import main
 from jaxrecog.cli._common import UsageError
 from jaxrecog.modelfile import ModelFileError

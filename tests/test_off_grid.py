@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from jaxrecog import experiments as ex
+from jaxrecog import campaigns as ex
 from jaxrecog.campaign import plan_trials
 from jaxrecog.hardware.synthetic import OffGrid
 from jaxrecog.results import TrialResult, TrialStore
@@ -43,10 +43,10 @@ def test_yaw_zero_and_no_jitter_reproduce_the_on_grid_captures():
 def test_run_id_ignores_zero_off_grid(tmp_path):
     model = tmp_path / "m.npz"
     model.write_bytes(b"model bytes")
-    base = ex._run_id(ex.Settings(), model)
-    assert ex._run_id(ex.Settings(off_grid_deg=0, off_grid_eye=0.0, off_grid_light=0.0), model) == base
-    assert ex._run_id(ex.case_settings(ex.CASES["i"], ex.Settings()), model) == base
-    assert ex._run_id(ex.case_settings(ex.CASES["jitter"], ex.Settings()), model) != base
+    base = ex.naming.run_id(ex.Settings(), model)
+    assert ex.naming.run_id(ex.Settings(off_grid_deg=0, off_grid_eye=0.0, off_grid_light=0.0), model) == base
+    assert ex.naming.run_id(ex.case_settings(ex.CASES["i"], ex.Settings()), model) == base
+    assert ex.naming.run_id(ex.case_settings(ex.CASES["jitter"], ex.Settings()), model) != base
 
 
 def test_yaw_offsets_are_a_function_of_the_trial():

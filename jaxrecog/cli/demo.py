@@ -9,7 +9,7 @@ import cv2
 import jax.random as jr
 import numpy as np
 
-from .. import experiments as ex  # as a module: tests stub its prepare / run_case / run_trace
+from .. import campaigns  # as a module: tests stub its prepare / run_case / run_trace
 from .. import plots
 from ..modelfile import load_model
 from ..planners import make_planner
@@ -49,12 +49,12 @@ def run(args) -> int:
     values = {"workdir": str(out / "work"), "trials_per_object": args.trials, "seed": args.seed,
               "stride": args.stride, **QUICK}
     settings = make_settings(values, "demo")
-    prepared = ex.prepare(settings, progress=progress_bars(), databases=("DB1", "DB2"))
+    prepared = campaigns.prepare(settings, progress=progress_bars(), databases=("DB1", "DB2"))
     print(f"database and DB1/DB2 models ready in {time.perf_counter() - t0:.0f} s ({settings.workdir})")
     for kind, path in sorted(prepared.models.items()):
         print(f"{kind} model:")
         print(model_report(path))
-    report = ex.run_case("iii", settings, planners=list(args.planners), progress=progress_bars(), prepared=prepared)
+    report = campaigns.run_case("iii", settings, planners=list(args.planners), progress=progress_bars(), prepared=prepared)
     print(report.markdown())
     written = write_report(report, "iii", out)
     written += trace_plot(settings, out, planner=args.planners[0], prepared=prepared)

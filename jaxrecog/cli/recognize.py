@@ -10,7 +10,7 @@ import numpy as np
 from .. import plots
 from ..driver import StepRecord, TrialSpec, run_trials
 from ..counts import CountsMismatchError, check_counts
-from ..experiments import CAPTURE_NOISE, occluder_factory  # the thesis-case boards (first views occluded)
+from ..scene import CAPTURE_NOISE, occluder_factory  # the thesis-case boards (first views occluded)
 from ..hardware import Capture, DatasetRig, Noise, rig_from_config
 from ..modelfile import load_model
 from ..motion import MotionCost, rig_travel_times

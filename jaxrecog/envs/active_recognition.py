@@ -208,12 +208,12 @@ class ActiveRecognitionEnv(_Base):
     Args:
         model: a :class:`~jaxrecog.SensorModel`, a model file, or ``None``
             (synthetic rigs: the case's model from
-            :func:`jaxrecog.experiments.prepare` with ``settings``).
+            :func:`jaxrecog.campaigns.prepare` with ``settings``).
         rig: ``"synthetic"``, ``"dataset:FOLDER"``, ``"hardware-sim"`` or a
             ``Rig`` object (:mod:`jaxrecog.envs.rigs`).
         case: ``"clean"`` or ``"occluded"`` (cardboard occluders per episode,
             placed as in the thesis campaigns).
-        settings: :class:`jaxrecog.experiments.Settings`: the synthetic rig's
+        settings: :class:`jaxrecog.campaigns.Settings`: the synthetic rig's
             table (``stride``), capture noise and work folder, and the
             defaults of ``p_threshold``, ``max_steps``, ``transition`` and the
             planners' Monte Carlo sizes (``samples``, ``min_per_stratum``,
@@ -254,7 +254,7 @@ class ActiveRecognitionEnv(_Base):
         rho: float = 0.9,
         render_mode: str | None = None,
     ):
-        from ..experiments import Settings
+        from ..campaigns import Settings
 
         _check_not_forked()
         self.settings = settings if settings is not None else Settings()
