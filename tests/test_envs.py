@@ -17,7 +17,7 @@ from jaxrecog import save_model, train_model, write_database
 from jaxrecog.campaign import plan_trials
 from jaxrecog.envs import ENV_ID, ActiveRecognitionEnv, PlannerPolicy, confident_errors, env_vs_campaign
 from jaxrecog.campaigns import Settings
-from jaxrecog.hardware import DatasetRig
+from jaxrecog.hardware import Capture, DatasetRig
 from builders import make_database, moving_database
 
 #: a small Monte Carlo size: the planners' tables build in a moment
@@ -309,3 +309,54 @@ def test_a_rig_error_mid_episode_loses_nothing(moving):
     assert np.array_equal(env._obs()["belief"], before[2])
     obs, *_ = env.step({"action": other, "prediction": np.zeros(6, np.float32)})
     assert env.configuration == (other,) and env.views == 2
+
+
+class _FarRig:
+    """The env's rig with every capture turned into an image no class explains
+    (a quarter of the capture plus a ramp): the adaptive scale weakens its evidence."""
+
+    def __init__(self, rig):
+        self.rig = rig
+
+    def __getattr__(self, name):
+        return getattr(self.rig, name)
+
+    def capture(self):
+        cap = self.rig.capture()
+        ramp = np.arange(cap.images.shape[-1])[None, None, :] * 6
+        return Capture(np.clip(np.asarray(cap.images, np.int32) // 4 + ramp, 1, 255).astype(np.uint8), cap.occluded)
+
+
+def _recognizer_beliefs(env, recognizer):
+    """``(env beliefs, recognizer beliefs)`` over an episode of two image sets,
+    the env moved where the recognizer's step says."""
+    obs, _ = env.reset(seed=3)
+    state = recognizer.init(config=env.configuration)
+    got, want = [], []
+    for t in range(2):
+        state, dec = recognizer.step(state, obs["images"], jr.PRNGKey(t), trace=True)
+        got.append(env.class_belief)
+        want.append(np.asarray(dec.trace.class_probs))
+        if t == 0:
+            blind = np.full(env.n_classes, 1.0 / env.n_classes, np.float32)
+            obs, *_ = env.step({"action": np.int64(dec.next_index), "prediction": blind})
+    return np.array(got), np.array(want)
+
+
+def test_the_env_belief_is_the_recognizers_with_the_adaptive_scale(moving):
+    """Issue 29: the env's belief update is the recognizer's own, so
+    ``settings.adaptive_scale`` weakens an unexplained capture's evidence in
+    the env as in a campaign (it was ignored: the plain update)."""
+    from jaxrecog.recipes import THESIS
+    from jaxrecog.recognizer_factory import make_recognizer
+
+    settings = Settings(samples=64, min_per_stratum=2, adaptive_scale=32.0)
+    env = ActiveRecognitionEnv(moving["model"], _FarRig(DatasetRig(moving["db"], seed=0)), settings=settings)
+    adaptive = make_recognizer(moving["model"], "random", recipe=THESIS.replace(adaptive_scale=32.0))
+    got, want = _recognizer_beliefs(env, adaptive)
+    np.testing.assert_allclose(got, want, atol=1e-5)
+    plain = make_recognizer(moving["model"], "random")
+    _, thesis = _recognizer_beliefs(env, plain)
+    assert np.abs(thesis - want).max() > 0.05  # the scale changes the belief: the test can tell them apart
+    # the policy's recognizer is built with the same settings
+    assert PlannerPolicy("random", env).recognizer.adaptive_scale == 32.0
