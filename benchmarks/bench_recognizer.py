@@ -238,7 +238,7 @@ def main(argv=None) -> int:
 
     out = {
         "machine": {"platform": platform.platform(), "cpus": os.cpu_count(), "jax": jax.__version__, "backend": jax.default_backend()},
-        "settings": {k: str(v) for k, v in dataclasses.asdict(settings).items()},
+        "settings": {k: str(v) for k, v in settings.flat().items()},
         "step_latency": latency,
         "campaign": campaign,
         "accuracy": accuracy,

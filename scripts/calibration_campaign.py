@@ -167,7 +167,7 @@ def main(argv=None) -> int:
     (out / f"{stem}.md").write_text(table + "\n")
     (out / f"{stem}.json").write_text(json.dumps(
         {"metrics": metrics, "calibration": info.to_dict(), "settings": {
-            **{k: (str(v) if isinstance(v, Path) else v) for k, v in dataclasses.asdict(settings).items()},
+            **{k: (str(v) if isinstance(v, Path) else v) for k, v in settings.flat().items()},
             "case": case.name, "planner": args.planner, "perturb": dataclasses.asdict(perturb)}}, indent=1))
     print(f"wrote {png} and {out / stem}.{{md,json}} ({time.perf_counter() - t0:.0f} s)")
     return 0

@@ -164,7 +164,7 @@ def sweep(settings: ex.Settings, *, angles=ANGLES, planners=PLANNERS, databases=
         "occluder_size": list(SWEEP_OCCLUDER_SIZE),
         "occluder_offset": list(SWEEP_OCCLUDER_OFFSET),
         "off_grid_rule": "angle A: yaw U(-A, A) per trial, eye offset 0.002 A and light jitter 0.01 A per capture",
-        "settings": {k: (str(v) if isinstance(v, Path) else v) for k, v in dataclasses.asdict(settings).items()},
+        "settings": {k: (str(v) if isinstance(v, Path) else v) for k, v in settings.flat().items()},
         "seconds": timing,
         **rows,
     }

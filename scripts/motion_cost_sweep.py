@@ -22,7 +22,6 @@ trials, not the thesis protocol)::
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import sys
 import time
@@ -77,7 +76,7 @@ def sweep(settings: ex.Settings, case: str = "i", planner: str = "mi-class", lam
         "planner": planner,
         "positions": list(model.positions),
         "lambda_units": "planner score per second (nats/s for MI)",
-        "settings": {k: (str(v) if isinstance(v, Path) else v) for k, v in dataclasses.asdict(settings).items()},
+        "settings": {k: (str(v) if isinstance(v, Path) else v) for k, v in settings.flat().items()},
         "rows": rows,
     }
 

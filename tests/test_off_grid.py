@@ -35,7 +35,7 @@ def test_yaw_zero_and_no_jitter_reproduce_the_on_grid_captures():
     # the trial lists of a zero bound are today's (no draw: yaw_offset None)
     assert plan_trials(8, 4, (4, 1), 3, seed=5) == plan_trials(8, 4, (4, 1), 3, seed=5, yaw_deg=0.0)
     # and the run ids of on-grid settings are unchanged by the new fields
-    fields = {k: v for k, v in dataclasses.asdict(ex.Settings()).items()}
+    fields = ex.Settings().flat()
     assert fields["off_grid_deg"] is None
     assert ex.case_settings(ex.CASES["i"], ex.Settings()).off_grid_deg == 0.0
 

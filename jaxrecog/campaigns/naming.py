@@ -44,7 +44,8 @@ _LATER_RUN_DEFAULTS = {"adaptive_scale": 1.0, "min_views": 1}
 
 def training_defaults() -> dict:
     """The default of every training field (:data:`TRAINING_FIELDS`)."""
-    return {f.name: f.default for f in dataclasses.fields(Settings) if f.name in TRAINING_FIELDS}
+    defaults = Settings.defaults()
+    return {k: defaults[k] for k in TRAINING_FIELDS}
 
 
 def training_extra(settings: Settings) -> dict:
@@ -124,7 +125,7 @@ def run_id(settings: Settings, model_path: Path | str) -> str:
     the planner: the settings (but :data:`RUN_ID_IGNORED`) and the model
     file's bytes.  Trial stores are named by it, so a resumed campaign never
     mixes trials run under other settings or another model."""
-    fields = {k: v for k, v in dataclasses.asdict(settings).items() if k not in RUN_ID_IGNORED}
+    fields = {k: v for k, v in settings.flat().items() if k not in RUN_ID_IGNORED}
     for k in _LATER_RUN_FIELDS:
         if not fields[k]:
             del fields[k]

@@ -59,7 +59,7 @@ class CaseReport:
     def to_json(self) -> dict:
         return {
             "case": dataclasses.asdict(self.case),
-            "settings": {k: (str(v) if isinstance(v, Path) else v) for k, v in dataclasses.asdict(self.settings).items()},
+            "settings": {k: (str(v) if isinstance(v, Path) else v) for k, v in self.settings.flat().items()},
             "tables": {p: table_json(r) for p, r in self.rows.items()},
             "seconds": self.seconds,
         }

@@ -108,7 +108,7 @@ def _recipe_fields() -> dict[str, Key]:
 def _settings_fields() -> dict[str, Key]:
     from ..campaigns import Settings
 
-    return {f.name: Key("any", "jaxrecog.campaigns.Settings." + f.name) for f in dataclasses.fields(Settings)}
+    return {name: Key("any", "jaxrecog.campaigns.Settings." + name) for name in Settings.FIELDS}
 
 
 def _schemas() -> dict[str, dict[str, Key]]:

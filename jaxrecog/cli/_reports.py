@@ -3,7 +3,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 import json
 from pathlib import Path
 from typing import Any
@@ -23,7 +22,7 @@ QUICK = {"samples": 256, "min_per_stratum": 2, "samples_per_image": 30, "n_compo
 
 def make_settings(values: dict[str, Any], where: str) -> campaigns.Settings:
     """``campaigns.Settings(**values)``; an unknown name is a usage error naming ``where``."""
-    known = {f.name for f in dataclasses.fields(campaigns.Settings)}
+    known = set(campaigns.Settings.FIELDS)
     bad = sorted(set(values) - known)
     if bad:
         raise UsageError(problem_message(f"{where}: unknown setting(s) (known: {', '.join(sorted(known))})", bad))

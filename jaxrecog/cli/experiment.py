@@ -45,7 +45,7 @@ DESCRIPTION = ("Run a recognition campaign as in thesis chapter 7 and write the 
 
 #: Settings fields an [experiment] table of ``--config`` may give besides the
 #: options (cli._apply_config): those without an option arrive as ``args.config_fields``.
-CONFIG_FIELDS = tuple(f.name for f in dataclasses.fields(campaigns.Settings))
+CONFIG_FIELDS = campaigns.Settings.FIELDS
 #: An experiment file's own keys besides the Settings fields and their option names.
 FILE_KEYS = ("case", "rig", "model", "planners")
 
@@ -329,12 +329,11 @@ def config_text(r: _Resolved) -> str:
             planners = None  # the campaign's own load of the model reports it
     if planners is not None:
         lines.append(f"planners = {_toml_value(list(planners))}")
-    for f in dataclasses.fields(r.settings):
-        v = getattr(r.settings, f.name)
-        if f.name == "likelihood_options":
+    for name, v in r.settings.flat().items():
+        if name == "likelihood_options":
             v = dict(v)
         text = _toml_value(v)
-        lines.append(f"# {f.name}: not set (the case's)" if text is None else f"{f.name} = {text}")
+        lines.append(f"# {name}: not set (the case's)" if text is None else f"{name} = {text}")
     return "\n".join(lines) + "\n"
 
 
@@ -369,7 +368,7 @@ def _report(args) -> tuple[dict, str]:
 
 
 def _settings_doc(settings) -> dict[str, Any]:
-    return {f.name: getattr(settings, f.name) for f in dataclasses.fields(settings)}
+    return settings.flat()
 
 
 def _planner_doc(report, planner: str) -> dict[str, Any]:
