@@ -18,7 +18,7 @@ from jaxrecog.campaign import plan_trials
 from jaxrecog.envs import ENV_ID, ActiveRecognitionEnv, PlannerPolicy, confident_errors, env_vs_campaign
 from jaxrecog.campaigns import Settings
 from jaxrecog.hardware import Capture, DatasetRig
-from builders import make_database, moving_database
+from builders import env_and_recognizer_beliefs, make_database, moving_database
 
 #: a small Monte Carlo size: the planners' tables build in a moment
 SMALL = Settings(samples=64, min_per_stratum=2)
@@ -327,22 +327,6 @@ class _FarRig:
         return Capture(np.clip(np.asarray(cap.images, np.int32) // 4 + ramp, 1, 255).astype(np.uint8), cap.occluded)
 
 
-def _recognizer_beliefs(env, recognizer):
-    """``(env beliefs, recognizer beliefs)`` over an episode of two image sets,
-    the env moved where the recognizer's step says."""
-    obs, _ = env.reset(seed=3)
-    state = recognizer.init(config=env.configuration)
-    got, want = [], []
-    for t in range(2):
-        state, dec = recognizer.step(state, obs["images"], jr.PRNGKey(t), trace=True)
-        got.append(env.class_belief)
-        want.append(np.asarray(dec.trace.class_probs))
-        if t == 0:
-            blind = np.full(env.n_classes, 1.0 / env.n_classes, np.float32)
-            obs, *_ = env.step({"action": np.int64(dec.next_index), "prediction": blind})
-    return np.array(got), np.array(want)
-
-
 def test_the_env_belief_is_the_recognizers_with_the_adaptive_scale(moving):
     """Issue 29: the env's belief update is the recognizer's own, so
     ``settings.adaptive_scale`` weakens an unexplained capture's evidence in
@@ -353,10 +337,10 @@ def test_the_env_belief_is_the_recognizers_with_the_adaptive_scale(moving):
     settings = Settings(samples=64, min_per_stratum=2, adaptive_scale=32.0)
     env = ActiveRecognitionEnv(moving["model"], _FarRig(DatasetRig(moving["db"], seed=0)), settings=settings)
     adaptive = make_recognizer(moving["model"], "random", recipe=THESIS.replace(adaptive_scale=32.0))
-    got, want = _recognizer_beliefs(env, adaptive)
+    got, want = env_and_recognizer_beliefs(env, adaptive)
     np.testing.assert_allclose(got, want, atol=1e-5)
     plain = make_recognizer(moving["model"], "random")
-    _, thesis = _recognizer_beliefs(env, plain)
+    _, thesis = env_and_recognizer_beliefs(env, plain)
     assert np.abs(thesis - want).max() > 0.05  # the scale changes the belief: the test can tell them apart
     # the policy's recognizer is built with the same settings
     assert PlannerPolicy("random", env).recognizer.adaptive_scale == 32.0

@@ -10,7 +10,7 @@ import jax.numpy as jnp
 import jax.random as jr
 import numpy as np
 import pytest
-from builders import make_database, odd_images, steps_stay_finite
+from builders import env_and_recognizer_beliefs, make_database, odd_images, steps_stay_finite
 from compiles import count_compiles
 from scipy.special import logsumexp
 
@@ -175,17 +175,7 @@ def test_the_env_keeps_the_shared_view_component(models):
     def beliefs(shared: bool):
         env = ActiveRecognitionEnv(models["mix"], DatasetRig(models["db"], seed=0),
                                    settings=Settings(samples=64, min_per_stratum=2, shared_view=True))
-        rec = Recognizer(models["mix"], FixedPlanner(1), shared_view=shared)
-        obs, _ = env.reset(seed=5)
-        state, got, want = rec.init(config=env.configuration), [], []
-        for t in range(2):
-            state, dec = rec.step(state, obs["images"], jr.PRNGKey(t), trace=True)
-            got.append(env.class_belief)
-            want.append(np.asarray(dec.trace.class_probs))
-            if t == 0:
-                blind = np.full(env.n_classes, 1.0 / env.n_classes, np.float32)
-                obs, *_ = env.step({"action": np.int64(dec.next_index), "prediction": blind})
-        return np.array(got), np.array(want)
+        return env_and_recognizer_beliefs(env, Recognizer(models["mix"], FixedPlanner(1), shared_view=shared), seed=5)
 
     got, want = beliefs(True)
     np.testing.assert_allclose(got, want, atol=1e-5)
