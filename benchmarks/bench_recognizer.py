@@ -15,7 +15,7 @@ time (``planner_median_ms``); issue 15: step ≤ 2 ms, planner ≤ 1 ms at regre
 the trained model, as ``bench_kernels.accuracy``).  The campaign defaults draw at least 8 samples
 per state stratum (``Settings.min_per_stratum``), 9216 a configuration for
 DB2; the MI step is timed at that and at the target's 1024 (J = 1).  Writes JSON (default out/bench/recognizer.json).
-Uses (and if needed creates) the models of ``jaxrecog.experiments.prepare``.
+Uses (and if needed creates) the models of ``jaxrecog.campaigns.prepare``.
 """
 
 from __future__ import annotations
@@ -40,7 +40,7 @@ from jaxrecog.cli._options import (given_likelihood_options, likelihood_choice, 
 from jaxrecog import kernels as K
 from jaxrecog.planners import samples_per_stratum
 from jaxrecog.recipes import RECIPES, DEFAULT_RECIPE
-from jaxrecog.experiments import CASES, Settings, case_model, make_recognizer, case_trials, make_rig, prepare, rig_pool
+from jaxrecog.campaigns import CASES, Settings, campaign_recognizer, case_model, case_trials, make_rig, prepare, rig_pool
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))  # test support (oracles, builders, compile counter) lives in tests/
 from compiles import count_compiles  # noqa: E402
@@ -53,7 +53,7 @@ DEFAULT_PLANNER = RECIPES[DEFAULT_RECIPE].planner
 def _warm_recognizer(model, planner: str, settings: Settings, images):
     """``(recognizer, state at (3, 2), compile seconds)`` after the first step
     and 10 more: the first calls after compiling touch fresh memory (~2x slower)."""
-    rec = make_recognizer(model, planner, settings)
+    rec = campaign_recognizer(model, planner, settings)
     state = rec.init(config=(3, 2))
     t0 = time.perf_counter()
     jax.block_until_ready(rec.step(state, images, jr.PRNGKey(0))[1])
@@ -213,7 +213,7 @@ def main(argv=None) -> int:
             rig.move(s.initial)
             rig.capture()
         render_first_s = time.perf_counter() - t0
-        rec = make_recognizer(model, "mi", settings)
+        rec = campaign_recognizer(model, "mi", settings)
         rigs = rig_pool(settings, seed=settings.seed)  # one rig per lockstep slot, as run_case does
         # warm-up: compiles the batched step, which the timed campaign (same
         # recognizer, same batch shape) then finds in jit's cache
@@ -238,7 +238,7 @@ def main(argv=None) -> int:
 
     out = {
         "machine": {"platform": platform.platform(), "cpus": os.cpu_count(), "jax": jax.__version__, "backend": jax.default_backend()},
-        "settings": {k: str(v) for k, v in dataclasses.asdict(settings).items()},
+        "settings": {k: str(v) for k, v in settings.flat().items()},
         "step_latency": latency,
         "campaign": campaign,
         "accuracy": accuracy,

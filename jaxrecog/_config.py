@@ -15,7 +15,7 @@ or underscores) as keys, plus an optional ``[global]`` table::
     planners = ["mi", "crlb", "random"]
 
 One configuration dialect (issue 31): an option whose name differs from the
-:class:`~jaxrecog.experiments.Settings` field it sets (:data:`OPTION_FIELDS`,
+:class:`~jaxrecog.campaigns.Settings` field it sets (:data:`OPTION_FIELDS`,
 e.g. ``trials`` <-> ``trials_per_object``) may be given under either name, here
 and in an experiment file; the same setting under both names is an error naming
 both.  A key the table does not know is an error naming the file, the table and
@@ -36,7 +36,7 @@ __all__ = ["ConfigFileError", "FIELD_OPTIONS", "LIKELIHOOD_OPTION_KEYS", "OPTION
            "read_toml", "resolve_keys", "section"]
 
 #: The one alias table: command-line option name (``dest``) -> the
-#: :class:`~jaxrecog.experiments.Settings` field it sets, where the two names
+#: :class:`~jaxrecog.campaigns.Settings` field it sets, where the two names
 #: differ.  Every other option of ``jaxrecog experiment`` that sets a field has
 #: the field's name (``samples``, ``seed``, ``stride``, ``min_views``, ...).
 OPTION_FIELDS: dict[str, str] = {

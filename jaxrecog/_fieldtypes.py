@@ -1,4 +1,4 @@
-"""Type checks of a settings dataclass's fields from their annotations.
+"""Type checks of settings from their annotations.
 
 A settings file (an experiment TOML) gives any TOML type for any field; the
 run-time type checker is off for users.  :func:`check_field_types` gives
@@ -11,10 +11,9 @@ a campaign with ``'<=' not supported between instances of 'int' and
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import os
-from typing import Any, Callable
+from typing import Any, Callable, Mapping
 
 import numpy as np
 
@@ -63,42 +62,44 @@ _RULES: dict[str, tuple[Callable[[Any], bool], str]] = {
 }
 
 
-def check_field_types(obj) -> None:
+def check_field_types(values: Mapping[str, Any], types: Mapping[str, str]) -> None:
     """Raise ``ValueError("FIELD must be WHAT, got VALUE")`` for the first
-    field of the dataclass ``obj`` whose value does not fit its annotation."""
-    for f in dataclasses.fields(obj):
-        rule = _RULES.get(f.type if isinstance(f.type, str) else getattr(f.type, "__name__", ""))
+    setting of ``values`` (in ``types``' order) whose value does not fit its
+    annotation ``types[name]`` (as written; one not in :data:`_RULES` is not checked)."""
+    for name, annotation in types.items():
+        rule = _RULES.get(annotation)
         if rule is None:
             continue
         check, what = rule
-        v = getattr(obj, f.name)
+        v = values[name]
         if not check(v):
-            raise ValueError(f"{f.name} must be {what}, got {one_line(repr(v), 80)}")
+            raise ValueError(f"{name} must be {what}, got {one_line(repr(v), 80)}")
 
 
-#: integer fields of :class:`jaxrecog.experiments.Settings` and their smallest value
+#: integer fields of :class:`jaxrecog.campaigns.Settings` and their smallest value
 _AT_LEAST = {"samples": 1, "batch": 1, "n_components": 1, "min_per_stratum": 1, "max_steps": 1}
 
 
-def check_settings(obj) -> None:
+def check_settings(values: Mapping[str, Any], types: Mapping[str, str]) -> None:
     """:func:`check_field_types`, then the ranges of the
-    :class:`~jaxrecog.experiments.Settings` fields not checked elsewhere
+    :class:`~jaxrecog.campaigns.Settings` fields not checked elsewhere
     (counts >= 1, the seed, ``p_threshold``, ``transition``, ``capture_noise``;
-    a field left ``None`` is not checked here)."""
-    check_field_types(obj)
+    a field left ``None`` is not checked here).  ``values``: the settings by
+    their flat names; ``types``: each one's annotation."""
+    check_field_types(values, types)
     for name, lo in _AT_LEAST.items():
-        v = getattr(obj, name, None)
+        v = values.get(name)
         if v is not None and v < lo:
             raise ValueError(f"{name} must be an integer >= {lo}, got {v!r}")
-    seed = getattr(obj, "seed", None)
+    seed = values.get("seed")
     if seed is not None and not 0 <= seed < 2**63:
         raise ValueError(f"seed must be an integer in 0..2**63-1, got {seed!r}")
-    p = getattr(obj, "p_threshold", None)
+    p = values.get("p_threshold")
     if p is not None and not 0.0 < p <= 1.0:
         raise ValueError(f"p_threshold must be a probability in (0, 1], got {p!r}")
-    t = getattr(obj, "transition", None)
+    t = values.get("transition")
     if t is not None and t not in ("uniform", "sticky"):
         raise ValueError(f"transition must be 'uniform' or 'sticky', got {one_line(repr(t), 80)}")
-    noise = getattr(obj, "capture_noise", None)
+    noise = values.get("capture_noise")
     if noise is not None and min(noise) < 0:
         raise ValueError(f"capture_noise (brightness, pixel sigma, max shift) must be >= 0, got {tuple(noise)!r}")

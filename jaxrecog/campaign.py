@@ -85,7 +85,7 @@ def run_campaign(
             several identical ones (one per lockstep slot: each trial's scene
             is then set up once; see :func:`jaxrecog.driver.run_trials`), or
             a :class:`~jaxrecog.hardware.rigs.rig_pool.RigPool` (e.g. rendering in
-            worker processes: :func:`jaxrecog.experiments.capture_pool`).
+            worker processes: :func:`jaxrecog.campaigns.capture_pool`).
         specs: from :func:`plan_trials`.
         key: PRNG key; trial ``t`` step ``n`` uses ``fold_in(fold_in(key, t), n)``.
         batch: trials run in lockstep (fixed, so the step compiles once).

@@ -346,9 +346,9 @@ def campaign_bars(
 
 
 def case_bars(report, path: str | os.PathLike, *, title: str | None = None) -> tuple[Path, Path]:
-    """:func:`campaign_bars` of a :class:`~jaxrecog.experiments.CaseReport`,
+    """:func:`campaign_bars` of a :class:`~jaxrecog.campaigns.CaseReport`,
     with the thesis's numbers as markers where the thesis has some
-    (:meth:`~jaxrecog.experiments.CaseReport.thesis_table`: a thesis case on
+    (:meth:`~jaxrecog.campaigns.CaseReport.thesis_table`: a thesis case on
     the full table); the title says the case, the stride and the trials."""
     rows = dict(report.rows)
     ref = {p: t for p in rows if (t := report.thesis_table(p)) is not None}

@@ -41,7 +41,7 @@ from .motion import MotionCost
 from .planners import Planner
 
 __all__ = ["Recognizer", "RecognizerState", "Decision", "StepTrace", "excluded_by_positions", "restrict_cameras", "image_features",
-           "check_min_views"]
+           "check_min_views", "initial_belief", "update_from_images", "view_marginal"]
 
 
 class RecognizerState(NamedTuple):
@@ -143,6 +143,56 @@ def excluded_by_positions(seen: Sequence[Bool[Array, " _V"]], positions: tuple[i
     return ConfigGrid(positions).combine(jnp.logical_or, lapsed, jnp.zeros(positions, bool))
 
 
+def initial_belief(model, shared_view: bool = False) -> K.Belief:
+    """The uniform belief of section 3.3 over the model's classes and levels;
+    with ``shared_view``, over the ``C * M`` extended classes (the mixture
+    weights as the prior of the view component, :mod:`jaxrecog.kernels.shared_latent`)."""
+    dtype = model.cameras[0].likelihood.dtype
+    prior = K.uniform_belief(model.n_objects * model.n_poses, tuple(len(model.levels) for _ in model.cameras),
+                             dtype=dtype)
+    if shared_view:
+        log_pm = K.shared_latent.prior_log_weights(model.likelihoods[0]).astype(dtype)
+        prior = K.shared_latent.extend(prior, log_pm)
+    return prior
+
+
+def update_from_images(model, prior: K.Belief, config: Int[ArrayLike, " n"], images: Real[ArrayLike, "n H W"], *,
+                       shared_view: bool = False, adaptive_scale: float = 1.0
+                       ) -> tuple[K.Belief, tuple[Float[Array, " _K"], ...], Bool[Array, ""], Bool[Array, ""]]:
+    """One image set's Bayes update of the belief (eq. 3.1): features
+    g_i = V_iᵀ(y_i/‖y_i‖ − x̄_i) (eq. 4.1-4.11), log p(g_i | c, k_i, v_i) per
+    camera (eq. 4.17-4.19) — per view component with ``shared_view``
+    (:mod:`jaxrecog.kernels.shared_latent`), weakened per capture with
+    ``adaptive_scale > 1`` (:mod:`jaxrecog.kernels.adaptive_scale`) — and the
+    update of ``prior``.  An unusable image leaves the belief unchanged.
+
+    Returns ``(posterior, features, ok, explained)``: the posterior in the
+    prior's own form (over ``C * M`` extended classes with ``shared_view``),
+    one ``[K_i]`` feature vector per camera, whether the update was used, and
+    whether some capture was explained (always true without the adaptive scale).
+    """
+    gs, usable = image_features(model, config, jnp.asarray(images))
+    explained = jnp.ones((), bool)
+    if shared_view:
+        logliks = K.shared_latent.component_log_likelihoods(gs, config, model.likelihoods)
+    elif adaptive_scale > 1.0:
+        logliks, explained = K.adaptive_scale.adaptive_camera_log_likelihoods(
+            gs, config, model.likelihoods, K.adaptive_scale.scale_grid(adaptive_scale))
+    else:
+        logliks = K.camera_log_likelihoods(gs, config, model.likelihoods)
+    posterior, info = K.update_with_info(prior, logliks, valid=usable)
+    return posterior, gs, info.ok, explained
+
+
+def view_marginal(model, belief: K.Belief, shared_view: bool = False) -> K.Belief:
+    """The belief over (class, levels): with ``shared_view`` the marginal of
+    one over the ``C * M`` extended classes (levels may carry a position axis,
+    :func:`~jaxrecog.kernels.transition_per_position`), else ``belief`` itself."""
+    if not shared_view:
+        return belief
+    return K.shared_latent.marginal(belief, K.shared_latent.shared_components(model.likelihoods))
+
+
 def check_min_views(min_views: int, max_steps: int) -> int:
     """``min_views`` as given, or a ``ValueError``: an integer in ``[1, max_steps]``."""
     if isinstance(min_views, bool) or not isinstance(min_views, int) or not 1 <= min_views <= max_steps:
@@ -237,7 +287,7 @@ class Recognizer(eqx.Module):
     def belief(self, prior: K.Belief) -> K.Belief:
         """The belief over (class, levels) of a state's ``prior`` (with
         ``shared_view``, its marginal over the view component; else itself)."""
-        return K.shared_latent.marginal(prior, self.n_view_components) if self.shared_view else prior
+        return view_marginal(self.model, prior, self.shared_view)
 
     @property
     def positions(self) -> tuple[int, ...]:
@@ -260,11 +310,7 @@ class Recognizer(eqx.Module):
         config = jnp.asarray(config, jnp.int32)
         if config.shape != (len(positions),):
             raise ValueError(f"config must give one position per camera ({len(positions)}), got shape {config.shape}")
-        dtype = self.model.cameras[0].likelihood.dtype
-        prior = K.uniform_belief(self.model.n_objects * self.model.n_poses, tuple(len(self.model.levels) for _ in positions), dtype=dtype)
-        if self.shared_view:
-            log_pm = K.shared_latent.prior_log_weights(self.model.likelihoods[0]).astype(dtype)
-            prior = K.shared_latent.extend(prior, log_pm)
+        prior = initial_belief(self.model, self.shared_view)
         return RecognizerState(prior, config, jnp.zeros((), jnp.int32), jnp.zeros((self.n_configs,), bool),
                                tuple(jnp.zeros((v,), bool) for v in positions), jnp.zeros((), jnp.int32))
 
@@ -296,18 +342,10 @@ class Recognizer(eqx.Module):
         """The body of :meth:`step` (traced inside its program)."""
         model = self.model
         positions = self.positions
-        gs, ok = image_features(model, state.config, jnp.asarray(images))
-        explained = jnp.ones((), bool)
-        if self.shared_view:
-            logliks = K.shared_latent.component_log_likelihoods(gs, state.config, model.likelihoods)
-        elif self.adaptive_scale > 1.0:
-            logliks, explained = K.adaptive_scale.adaptive_camera_log_likelihoods(
-                gs, state.config, model.likelihoods, K.adaptive_scale.scale_grid(self.adaptive_scale))
-        else:
-            logliks = K.camera_log_likelihoods(gs, state.config, model.likelihoods)
         # the state's own belief (over (c, m, k) with shared_view), and its
         # marginal over (c, k), which everything after the update reads
-        state_posterior, info = K.update_with_info(state.prior, logliks, valid=ok)
+        state_posterior, _, ok, explained = update_from_images(
+            model, state.prior, state.config, images, shared_view=self.shared_view, adaptive_scale=self.adaptive_scale)
         posterior = self.belief(state_posterior)
 
         pc = jnp.minimum(K.class_marginal(posterior), 1.0)   # exp of a float32 log-probability may round above 1
@@ -315,7 +353,7 @@ class Recognizer(eqx.Module):
         prob = pc[best]
         steps = state.steps + 1
         n_explained = (jnp.zeros((), jnp.int32) if state.explained is None else state.explained) \
-            + (explained & info.ok).astype(jnp.int32)
+            + (explained & ok).astype(jnp.int32)
         reached = prob >= self.p_threshold
         # with the adaptive scale only explained image sets count toward min_views
         views = n_explained if self.adaptive_scale > 1.0 else steps
@@ -375,7 +413,7 @@ class Recognizer(eqx.Module):
             reached=reached,
             next_config=next_config,
             next_index=nxt.astype(jnp.int32),
-            valid=info.ok,
+            valid=ok,
             trace=step_trace,
         )
         return new_state, decision

@@ -66,7 +66,7 @@ __all__ = [
 ]
 
 #: The sensor-model family trained when none is named (``jaxrecog train``,
-#: ``experiments.Settings``): the thesis's diagonal Gaussian (eq. 4.12).
+#: ``campaigns.Settings``): the thesis's diagonal Gaussian (eq. 4.12).
 #: docs/results.md ("Training against confident errors") gives the measured
 #: reason it stays the default: no other family wins every case.
 DEFAULT_LIKELIHOOD = "gaussian-diag"

@@ -4,7 +4,7 @@ view mixture (issue 18; not in the thesis).
 A view mixture (:mod:`.view_mixture`) explains a capture by one of ``M``
 components per class and level: ``m = 0`` the training view, ``m = 1 ..``
 the object turned by the database's jitter offsets, the *same* offsets at
-every position of every camera (``hardware.render_db.jitter_offsets``).
+every position of every camera (``hardware.render.render_db.jitter_offsets``).
 Marginalising ``m`` per capture, as ``log_density`` does, lets camera 1 pick
 the view turned +15° and camera 2 the one turned -15° for the same object in
 the same trial, and lets a camera that stays on its view count the same

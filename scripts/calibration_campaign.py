@@ -1,7 +1,7 @@
 #!/usr/bin/env python
 """Calibrated vs. uncalibrated recognizer, side by side, on the synthetic rig.
 
-1. ``experiments.prepare``: renders the training database and trains the
+1. ``campaigns.prepare``: renders the training database and trains the
    case's model (cached in ``--workdir``);
 2. renders a held-out ``calib`` database (views near the training views:
    object yaw, camera offset, lighting, capture noise; occluded when the case
@@ -34,7 +34,7 @@ from jaxrecog.cli._options import (given_likelihood_options, gray_range, likelih
 from jaxrecog.calibration_plots import reliability_plot
 from jaxrecog.campaign import run_campaign
 from jaxrecog.database import load_database
-from jaxrecog.experiments import CASES, Settings, make_recognizer, case_settings, case_trials, make_rig, prepare
+from jaxrecog.campaigns import CASES, Settings, campaign_recognizer, case_settings, case_trials, make_rig, prepare
 from jaxrecog.hardware import OccluderLayout, random_occluders
 from jaxrecog.hardware.render.occluders import OCCLUDER_OFFSET, OCCLUDER_SIZE
 from jaxrecog.hardware.geometry.positions import CameraTable
@@ -106,7 +106,7 @@ def main(argv=None) -> int:
     radius = object_radius(default_objects())
 
     def board_in_front(rng, camera, position):
-        """Like the campaigns' first board (experiments.occluder_factory), for a share of the views."""
+        """Like the campaigns' first board (jaxrecog.scene.occluder_factory), for a share of the views."""
         if rng.random() >= args.occluded_fraction:
             return None
         one = CameraTable(table.workspace, tuple((views[position if i == camera else 0],)
@@ -143,7 +143,7 @@ def main(argv=None) -> int:
     for label, model in models.items():
         rig = make_rig(settings, case.cameras, seed=settings.seed)      # same capture noise for both
         specs = case_trials(case, settings, rig, model.n_objects, model.n_poses)
-        rec = make_recognizer(model, args.planner, settings)
+        rec = campaign_recognizer(model, args.planner, settings)
         store = TrialStore(args.workdir / "trials" / (
             f"calib-{label}-case-{case.name}-{args.planner}-n{args.trials}-seed{args.seed}-v3"
             f"{tag if label == 'calibrated' else tag.split('-perl')[0].split('-perp')[0]}.jsonl"))
@@ -172,7 +172,7 @@ def main(argv=None) -> int:
     (out / f"{stem}.md").write_text(table + "\n")
     (out / f"{stem}.json").write_text(json.dumps(
         {"metrics": metrics, "calibration": info.to_dict(), "settings": {
-            **{k: (str(v) if isinstance(v, Path) else v) for k, v in dataclasses.asdict(settings).items()},
+            **{k: (str(v) if isinstance(v, Path) else v) for k, v in settings.flat().items()},
             "case": case.name, "planner": args.planner, "perturb": dataclasses.asdict(perturb)}}, indent=1))
     print(f"wrote {png} and {out / stem}.{{md,json}} ({time.perf_counter() - t0:.0f} s)")
     return 0

@@ -18,7 +18,7 @@ deterministic class-MI estimate, standing in for MI; and ``random``):
   trial's object turned ``U(-A, A)`` off its training pose, and per capture
   the eye offset ``0.002 A`` and light jitter ``0.01 A``
   (:class:`~jaxrecog.hardware.render.synthetic.OffGrid`; A = 20 is case ``jitter``,
-  :data:`jaxrecog.experiments.JITTER`).  A = 0 is case (i)'s on-grid capture.
+  :data:`jaxrecog.campaigns.JITTER`).  A = 0 is case (i)'s on-grid capture.
 
 Within one camera count every model and planner sees the same trials (poses,
 starts, boards, yaw offsets, capture noise).  Writes into ``--out``:
@@ -43,7 +43,8 @@ from pathlib import Path
 
 import jax.random as jr
 
-from jaxrecog import experiments as ex
+from jaxrecog import campaigns as ex
+from jaxrecog.scene import occluder_factory
 from jaxrecog.campaign import plan_trials, run_campaign
 from jaxrecog.metrics import expected_calibration_error
 from jaxrecog.plots import save_png
@@ -110,7 +111,7 @@ def sweep(settings: ex.Settings, *, angles=ANGLES, planners=PLANNERS, databases=
             rigs0 = ex.rig_pool(settings, cams, seed=settings.seed)
             specs = plan_trials(model0.n_objects, model0.n_poses, rigs0[0].positions, settings.trials_per_object,
                                 seed=settings.seed,
-                                occluders=ex.occluder_factory(rigs0[0], SWEEP_OCCLUDER_SIZE, SWEEP_OCCLUDER_OFFSET))
+                                occluders=occluder_factory(rigs0[0], SWEEP_OCCLUDER_SIZE, SWEEP_OCCLUDER_OFFSET))
             points.append(("occlusion", None, specs, settings, rigs0))
         if "off_grid" in axes:
             for a in angles:
@@ -126,7 +127,7 @@ def sweep(settings: ex.Settings, *, angles=ANGLES, planners=PLANNERS, databases=
 
             travel = rig_travel_times(points[0][4][0])
             for planner in planners:
-                rec = recognizers[(db, planner)] = ex.make_recognizer(model, planner, settings, travel)
+                rec = recognizers[(db, planner)] = ex.campaign_recognizer(model, planner, settings, travel)
                 for axis, x, specs, s, rigs in points:
                     t0 = time.perf_counter()
                     res = run_campaign(rec, rigs, specs, key=jr.PRNGKey(settings.seed + 1), batch=settings.batch,
@@ -163,7 +164,7 @@ def sweep(settings: ex.Settings, *, angles=ANGLES, planners=PLANNERS, databases=
         "occluder_size": list(SWEEP_OCCLUDER_SIZE),
         "occluder_offset": list(SWEEP_OCCLUDER_OFFSET),
         "off_grid_rule": "angle A: yaw U(-A, A) per trial, eye offset 0.002 A and light jitter 0.01 A per capture",
-        "settings": {k: (str(v) if isinstance(v, Path) else v) for k, v in dataclasses.asdict(settings).items()},
+        "settings": {k: (str(v) if isinstance(v, Path) else v) for k, v in settings.flat().items()},
         "seconds": timing,
         **rows,
     }

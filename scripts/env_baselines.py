@@ -6,7 +6,7 @@ run_campaign on the same trials.
     python scripts/env_baselines.py --case i --trials 2 --stride 8     # a smoke run
 
 For each planner (default mi, mi-class, crlb, random), the case's trials
-(:mod:`jaxrecog.experiments`: same poses, starts, occluders and capture
+(:mod:`jaxrecog.campaigns`: same poses, starts, occluders and capture
 noise) run once through ``ActiveRecognitionEnv`` with
 ``PlannerPolicy(planner)`` and once through ``run_campaign``; prints the
 average recognition rate, views, confident errors (wrong and stopped at
@@ -26,7 +26,7 @@ from pathlib import Path
 def build_parser() -> argparse.ArgumentParser:
     """The command line of this script (the docs tests parse the docs' commands with it)."""
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--case", default="i", help="a case of jaxrecog.experiments.CASES (default: i)")
+    p.add_argument("--case", default="i", help="a case of jaxrecog.campaigns.CASES (default: i)")
     p.add_argument("--planners", default="mi,mi-class,crlb,random")
     p.add_argument("--trials", type=int, default=100, help="trials per object (default: 100)")
     p.add_argument("--stride", type=int, default=1, help="every STRIDE-th position of each camera (default: 1)")
@@ -40,7 +40,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
 
-    from jaxrecog.experiments import CASES, Settings, case_model, case_trials, prepare
+    from jaxrecog.campaigns import CASES, Settings, case_model, case_trials, prepare
 
     if args.case not in CASES:
         print(f"env_baselines: unknown case {args.case!r}; choose one of {', '.join(CASES)}", file=sys.stderr)

@@ -29,7 +29,7 @@ import numpy as np
 
 from jaxrecog import load_database, train_model
 from jaxrecog.campaign import plan_trials, run_campaign
-from jaxrecog.experiments import CAPTURE_NOISE
+from jaxrecog.scene import CAPTURE_NOISE
 from jaxrecog.hardware import Noise, OccluderLayout, SyntheticRig, default_objects, random_occluders, render_database
 from jaxrecog.hardware.render.occluders import OCCLUDER_OFFSET, OCCLUDER_SIZE
 from jaxrecog.hardware.geometry.positions import CameraTable, default_table

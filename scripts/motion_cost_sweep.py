@@ -22,7 +22,6 @@ trials, not the thesis protocol)::
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import sys
 import time
@@ -30,7 +29,7 @@ from pathlib import Path
 
 import jax.random as jr
 
-from jaxrecog import experiments as ex
+from jaxrecog import campaigns as ex
 from jaxrecog.campaign import run_campaign
 from jaxrecog.motion import check_weight, rig_travel_times, with_motion_cost
 from jaxrecog.plots import save_png
@@ -51,7 +50,7 @@ def sweep(settings: ex.Settings, case: str = "i", planner: str = "mi-class", lam
     rigs = ex.rig_pool(settings, c.cameras, seed=settings.seed)
     specs = ex.case_trials(c, settings, rigs[0], model.n_objects, model.n_poses)
     travel = rig_travel_times(rigs[0])
-    base = ex.make_recognizer(model, planner, settings, travel)
+    base = ex.campaign_recognizer(model, planner, settings, travel)
     rows = []
     for lam in lambdas:
         rec = with_motion_cost(base, lam)
@@ -77,7 +76,7 @@ def sweep(settings: ex.Settings, case: str = "i", planner: str = "mi-class", lam
         "planner": planner,
         "positions": list(model.positions),
         "lambda_units": "planner score per second (nats/s for MI)",
-        "settings": {k: (str(v) if isinstance(v, Path) else v) for k, v in dataclasses.asdict(settings).items()},
+        "settings": {k: (str(v) if isinstance(v, Path) else v) for k, v in settings.flat().items()},
         "rows": rows,
     }
 

@@ -72,7 +72,7 @@ def main(argv=None) -> int:
     from stable_baselines3.common.callbacks import BaseCallback
 
     from jaxrecog.envs import FLAT_ENV_ID, PlannerPolicy
-    from jaxrecog.experiments import Settings
+    from jaxrecog.campaigns import Settings
 
     torch.set_num_threads(1)
     settings = Settings(workdir=args.workdir, stride=args.stride)

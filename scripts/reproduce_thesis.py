@@ -43,7 +43,7 @@ from jaxrecog.cli._options import (capture_options, capture_params, given_likeli
                                    likelihood_options, render_jitter_options, render_jitter_values,
                                    render_workers_option)
 from jaxrecog.metrics import campaign_metrics
-from jaxrecog.experiments import CASES, Settings, prepare, results_dir, run_case, run_trace
+from jaxrecog.campaigns import CASES, Settings, prepare, results_dir, run_case, run_trace
 
 #: Worker processes that render the campaigns' captures (``--render-workers``):
 #: one per core this process may use, at most 4; none on one core (a worker
@@ -160,7 +160,7 @@ def main(argv=None) -> int:
 def turntable_case(args) -> int:
     """``--case turntable`` / ``turntable-occluded``: render, train + calibrate
     (cached in WORKDIR), run the campaign, print and write its tables and metrics."""
-    from jaxrecog.experiments import run_turntable
+    from jaxrecog.campaigns import run_turntable
     from jaxrecog.metrics import campaign_metrics
 
     try:

@@ -5,7 +5,7 @@ and the uncalibrated model off and on the grid.  Run after
 ``scripts/reproduce_thesis.py --case turntable --objects 50 --workdir out/turntable``."""
 import time, os
 from pathlib import Path
-from jaxrecog.experiments import Settings, run_dataset
+from jaxrecog.campaigns import Settings, run_dataset
 from jaxrecog.hardware.render.random_objects import random_objects
 from jaxrecog.hardware.render.turntable import render_turntable
 from jaxrecog.metrics import campaign_metrics

@@ -95,7 +95,7 @@ def make_database(
     ``v + U(-view_offset, view_offset)``, labelled with the nearest ``v``:
     views the augmentation does not model); and ``n_jitter`` clean ``jitter``
     images of each, rendered at ``v + d`` for the alternating offsets ``d`` of
-    ``hardware.render_db.alternating_offsets(n_jitter, jitter_offset)``
+    ``hardware.render.render_db.alternating_offsets(n_jitter, jitter_offset)``
     (positions; the same offsets at every view, in the same order, as the
     rendered databases' view jitter)."""
     from jaxrecog.hardware.render.render_db import alternating_offsets
@@ -212,3 +212,23 @@ def odd_images(like: np.ndarray) -> np.ndarray:
     odd = np.full_like(like, 3)
     odd[:, :4] = 250
     return odd
+
+
+def env_and_recognizer_beliefs(env, recognizer, seed: int = 3, steps: int = 2):
+    """``(env beliefs, recognizer beliefs)``, each ``[steps, C]``: an episode
+    of ``env`` (reset with ``seed``) and ``recognizer`` stepped on the same
+    images, the env moved where the recognizer's step says (a blind prediction,
+    so the env never ends the episode)."""
+    import jax.random as jr
+
+    obs, _ = env.reset(seed=seed)
+    state = recognizer.init(config=env.configuration)
+    got, want = [], []
+    for t in range(steps):
+        state, dec = recognizer.step(state, obs["images"], jr.PRNGKey(t), trace=True)
+        got.append(env.class_belief)
+        want.append(np.asarray(dec.trace.class_probs))
+        if t + 1 < steps:
+            blind = np.full(env.n_classes, 1.0 / env.n_classes, np.float32)
+            obs, *_ = env.step({"action": np.int64(dec.next_index), "prediction": blind})
+    return np.array(got), np.array(want)

@@ -202,8 +202,8 @@ def small_db():
 def strided_database(tmp_path_factory) -> Path:
     """The thesis table at stride 8 (4 x 1 positions, 8 objects x 4 poses: 160
     images), rendered once per session by the product's own cache path
-    (``experiments.prepare``), for the end-to-end runs to start from."""
-    from jaxrecog.experiments import Settings, prepare
+    (``campaigns.prepare``), for the end-to-end runs to start from."""
+    from jaxrecog.campaigns import Settings, prepare
 
     work = tmp_path_factory.mktemp("strided")
     prepare(Settings(workdir=work, stride=8), databases=())
@@ -255,10 +255,10 @@ def _fake_results(M=2, n=3):
 
 @pytest.fixture
 def fake_experiments(monkeypatch, tiny):
-    """Stub ``experiments.prepare/run_case/run_trace`` (the real ones render the
+    """Stub ``campaigns.prepare/run_case/run_trace`` (the real ones render the
     1248-image thesis database); the CLI's wiring, files and plots are real.
     The stubs' arguments are recorded in the returned dict."""
-    from jaxrecog import experiments as ex
+    from jaxrecog import campaigns as ex
     from jaxrecog.results import summarize
 
     calls = {}

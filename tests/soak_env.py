@@ -57,7 +57,8 @@ def pybullet_clients(upto: int = 256) -> int:
 
 
 def make_rig(seed: int = 0):
-    from jaxrecog.experiments import CAPTURE_NOISE, Settings, rig_table
+    from jaxrecog.campaigns import Settings, rig_table
+    from jaxrecog.scene import CAPTURE_NOISE
     from jaxrecog.hardware import Noise, SyntheticRig, default_objects
 
     b, p, s = CAPTURE_NOISE
@@ -94,7 +95,7 @@ def soak(model, policy: str, steps: int, seed: int = 0) -> dict:
     """``steps`` env steps with ``policy`` ("random" or a planner name):
     counts of episodes, NaNs, and memory / pybullet clients along the way."""
     from jaxrecog.envs import ActiveRecognitionEnv, PlannerPolicy
-    from jaxrecog.experiments import Settings
+    from jaxrecog.campaigns import Settings
 
     clients0 = pybullet_clients()
     env = ActiveRecognitionEnv(model, make_rig(seed), case="occluded", settings=Settings(**SETTINGS),

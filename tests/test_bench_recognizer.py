@@ -7,7 +7,7 @@ import numpy as np
 from builders import random_sensor_model
 from clirun import script
 
-from jaxrecog.experiments import Settings
+from jaxrecog.campaigns import Settings
 
 
 def test_paired_step_ratio_times_both_models_alternately():

@@ -57,10 +57,12 @@ def test_kernels_import_nothing_from_jaxrecog_or_hardware():
 #   kernels  (kernels/)         imports nothing else of jaxrecog;
 #   core     (jaxrecog/*.py)    kernels; of hardware only the rig interface
 #                               (hardware/rigs/rig.py) at module level, the rest inside
-#                               functions; never cli or envs;
+#                               functions; never campaigns, cli or envs;
+#   campaigns (jaxrecog/campaigns/) core, kernels; hardware as the core may;
+#                               never cli or envs;
 #   hardware (hardware/)        of the rest only the leaf modules LEAVES; its
 #                               subpackages import one another along HARDWARE_AREAS;
-#   envs     (jaxrecog/envs/)   core, kernels, hardware; never cli;
+#   envs     (jaxrecog/envs/)   core, campaigns, kernels, hardware; never cli;
 #   cli      (jaxrecog/cli/)    anything; nothing imports it.
 
 PACKAGE_DIRS = {"jaxrecog": ROOT / "jaxrecog", "jaxrecog.kernels": ROOT / "kernels", "jaxrecog.hardware": ROOT / "hardware"}
@@ -163,7 +165,7 @@ def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
 
 def _layer(module: str) -> str:
     parts = module.split(".")
-    return parts[1] if len(parts) > 1 and parts[1] in ("kernels", "hardware", "cli", "envs") else "core"
+    return parts[1] if len(parts) > 1 and parts[1] in ("kernels", "hardware", "cli", "envs", "campaigns") else "core"
 
 
 def test_the_import_graph_is_complete_enough_to_trust():
@@ -173,6 +175,7 @@ def test_the_import_graph_is_complete_enough_to_trust():
     assert "jaxrecog.hardware.rigs.rig" in graph["jaxrecog.driver"]
     assert "jaxrecog.hardware.rigs.rig_pool" in graph["jaxrecog.driver"]  # inside run_trials
     assert "jaxrecog.hardware.rigs.rig_pool" not in _graph(module_level_only=True)["jaxrecog.driver"]
+    assert _layer("jaxrecog.campaigns.naming") == "campaigns" and "jaxrecog.campaigns.settings" in graph["jaxrecog.campaigns.naming"]
     assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
 
 
@@ -194,10 +197,13 @@ def test_layers_import_only_what_they_may():
                 continue
             if here == "kernels":
                 bad.append(f"{module} -> {target} (kernels import nothing else of jaxrecog)")
-            elif here == "core" and there in ("cli", "envs"):
+            elif here == "core" and there in ("cli", "envs", "campaigns"):
                 bad.append(f"{module} -> {target} (the core never imports the {there} layer)")
-            elif here == "core" and there == "hardware" and top and target not in ("jaxrecog.hardware.rigs.rig",):
-                bad.append(f"{module} -> {target} (at module level the core imports only hardware.rigs.rig)")
+            elif here == "campaigns" and there in ("cli", "envs"):
+                bad.append(f"{module} -> {target} (the campaigns never import the {there} layer)")
+            elif (here in ("core", "campaigns") and there == "hardware" and top
+                  and target not in ("jaxrecog.hardware.rigs.rig",)):
+                bad.append(f"{module} -> {target} (at module level the {here} imports only hardware.rigs.rig)")
             elif here == "hardware" and target not in LEAVES:
                 bad.append(f"{module} -> {target} (hardware imports only the leaf modules {sorted(LEAVES)})")
             elif here == "envs" and there == "cli":

@@ -635,7 +635,7 @@ def test_default_planner_is_the_model_recipes_everywhere():
     """`recognize`, `plan` and a dataset campaign take the planner from the
     model's recipe (no parser default); every recipe names a registered
     planner, and the thesis recipe's is planners.DEFAULT_PLANNER."""
-    from jaxrecog.experiments import DATASET_PLANNERS
+    from jaxrecog.campaigns import DATASET_PLANNERS
     from jaxrecog.planners import DEFAULT_PLANNER, PLANNERS
     from jaxrecog.recipes import RECIPES, THESIS
 

@@ -5,14 +5,13 @@ key names its near match, a setting given twice is an error naming both, and
 
 from __future__ import annotations
 
-import dataclasses
 import re
 from pathlib import Path
 
 import pytest
 
 from jaxrecog import cli
-from jaxrecog import experiments as ex
+from jaxrecog import campaigns as ex
 from jaxrecog._config import OPTION_FIELDS, ConfigFileError
 from jaxrecog.cli import _apply_config, build_parser, subparsers
 
@@ -33,7 +32,7 @@ def _error(capsys, *argv) -> str:
 
 def test_alias_table_covers_every_experiment_option_that_sets_a_field():
     dests = {a.dest for a in subparsers(build_parser())["experiment"]._actions if a.option_strings}
-    fields = {f.name for f in dataclasses.fields(ex.Settings)}
+    fields = set(ex.Settings.FIELDS)
     assert set(OPTION_FIELDS) <= dests and set(OPTION_FIELDS.values()) <= fields
     assert not set(OPTION_FIELDS) & fields and not set(OPTION_FIELDS.values()) & dests
 
@@ -86,8 +85,8 @@ def test_print_config_round_trips_and_every_run_writes_it(fake_experiments, tmp_
     text = _print_config(capsys, "ii", "--out", out, "--quick", "--stride", 8, "--planners", "mi", "random",
                          "--threshold", 0.9)
     assert "run_case" not in fake_experiments and not out.exists()  # nothing ran
-    for f in dataclasses.fields(ex.Settings):
-        assert re.search(rf"^#? ?{f.name}\b", text, re.M), f.name
+    for name in ex.Settings.FIELDS:
+        assert re.search(rf"^#? ?{name}\b", text, re.M), name
     first = tmp_path / "printed.toml"
     first.write_text(text)
     assert _print_config(capsys, first) == text

@@ -52,7 +52,7 @@ def test_recognize_on_a_database_with_other_poses_is_refused_before_any_step(fil
 
 
 def test_a_database_campaign_the_env_a_feature_bank_and_calibration_use_the_same_check(files):
-    from jaxrecog import experiments as ex
+    from jaxrecog import campaigns as ex
     from jaxrecog.calibration import CalibrationError, features_from_database
     from jaxrecog.envs import ActiveRecognitionEnv
     from jaxrecog.envs.functional import bank_from_database

@@ -16,9 +16,9 @@ from gymnasium.utils.env_checker import check_env
 from jaxrecog import save_model, train_model, write_database
 from jaxrecog.campaign import plan_trials
 from jaxrecog.envs import ENV_ID, ActiveRecognitionEnv, PlannerPolicy, confident_errors, env_vs_campaign
-from jaxrecog.experiments import Settings
-from jaxrecog.hardware import DatasetRig
-from builders import make_database, moving_database
+from jaxrecog.campaigns import Settings
+from jaxrecog.hardware import Capture, DatasetRig
+from builders import env_and_recognizer_beliefs, make_database, moving_database
 
 #: a small Monte Carlo size: the planners' tables build in a moment
 SMALL = Settings(samples=64, min_per_stratum=2)
@@ -257,7 +257,7 @@ def _bad_reset_options(TrialSpec):
 
 def test_import_jaxrecog_works_without_gymnasium():
     code = ("import sys; sys.modules['gymnasium'] = None\n"
-            "import jaxrecog, jaxrecog.experiments, jaxrecog.envs\n"
+            "import jaxrecog, jaxrecog.campaigns, jaxrecog.envs\n"
             "from jaxrecog.envs import FunctionalEnv\n"
             "try:\n    jaxrecog.envs.ActiveRecognitionEnv\nexcept ImportError as e:\n    print('ERR', e)\n")
     p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
@@ -309,3 +309,38 @@ def test_a_rig_error_mid_episode_loses_nothing(moving):
     assert np.array_equal(env._obs()["belief"], before[2])
     obs, *_ = env.step({"action": other, "prediction": np.zeros(6, np.float32)})
     assert env.configuration == (other,) and env.views == 2
+
+
+class _FarRig:
+    """The env's rig with every capture turned into an image no class explains
+    (a quarter of the capture plus a ramp): the adaptive scale weakens its evidence."""
+
+    def __init__(self, rig):
+        self.rig = rig
+
+    def __getattr__(self, name):
+        return getattr(self.rig, name)
+
+    def capture(self):
+        cap = self.rig.capture()
+        ramp = np.arange(cap.images.shape[-1])[None, None, :] * 6
+        return Capture(np.clip(np.asarray(cap.images, np.int32) // 4 + ramp, 1, 255).astype(np.uint8), cap.occluded)
+
+
+def test_the_env_belief_is_the_recognizers_with_the_adaptive_scale(moving):
+    """Issue 29: the env's belief update is the recognizer's own, so
+    ``settings.adaptive_scale`` weakens an unexplained capture's evidence in
+    the env as in a campaign (it was ignored: the plain update)."""
+    from jaxrecog.recipes import THESIS
+    from jaxrecog.recognizer_factory import make_recognizer
+
+    settings = Settings(samples=64, min_per_stratum=2, adaptive_scale=32.0)
+    env = ActiveRecognitionEnv(moving["model"], _FarRig(DatasetRig(moving["db"], seed=0)), settings=settings)
+    adaptive = make_recognizer(moving["model"], "random", recipe=THESIS.replace(adaptive_scale=32.0))
+    got, want = env_and_recognizer_beliefs(env, adaptive)
+    np.testing.assert_allclose(got, want, atol=1e-5)
+    plain = make_recognizer(moving["model"], "random")
+    _, thesis = env_and_recognizer_beliefs(env, plain)
+    assert np.abs(thesis - want).max() > 0.05  # the scale changes the belief: the test can tell them apart
+    # the policy's recognizer is built with the same settings
+    assert PlannerPolicy("random", env).recognizer.adaptive_scale == 32.0

@@ -22,7 +22,7 @@ from gymnasium.utils.env_checker import check_env
 
 from jaxrecog import save_model, train_model, write_database
 from jaxrecog.envs import AP_GYM, ENV_ID, FLAT_ENV_ID, ActiveRecognitionEnv, FlatActions
-from jaxrecog.experiments import Settings
+from jaxrecog.campaigns import Settings
 from jaxrecog.hardware import DatasetRig
 from builders import moving_database
 
@@ -180,7 +180,7 @@ def _script(body: str) -> str:
     return (f"import sys; sys.path.insert(0, {str(TESTS)!r})\n"
             "from builders import moving_database\n"
             "from jaxrecog import train_model\n"
-            "from jaxrecog.experiments import Settings\n"
+            "from jaxrecog.campaigns import Settings\n"
             "from jaxrecog.hardware import DatasetRig\n"
             "db = moving_database()\n"
             "model = train_model(db, kind='DB1', n_components=2, samples_per_image=10)\n"

@@ -75,7 +75,7 @@ def test_every_docs_block_prints_what_the_page_shows(docs_run):
 @pytest.mark.slow
 def test_synthetic_and_simulated_hardware_rigs_see_the_same_occluded_scene(docs_run):
     from jaxrecog.envs import ActiveRecognitionEnv, PlannerPolicy
-    from jaxrecog.experiments import Settings
+    from jaxrecog.campaigns import Settings
 
     settings = Settings(workdir=docs_run[0] / "out" / "envs-demo", stride=8)
     episodes = []

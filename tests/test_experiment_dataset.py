@@ -182,7 +182,7 @@ def test_the_shipped_example_experiment_file_is_valid(tmp_path, monkeypatch):
     from pathlib import Path
 
     from jaxrecog import cli
-    from jaxrecog import experiments as ex
+    from jaxrecog import campaigns as ex
 
     seen = {}
 

@@ -15,7 +15,6 @@ pinned with ``@example``.
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import math
 import re
@@ -24,7 +23,7 @@ import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
-from jaxrecog import experiments as ex
+from jaxrecog import campaigns as ex
 from jaxrecog.cli import main
 from jaxrecog.cli._common import UsageError
 from jaxrecog.modelfile import ModelFileError
@@ -32,7 +31,7 @@ from jaxrecog.modelfile import ModelFileError
 FUZZ = settings(max_examples=150, deadline=3000, derandomize=True, database=None,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
 
-FIELDS = [f.name for f in dataclasses.fields(ex.Settings)]
+FIELDS = list(ex.Settings.FIELDS)
 FILE_KEYS = ["case", "planners", "rig", "model"]
 
 

@@ -1,4 +1,4 @@
-"""Issue 18: ``experiments.Settings`` selects the likelihood and the capture
+"""Issue 18: ``campaigns.Settings`` selects the likelihood and the capture
 augmentation that ``prepare`` trains (the defaults keep the old model file
 names, cache keys and run ids), the shared CLI options reach them, and
 ``train_model(view_jitter=True)`` uses a database's ``jitter`` rows."""
@@ -13,7 +13,7 @@ import pytest
 from builders import make_database, write_synthetic_database
 
 from jaxrecog import ImageDatabase, cli, load_database, write_database
-from jaxrecog import experiments as ex
+from jaxrecog import campaigns as ex
 from jaxrecog.kernels import DiagonalGaussian, LowRankGaussian, StudentT
 from jaxrecog.modelfile import load_model, load_model_meta
 from jaxrecog.train import train_model
@@ -31,21 +31,21 @@ def test_default_settings_keep_model_names_cache_keys_and_run_ids(tmp_path):
     s = ex.Settings(workdir=tmp_path)
     assert ex.model_path(s, "DB2") == tmp_path / "model-db2-K20-S100-seed0.npz"
     assert ex.model_path(ex.Settings(workdir=tmp_path, stride=8), "DB1").name == "model-db1-stride8-K20-S100-seed0.npz"
-    assert ex._training_params(s, "DB2") == {"kind": "DB2", "K": 20, "samples_per_image": 100, "seed": 0}
+    assert ex.naming.training_params(s, "DB2") == {"kind": "DB2", "K": 20, "samples_per_image": 100, "seed": 0}
     # pinned against the formula before the likelihood / augmentation fields existed
     model = tmp_path / "m.npz"
     model.write_bytes(b"model")
-    assert ex._run_id(s, model) == "233947c420"
-    assert ex._run_id(ex.Settings(workdir="/x", stride=8, motion_cost=0.5), model) == "46afd2476c"
+    assert ex.naming.run_id(s, model) == "233947c420"
+    assert ex.naming.run_id(ex.Settings(workdir="/x", stride=8, motion_cost=0.5), model) == "46afd2476c"
     # min_views (added later): 1 keeps the digest, another value gets its own trials
-    assert ex._run_id(ex.Settings(workdir=tmp_path, min_views=1), model) == "233947c420"
-    assert ex._run_id(ex.Settings(workdir=tmp_path, min_views=2), model) != "233947c420"
+    assert ex.naming.run_id(ex.Settings(workdir=tmp_path, min_views=1), model) == "233947c420"
+    assert ex.naming.run_id(ex.Settings(workdir=tmp_path, min_views=2), model) != "233947c420"
     with pytest.raises(ValueError, match="min_views"):
         ex.Settings(workdir=tmp_path, min_views=8)
     # the default family under another of its names is the default
     for same in (ex.Settings(workdir=tmp_path, likelihood="diag"), ex.Settings(workdir=tmp_path, likelihood_options={})):
         assert same == s and ex.model_path(same, "DB2") == ex.model_path(s, "DB2")
-        assert ex._run_id(same, model) == "233947c420"
+        assert ex.naming.run_id(same, model) == "233947c420"
 
 
 def test_non_default_likelihood_or_augmentation_gets_its_own_names(tmp_path):
@@ -65,9 +65,9 @@ def test_non_default_likelihood_or_augmentation_gets_its_own_names(tmp_path):
     names = {ex.model_path(s, "DB2") for s in [base, *variants]}
     assert len(names) == len(variants) + 1
     assert ex.model_path(variants[0], "DB2").name.startswith("model-db2-K20-S100-seed0-student-t-")
-    assert len({ex._run_id(s, model) for s in [base, *variants]}) == len(variants) + 1
-    keys = [ex._training_params(s, "DB2") for s in variants]
-    assert all(k != ex._training_params(base, "DB2") for k in keys)
+    assert len({ex.naming.run_id(s, model) for s in [base, *variants]}) == len(variants) + 1
+    keys = [ex.naming.training_params(s, "DB2") for s in variants]
+    assert all(k != ex.naming.training_params(base, "DB2") for k in keys)
     assert keys[1]["likelihood"] == "student-t" and keys[1]["likelihood_options"] == {"nu": 5.0}
     assert keys[5]["augment"]["blur_sigma"] == [0.0, 1.0]
     # a field added later counts only when set: model files from before it match as they did
@@ -94,7 +94,7 @@ def _small_workdir(tmp_path) -> ex.Settings:
 def test_prepare_trains_the_selected_family_and_caches_it(tmp_path, monkeypatch):
     import dataclasses
 
-    import jaxrecog.train as train_mod
+    import jaxrecog.campaigns.preparation as train_mod  # where prepare calls train_model
 
     base = _small_workdir(tmp_path)
     seen = []
@@ -299,15 +299,15 @@ def test_interpolation_is_its_own_cache_key_and_linear_keeps_the_old_one(tmp_pat
     value is one line naming it."""
     import pytest
 
-    from jaxrecog import experiments as ex
+    from jaxrecog import campaigns as ex
 
     base = dict(workdir=tmp_path, likelihood="view-mixture", interpolate=2)
-    linear = ex._training_params(ex.Settings(**base), "DB1")
-    flow = ex._training_params(ex.Settings(**base, interpolation="flow"), "DB1")
+    linear = ex.naming.training_params(ex.Settings(**base), "DB1")
+    flow = ex.naming.training_params(ex.Settings(**base, interpolation="flow"), "DB1")
     assert linear["interpolate"] == {"points_per_side": 2}
     assert flow["interpolate"] == {"points_per_side": 2, "interpolation": "flow"}
     # a model file records both parts: the linear key matches a linear file, the flow key only a flow file
     lin_file = {**linear, "interpolate": {"points_per_side": 2, "interpolation": "linear"}}
-    assert ex._params_match(lin_file, linear) and not ex._params_match(lin_file, flow)
+    assert ex.naming.params_match(lin_file, linear) and not ex.naming.params_match(lin_file, flow)
     with pytest.raises(ValueError, match="interpolation must be 'linear' or 'flow', got 'cubic'"):
         ex.Settings(**base, interpolation="cubic")

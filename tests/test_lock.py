@@ -43,7 +43,7 @@ def holder():
 
 def test_a_second_run_is_refused_with_the_pid_of_the_first(tmp_path, holder, monkeypatch, capsys):
     from jaxrecog import cli
-    from jaxrecog import experiments as ex
+    from jaxrecog import campaigns as ex
 
     out = tmp_path / "out"
     first = holder(out, out / "work")

@@ -103,7 +103,7 @@ def test_negative_or_bad_lambda_is_a_clear_error():
             MotionCost((np.zeros((2, 2)),), bad)
     with pytest.raises(ValueError, match="motion cost"):
         check_weight("x")
-    from jaxrecog.experiments import Settings
+    from jaxrecog.campaigns import Settings
 
     with pytest.raises(ValueError, match="motion cost"):
         Settings(motion_cost=-1.0)

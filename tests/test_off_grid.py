@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from jaxrecog import experiments as ex
+from jaxrecog import campaigns as ex
 from jaxrecog.campaign import plan_trials
 from jaxrecog.hardware.render.synthetic import OffGrid
 from jaxrecog.results import TrialResult, TrialStore
@@ -35,7 +35,7 @@ def test_yaw_zero_and_no_jitter_reproduce_the_on_grid_captures():
     # the trial lists of a zero bound are today's (no draw: yaw_offset None)
     assert plan_trials(8, 4, (4, 1), 3, seed=5) == plan_trials(8, 4, (4, 1), 3, seed=5, yaw_deg=0.0)
     # and the run ids of on-grid settings are unchanged by the new fields
-    fields = {k: v for k, v in dataclasses.asdict(ex.Settings()).items()}
+    fields = ex.Settings().flat()
     assert fields["off_grid_deg"] is None
     assert ex.case_settings(ex.CASES["i"], ex.Settings()).off_grid_deg == 0.0
 
@@ -43,10 +43,10 @@ def test_yaw_zero_and_no_jitter_reproduce_the_on_grid_captures():
 def test_run_id_ignores_zero_off_grid(tmp_path):
     model = tmp_path / "m.npz"
     model.write_bytes(b"model bytes")
-    base = ex._run_id(ex.Settings(), model)
-    assert ex._run_id(ex.Settings(off_grid_deg=0, off_grid_eye=0.0, off_grid_light=0.0), model) == base
-    assert ex._run_id(ex.case_settings(ex.CASES["i"], ex.Settings()), model) == base
-    assert ex._run_id(ex.case_settings(ex.CASES["jitter"], ex.Settings()), model) != base
+    base = ex.naming.run_id(ex.Settings(), model)
+    assert ex.naming.run_id(ex.Settings(off_grid_deg=0, off_grid_eye=0.0, off_grid_light=0.0), model) == base
+    assert ex.naming.run_id(ex.case_settings(ex.CASES["i"], ex.Settings()), model) == base
+    assert ex.naming.run_id(ex.case_settings(ex.CASES["jitter"], ex.Settings()), model) != base
 
 
 def test_yaw_offsets_are_a_function_of_the_trial():

@@ -8,7 +8,7 @@ import jax.numpy as jnp
 import jax.random as jr
 import pytest
 
-from jaxrecog.experiments import Settings
+from jaxrecog.campaigns import Settings
 from jaxrecog.planners import DEFAULT_MIN_PER_STRATUM, PLANNERS, make_planner, planner_names, planner_spec, planners_markdown, samples_per_stratum
 
 

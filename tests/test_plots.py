@@ -117,7 +117,7 @@ def test_case_bars_mark_the_thesis_where_it_has_numbers(tmp_path):
     its bars are exactly campaign_bars with those markers and the case's title."""
     import math
 
-    from jaxrecog.experiments import CASES, CaseReport, Settings
+    from jaxrecog.campaigns import CASES, CaseReport, Settings
 
     rows = {"mi": _rows([100.0] * 8, [2.0] * 8), "crlb-det": _rows([90.0] * 8, [3.0] * 8),
             "random": _rows([50.0] * 8, [6.0] * 8)}

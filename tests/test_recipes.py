@@ -89,7 +89,7 @@ def test_train_records_the_resolved_recipe_and_inspect_shows_it(photo_db, robust
     assert r == THESIS.replace(min_views=3)
     assert not load_model_meta(out)["calibrated"] and load_model_meta(out)["training"]["likelihood"] == "diag"
     # the planner part: recorded, and what a dataset campaign compares with random by default
-    from jaxrecog.experiments import dataset_planners
+    from jaxrecog.campaigns import dataset_planners
 
     assert dataset_planners(robust_model) == ("mi-class-pairwise-stable", "random")
     assert dataset_planners(out) == ("mi-class-pairwise", "random")

@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 from jaxrecog import Recognizer, plan_trials, run_trials
-from jaxrecog.experiments import Settings, capture_pool, make_rig, occluder_factory, rig_pool
+from jaxrecog.campaigns import Settings, capture_pool, make_rig, rig_pool
+from jaxrecog.scene import occluder_factory
 from jaxrecog.hardware import DatasetRig, RigError
 from jaxrecog.hardware.rigs.rig_pool import CaptureJob, LocalRigs, ProcessRigs, SceneSpec, as_rig_pool
 from jaxrecog.planners import RandomPlanner

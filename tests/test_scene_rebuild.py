@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 from soak_env import make_rig, pybullet_clients, rss_mb
 
-from jaxrecog.experiments import occluder_factory
+from jaxrecog.scene import occluder_factory
 from jaxrecog.hardware.render import scene as scene_mod
 
 

@@ -163,7 +163,7 @@ def test_shifted_energies_are_the_float64_sums_of_the_shifted_images(rng):
     """The level-0 table's ``||S_d x||^2`` (running integer sums) is exactly the
     float64 sum of squares of each shifted image, saturated images included."""
     from jaxrecog.augment import ShiftWindows
-    from jaxrecog.train import _shifted_energies
+    from jaxrecog.train_position import _shifted_energies
 
     images = rng.integers(0, 256, size=(4, 11, 17), dtype=np.uint8)
     images[0] = 255

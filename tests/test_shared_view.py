@@ -10,7 +10,7 @@ import jax.numpy as jnp
 import jax.random as jr
 import numpy as np
 import pytest
-from builders import make_database, odd_images, steps_stay_finite
+from builders import env_and_recognizer_beliefs, make_database, odd_images, steps_stay_finite
 from compiles import count_compiles
 from scipy.special import logsumexp
 
@@ -161,3 +161,23 @@ def test_steps_stay_finite_and_do_not_recompile(models, name):
     new, bad = rec.step(state, jnp.full(view.shape, jnp.nan), key)
     assert not bool(bad.valid)
     np.testing.assert_array_equal(np.asarray(new.prior.log_pc), np.asarray(state.prior.log_pc))
+
+
+def test_the_env_keeps_the_shared_view_component(models):
+    """Issue 29: with ``settings.shared_view`` the env's belief is the
+    recognizer's over (c, m, k) (it marginalised m per capture), over an
+    episode of two image sets from both cameras."""
+    pytest.importorskip("gymnasium")
+    from jaxrecog.campaigns import Settings
+    from jaxrecog.envs import ActiveRecognitionEnv
+    from jaxrecog.hardware import DatasetRig
+
+    def beliefs(shared: bool):
+        env = ActiveRecognitionEnv(models["mix"], DatasetRig(models["db"], seed=0),
+                                   settings=Settings(samples=64, min_per_stratum=2, shared_view=True))
+        return env_and_recognizer_beliefs(env, Recognizer(models["mix"], FixedPlanner(1), shared_view=shared), seed=5)
+
+    got, want = beliefs(True)
+    np.testing.assert_allclose(got, want, atol=1e-5)
+    _, per_capture = beliefs(False)
+    assert np.abs(per_capture - want).max() > 1e-3  # the component in the state changes the belief

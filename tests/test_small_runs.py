@@ -14,7 +14,7 @@ import pytest
 from clirun import run_cli, run_script
 from PIL import Image
 
-from jaxrecog.experiments import CaseReport, Settings, make_rig, results_dir, rig_table
+from jaxrecog.campaigns import CaseReport, Settings, make_rig, results_dir, rig_table
 
 
 
@@ -36,7 +36,7 @@ def test_stride_thins_the_table_and_names_the_caches(tmp_path, unchecked):
         with unchecked(), pytest.raises(ValueError, match="stride"):  # 1.5: the guard, not the checker
             Settings(stride=bad)
     # a strided table is not the thesis's rig: no thesis numbers beside its tables
-    from jaxrecog.experiments import CASES
+    from jaxrecog.campaigns import CASES
 
     assert CaseReport(CASES["i"], Settings(), {}, {}, {}).reference("mi") is not None
     assert CaseReport(CASES["i"], Settings(stride=8), {}, {}, {}).reference("mi") is None

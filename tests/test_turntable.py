@@ -175,7 +175,7 @@ def test_render_turntable_cli_rejects_bad_steps(tmp_path, capsys):
 @pytest.mark.slow
 def test_turntable_campaign_end_to_end(tmp_path):
     """prepare_turntable renders, trains and calibrates once (cached); run_turntable replays the test split."""
-    from jaxrecog.experiments import Settings, prepare_turntable, run_turntable
+    from jaxrecog.campaigns import Settings, prepare_turntable, run_turntable
     from jaxrecog.modelfile import load_model
 
     s = Settings(workdir=tmp_path, trials_per_object=2, samples=64, n_components=2, samples_per_image=8, batch=4)
@@ -194,7 +194,7 @@ def test_turntable_takes_the_settings_likelihood_and_view_jitter(tmp_path):
     training: the jitter split is rendered into its own folder and used, the
     family is the one asked for; jitter as far off as the test views is refused."""
     from jaxrecog import kernels as K
-    from jaxrecog.experiments import Settings, prepare_turntable
+    from jaxrecog.campaigns import Settings, prepare_turntable
     from jaxrecog.modelfile import load_model, load_model_meta
 
     s = Settings(workdir=tmp_path, n_components=2, samples_per_image=6, likelihood="student-t",

@@ -10,7 +10,7 @@ import csv
 import numpy as np
 import pytest
 
-from jaxrecog.experiments import Settings, model_path, prepare
+from jaxrecog.campaigns import Settings, model_path, prepare
 from jaxrecog.hardware.render.render_db import jitter_offsets
 from jaxrecog.modelfile import load_model_meta
 

@@ -687,7 +687,7 @@ def test_view_jitter_trains_the_low_rank_mixture_unless_told_otherwise(tmp_path,
     ``view-mixture-lowrank`` (``kernels.DEFAULT_VIEW_JITTER_LIKELIHOOD``); without
     view jitter the thesis's Gaussian stays the default; ``--likelihood`` wins."""
     from jaxrecog import cli
-    from jaxrecog import experiments as ex
+    from jaxrecog import campaigns as ex
 
     assert K.DEFAULT_VIEW_JITTER_LIKELIHOOD == "view-mixture-lowrank" and K.DEFAULT_LIKELIHOOD == "gaussian-diag"
     db = make_database(positions=(2,), n_objects=2, n_poses=2, image_shape=(16, 20))

@@ -62,7 +62,7 @@ DISTANCE = 0.8
 
 #: Test and calib perturbations: camera offset 2 % of the distance, light
 #: direction and coefficients 10 %, capture noise as every synthetic test
-#: capture (experiments.CAPTURE_NOISE); no random yaw (the azimuth offset is set).
+#: capture (jaxrecog.scene.CAPTURE_NOISE); no random yaw (the azimuth offset is set).
 TURNTABLE_PERTURB = Perturb(yaw_deg=0.0, eye_offset=0.02, light=0.1, noise=Noise(brightness=0.05, pixel=2.0, max_shift=2))
 
 

@@ -136,7 +136,7 @@ def model_report(path, model=None) -> str:
                  + ("" if "recipe" in meta else ", a file written before recipes")
                  + ": " + ", ".join(recipe.describe()))
     train = meta.get("training") or {}
-    if isinstance(train.get("params"), dict):  # TrainingInfo.to_dict() (experiments.prepare) nests them
+    if isinstance(train.get("params"), dict):  # TrainingInfo.to_dict() (campaigns.prepare) nests them
         train = train["params"]
     if train:
         keys = ("kind", "K", "samples_per_image", "covariance", "seed")

@@ -106,9 +106,9 @@ def _recipe_fields() -> dict[str, Key]:
 
 
 def _settings_fields() -> dict[str, Key]:
-    from ..experiments import Settings
+    from ..campaigns import Settings
 
-    return {f.name: Key("any", "jaxrecog.experiments.Settings." + f.name) for f in dataclasses.fields(Settings)}
+    return {name: Key("any", "jaxrecog.campaigns.Settings." + name) for name in Settings.FIELDS}
 
 
 def _schemas() -> dict[str, dict[str, Key]]:
@@ -242,7 +242,7 @@ def _schemas() -> dict[str, dict[str, Key]]:
         "title": Key("string", "the case's title"),
         "rig": Key("string", '"synthetic" or "dataset:FOLDER"'),
         "model": Key("string|null", "--model (a database campaign), null for a thesis case"),
-        "settings": _obj("the run's settings: every field of jaxrecog.experiments.Settings", _settings_fields()),
+        "settings": _obj("the run's settings: every field of jaxrecog.campaigns.Settings", _settings_fields()),
         "planners": _rows("one per planner, in the order run", {
             "planner": Key("string", "the planner"),
             "trials_per_object": Key("integer", "trials per object"),

@@ -3,12 +3,11 @@
 
 from __future__ import annotations
 
-import dataclasses
 import json
 from pathlib import Path
 from typing import Any
 
-from .. import experiments as ex  # as a module: tests stub its prepare / run_case / run_trace
+from .. import campaigns  # as a module: tests stub its prepare / run_case / run_trace
 from .. import plots
 from ..problems import problem_message
 from ._common import UsageError
@@ -21,13 +20,13 @@ __all__ = ["QUICK", "make_settings", "trace_plot", "write_report"]
 QUICK = {"samples": 256, "min_per_stratum": 2, "samples_per_image": 30, "n_components": 12}
 
 
-def make_settings(values: dict[str, Any], where: str) -> ex.Settings:
-    """``experiments.Settings(**values)``; an unknown name is a usage error naming ``where``."""
-    known = {f.name for f in dataclasses.fields(ex.Settings)}
+def make_settings(values: dict[str, Any], where: str) -> campaigns.Settings:
+    """``campaigns.Settings(**values)``; an unknown name is a usage error naming ``where``."""
+    known = set(campaigns.Settings.FIELDS)
     bad = sorted(set(values) - known)
     if bad:
         raise UsageError(problem_message(f"{where}: unknown setting(s) (known: {', '.join(sorted(known))})", bad))
-    return ex.Settings(**values)
+    return campaigns.Settings(**values)
 
 
 def write_report(report, name: str, out: Path, title: str | None = None) -> list[Path]:
@@ -43,6 +42,6 @@ def write_report(report, name: str, out: Path, title: str | None = None) -> list
 
 def trace_plot(settings, out: Path, planner: str = "mi", prepared=None, case: str = "iii") -> list[Path]:
     """One traced trial of ``case`` (object 5, the thesis's object 6 of Table 7.8) as ``belief_trace`` (PNG + SVG)."""
-    res = ex.run_trace(settings, object=5, planner=planner, prepared=prepared, case=case)
+    res = campaigns.run_trace(settings, object=5, planner=planner, prepared=prepared, case=case)
     return list(plots.belief_trace(res, out / "belief_trace", planner=planner, case=case,
-                                   occluded=ex.CASES[case].occluded, thesis_rig=settings.stride == 1))
+                                   occluded=campaigns.CASES[case].occluded, thesis_rig=settings.stride == 1))

@@ -9,12 +9,11 @@ import cv2
 import jax.random as jr
 import numpy as np
 
-from .. import experiments as ex  # as a module: tests stub its prepare / run_case / run_trace
+from .. import campaigns  # as a module: tests stub its prepare / run_case / run_trace
 from .. import plots
 from ..modelfile import load_model
-from ..planners import make_planner
 from .._progress import enabled as progress_bars
-from ..recognizer import Recognizer
+from ..recognizer_factory import make_recognizer
 from ._common import key, model_positions, model_report
 from ._options import PLANNERS, positive
 from ._reports import QUICK, make_settings, trace_plot, write_report
@@ -49,12 +48,12 @@ def run(args) -> int:
     values = {"workdir": str(out / "work"), "trials_per_object": args.trials, "seed": args.seed,
               "stride": args.stride, **QUICK}
     settings = make_settings(values, "demo")
-    prepared = ex.prepare(settings, progress=progress_bars(), databases=("DB1", "DB2"))
+    prepared = campaigns.prepare(settings, progress=progress_bars(), databases=("DB1", "DB2"))
     print(f"database and DB1/DB2 models ready in {time.perf_counter() - t0:.0f} s ({settings.workdir})")
     for kind, path in sorted(prepared.models.items()):
         print(f"{kind} model:")
         print(model_report(path))
-    report = ex.run_case("iii", settings, planners=list(args.planners), progress=progress_bars(), prepared=prepared)
+    report = campaigns.run_case("iii", settings, planners=list(args.planners), progress=progress_bars(), prepared=prepared)
     print(report.markdown())
     written = write_report(report, "iii", out)
     written += trace_plot(settings, out, planner=args.planners[0], prepared=prepared)
@@ -74,9 +73,9 @@ def _model_plots(prepared, settings, out: Path, seed: int) -> list[Path]:
         return []
     model = load_model(str(path))
     k1, k2 = jr.split(key(seed))
-    planner = make_planner("mi", model, key=k1, samples=settings.samples, min_per_stratum=settings.min_per_stratum)
-    prior = Recognizer(model, planner).init(config=(0,) * len(model_positions(model))).prior
-    scores = np.asarray(planner.scores(prior, k2))
+    rec = make_recognizer(model, "mi", key=k1, samples=settings.samples, min_per_stratum=settings.min_per_stratum)
+    prior = rec.init(config=(0,) * len(model_positions(model))).prior
+    scores = np.asarray(rec.planner.scores(prior, k2))
     return plots.model_figures(model, scores, out, image=_first_train_image(Path(settings.workdir)))
 
 

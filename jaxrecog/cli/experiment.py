@@ -9,7 +9,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from .. import experiments as ex  # as a module: tests stub its prepare / run_case / run_dataset
+from .. import campaigns  # as a module: tests stub its prepare / run_case / run_dataset
 from .._config import FIELD_OPTIONS, LIKELIHOOD_OPTION_KEYS, OPTION_FIELDS, ConfigFileError, read_toml, resolve_keys
 from .._lock import folder_lock
 from ..driver import trial_mesh
@@ -45,7 +45,7 @@ DESCRIPTION = ("Run a recognition campaign as in thesis chapter 7 and write the 
 
 #: Settings fields an [experiment] table of ``--config`` may give besides the
 #: options (cli._apply_config): those without an option arrive as ``args.config_fields``.
-CONFIG_FIELDS = tuple(f.name for f in dataclasses.fields(ex.Settings))
+CONFIG_FIELDS = campaigns.Settings.FIELDS
 #: An experiment file's own keys besides the Settings fields and their option names.
 FILE_KEYS = ("case", "rig", "model", "planners")
 
@@ -208,7 +208,7 @@ def _resolve(args) -> _Resolved:
         rig = rig if rig is not None else file_rig
         model = model if model is not None else file_model
         if "case" not in data and rig in (None, "synthetic"):
-            raise UsageError(f"experiment file {path}: needs a 'case' key ({', '.join(ex.CASES)}) "
+            raise UsageError(f"experiment file {path}: needs a 'case' key ({', '.join(campaigns.CASES)}) "
                              "or 'rig' = 'dataset:FOLDER' and 'model'")
         name = str(data.pop("case")) if "case" in data else None
         if planners is None and "planners" in data:
@@ -242,10 +242,10 @@ def _resolve(args) -> _Resolved:
         if model:
             raise UsageError("--model is used with --rig dataset:FOLDER only (a thesis case trains its own models)")
         if name is None:
-            raise UsageError("give a CASE (" + ", ".join(ex.CASES) + ") or an experiment TOML file, "
+            raise UsageError("give a CASE (" + ", ".join(campaigns.CASES) + ") or an experiment TOML file, "
                              "or --rig dataset:FOLDER --model MODEL.NPZ")
-        if name not in ex.CASES:
-            raise UsageError(f"unknown case {name!r}; choose {', '.join(ex.CASES)} or a TOML file")
+        if name not in campaigns.CASES:
+            raise UsageError(f"unknown case {name!r}; choose {', '.join(campaigns.CASES)} or a TOML file")
     out = Path(args.out)
     over = {"trials_per_object": args.trials, "samples": args.samples,
             "min_per_stratum": args.min_per_stratum, "batch": args.batch, "seed": args.seed,
@@ -321,20 +321,19 @@ def config_text(r: _Resolved) -> str:
         lines.append(f"case = {_toml_value(r.name)}")
     planners = r.planners
     if planners is None and not r.dataset:
-        planners = list(ex.CASES[r.name].planners)
+        planners = list(campaigns.CASES[r.name].planners)
     elif planners is None:
         try:
-            planners = list(ex.dataset_planners(r.model))
+            planners = list(campaigns.dataset_planners(r.model))
         except (ModelFileError, ValueError, OSError):
             planners = None  # the campaign's own load of the model reports it
     if planners is not None:
         lines.append(f"planners = {_toml_value(list(planners))}")
-    for f in dataclasses.fields(r.settings):
-        v = getattr(r.settings, f.name)
-        if f.name == "likelihood_options":
+    for name, v in r.settings.flat().items():
+        if name == "likelihood_options":
             v = dict(v)
         text = _toml_value(v)
-        lines.append(f"# {f.name}: not set (the case's)" if text is None else f"{f.name} = {text}")
+        lines.append(f"# {name}: not set (the case's)" if text is None else f"{name} = {text}")
     return "\n".join(lines) + "\n"
 
 
@@ -348,11 +347,11 @@ def _report(args) -> tuple[dict, str]:
         config.write_text(config_text(r))
         t0 = time.perf_counter()
         if dataset:
-            report = ex.run_dataset(folder, model, settings, planners=planners, progress=progress_bars())
+            report = campaigns.run_dataset(folder, model, settings, planners=planners, progress=progress_bars())
             written = write_report(report, "dataset", out, title=f"Database {Path(folder).name}")
             done = f"campaign on {folder}"
         else:
-            report = ex.run_case(name, settings, planners=planners, progress=progress_bars())
+            report = campaigns.run_case(name, settings, planners=planners, progress=progress_bars())
             written = write_report(report, name, out)
             if args.trace:
                 written += trace_plot(settings, out, planner=(planners or ["mi"])[0], case=name)
@@ -369,7 +368,7 @@ def _report(args) -> tuple[dict, str]:
 
 
 def _settings_doc(settings) -> dict[str, Any]:
-    return {f.name: getattr(settings, f.name) for f in dataclasses.fields(settings)}
+    return settings.flat()
 
 
 def _planner_doc(report, planner: str) -> dict[str, Any]:

@@ -8,8 +8,8 @@ import numpy as np
 from .. import plots
 from ..hardware.rigs.rig import config_from_index
 from ..modelfile import load_model
-from ..planners import DEFAULT_PLANNER, make_planner
-from ..recognizer import Recognizer
+from ..planners import DEFAULT_PLANNER
+from ..recognizer_factory import make_recognizer
 from ._common import UsageError, fmt_cfg, format_table, key, model_positions
 from ._images import read_gray, usable
 from ._json import SCHEMA_VERSION, json_option, run_reporting
@@ -74,9 +74,9 @@ def _report(args) -> tuple[dict, str]:
     elif args.at is not None:
         raise UsageError("--at is only used with --images")
     k_plan, k_score = jr.split(key(args.seed))
-    planner = make_planner(args.planner, model, key=k_plan, samples=args.samples,
-                           min_per_stratum=args.min_per_stratum)
-    rec = Recognizer(model, planner)
+    # the recognizer's defaults (the thesis's stop rule and evidence), as plan has always scored
+    rec = make_recognizer(model, args.planner, key=k_plan, samples=args.samples, min_per_stratum=args.min_per_stratum)
+    planner = rec.planner
     images = None
     if imgs is not None:
         state = rec.init(config=args.at)

@@ -10,12 +10,12 @@ import numpy as np
 from .. import plots
 from ..driver import StepRecord, TrialSpec, run_trials
 from ..counts import CountsMismatchError, check_counts
-from ..experiments import CAPTURE_NOISE, occluder_factory  # the thesis-case boards (first views occluded)
+from ..scene import CAPTURE_NOISE, occluder_factory  # the thesis-case boards (first views occluded)
 from ..hardware import Capture, DatasetRig, Noise, rig_from_config
 from ..modelfile import load_model
-from ..motion import MotionCost, rig_travel_times
-from ..planners import DEFAULT_PLANNER, make_planner
-from ..recognizer import Recognizer
+from ..motion import rig_travel_times
+from ..planners import DEFAULT_PLANNER
+from ..recognizer_factory import make_recognizer
 from ._common import CLIError, UsageError, fmt_cfg, format_table, key, model_positions, synthetic_rig
 from ._images import usable
 from ._json import SCHEMA_VERSION, json_option, run_reporting
@@ -173,15 +173,14 @@ def _report(args) -> tuple[dict, str]:
             hint = (" (use the --cameras/--stride the model's database was rendered with)"
                     if args.rig == "synthetic" else "")
             raise CLIError(f"{e}{hint}") from None
-        planner = make_planner(args.planner, model, key=k_plan, samples=args.samples,
-                               min_per_stratum=args.min_per_stratum)
         travel = rig_travel_times(rig)
         if travel is None and args.motion_cost > 0:
             raise UsageError(f"--motion-cost needs the rig's geometry (travel times); --rig {args.rig} has none")
-        motion = None if travel is None else MotionCost(travel, args.motion_cost)
-        rec = Recognizer(model, planner, p_threshold=args.threshold, max_steps=args.max_steps,
-                         min_views=args.min_views, exclude_visited_positions=args.exclude_visited, motion=motion,
-                         shared_view=args.shared_view, adaptive_scale=args.adaptive_scale)
+        rule = recipe.replace(p_threshold=args.threshold, min_views=args.min_views,
+                              exclude_visited=args.exclude_visited, adaptive_scale=args.adaptive_scale)
+        rec = make_recognizer(model, args.planner, recipe=rule, key=k_plan, samples=args.samples,
+                              min_per_stratum=args.min_per_stratum, max_steps=args.max_steps,
+                              shared_view=args.shared_view, travel=travel, motion_cost=args.motion_cost)
         state = rec.init(key=None if args.start is not None else k_init, config=args.start)
         start = [int(v) for v in np.asarray(state.config)]
         steps, dec, res = _trial(args, model, rig, rec, state, k_run)

@@ -6,7 +6,7 @@ import json
 import time
 from pathlib import Path
 
-from ..experiments import CAPTURE_NOISE
+from ..scene import CAPTURE_NOISE
 from ..hardware import Noise, render_database
 from .._progress import bar
 from ._common import UsageError, synthetic_rig

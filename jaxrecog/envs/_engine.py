@@ -11,9 +11,14 @@ is adapted here only:
   image set per step with the true occluded fractions, exactly as the trial
   driver takes them (``reset`` the scene; ``reseed`` the capture noise,
   ``move``, ``capture``);
-- :func:`observe` / :func:`belief_from_features` / :func:`belief_from_logliks`:
-  the recognizer's Bayes update (eq. 3.1, 4.17-4.19) from images, from
-  eigenspace features or from their log-likelihoods;
+- :func:`uniform_prior` / :func:`observe` / :func:`class_belief`: the
+  recognizer's own initial belief, Bayes update from images (eq. 3.1,
+  4.17-4.19) and belief over (class, levels)
+  (:func:`jaxrecog.recognizer.update_from_images`: with its shared view
+  component and adaptive scale where the env's settings ask for them);
+- :func:`belief_from_features` / :func:`belief_from_logliks`: the plain
+  update from eigenspace features or their log-likelihoods (the functional
+  env's precomputed tables);
 - :func:`move_prior`: the level transition for the cameras that move
   (eq. 3.7-3.9).
 """
@@ -30,9 +35,10 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Int, Real
 from .. import kernels as K
 from ..counts import check_counts
 from ..driver import TrialSpec
-from ..recognizer import image_features
+from ..recognizer import initial_belief, update_from_images, view_marginal
 
-__all__ = ["check_layout", "start", "capture", "observe", "belief_from_features", "belief_from_logliks", "log_likelihoods", "move_prior", "uniform_prior", "FEATURE_BOUND"]
+__all__ = ["check_layout", "start", "capture", "observe", "class_belief", "belief_from_features", "belief_from_logliks",
+           "log_likelihoods", "move_prior", "uniform_prior", "FEATURE_BOUND"]
 
 #: |g_k| <= ||y_hat - x_bar|| <= sqrt(2): unit-energy images with non-negative
 #: pixels and a mean of such images (eq. 4.1-4.11); an unusable image gives 0.
@@ -67,10 +73,16 @@ def capture(rig, config: Sequence[int] | np.ndarray, noise_seed) -> tuple[np.nda
     return np.asarray(cap.images, np.uint8), np.asarray(cap.occluded, np.float64)
 
 
-def uniform_prior(model) -> K.Belief:
-    """The uniform belief of section 3.3 over the model's classes and levels."""
-    dtype = model.cameras[0].likelihood.dtype
-    return K.uniform_belief(model.n_classes, tuple(model.n_levels for _ in model.cameras), dtype=dtype)
+def uniform_prior(model, shared_view: bool = False) -> K.Belief:
+    """The recognizer's initial belief (section 3.3; over the ``C * M``
+    extended classes with ``shared_view``): :func:`jaxrecog.recognizer.initial_belief`."""
+    return initial_belief(model, shared_view)
+
+
+def class_belief(model, belief: K.Belief, shared_view: bool = False) -> K.Belief:
+    """The belief over (class, levels) of an env belief (its marginal over
+    the view component with ``shared_view``)."""
+    return view_marginal(model, belief, shared_view)
 
 
 def log_likelihoods(model, config: Int[ArrayLike, " n"],
@@ -96,12 +108,14 @@ def belief_from_features(model, prior: K.Belief, config: Int[ArrayLike, " n"],
 
 
 @eqx.filter_jit
-def observe(model, prior: K.Belief, config: Int[ArrayLike, " n"], images: Real[ArrayLike, "n H W"]):
-    """Features g_i = V_iᵀ(y_i/‖y_i‖ − x̄_i) (eq. 4.1-4.11) and the Bayes update:
+def observe(model, prior: K.Belief, config: Int[ArrayLike, " n"], images: Real[ArrayLike, "n H W"], *,
+            shared_view: bool = False, adaptive_scale: float = 1.0):
+    """Features g_i = V_iᵀ(y_i/‖y_i‖ − x̄_i) (eq. 4.1-4.11) and the Bayes update
+    as the recognizer's step makes it (:func:`jaxrecog.recognizer.update_from_images`):
     ``(posterior, features, ok)``.  An unusable image (black, constant, not
     finite) leaves the belief unchanged and sets ``ok = False``."""
-    gs, usable = image_features(model, config, jnp.asarray(images))
-    posterior, ok = belief_from_features(model, prior, config, gs, usable)
+    posterior, gs, ok, _ = update_from_images(model, prior, config, images, shared_view=shared_view,
+                                              adaptive_scale=adaptive_scale)
     return posterior, gs, ok
 
 

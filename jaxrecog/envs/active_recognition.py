@@ -208,16 +208,21 @@ class ActiveRecognitionEnv(_Base):
     Args:
         model: a :class:`~jaxrecog.SensorModel`, a model file, or ``None``
             (synthetic rigs: the case's model from
-            :func:`jaxrecog.experiments.prepare` with ``settings``).
+            :func:`jaxrecog.campaigns.prepare` with ``settings``).
         rig: ``"synthetic"``, ``"dataset:FOLDER"``, ``"hardware-sim"`` or a
             ``Rig`` object (:mod:`jaxrecog.envs.rigs`).
         case: ``"clean"`` or ``"occluded"`` (cardboard occluders per episode,
             placed as in the thesis campaigns).
-        settings: :class:`jaxrecog.experiments.Settings`: the synthetic rig's
-            table (``stride``), capture noise and work folder, and the
-            defaults of ``p_threshold``, ``max_steps``, ``transition`` and the
-            planners' Monte Carlo sizes (``samples``, ``min_per_stratum``,
-            tables seeded by ``seed``).
+        settings: :class:`jaxrecog.campaigns.Settings`: the synthetic rig's
+            table (``stride``), capture noise and work folder, the defaults
+            of ``p_threshold``, ``max_steps``, ``transition``, the planners'
+            Monte Carlo sizes (``samples``, ``min_per_stratum``, tables
+            seeded by ``seed``), and the recognizer's options: the belief
+            keeps the view component (``shared_view``) and weakens the
+            evidence of unexplained captures (``adaptive_scale``) as the
+            recognizer's step does; the policies' recognizers
+            (:meth:`make_recognizer`) also take ``min_views`` and
+            ``exclude_visited_positions``.
         cameras: a subset of the cameras (e.g. ``(0,)``: single camera).
         action: ``"flat"`` (``Discrete(A)``, row-major index) or
             ``"per-camera"`` (``MultiDiscrete(V_1, ..., V_n)``).
@@ -254,7 +259,7 @@ class ActiveRecognitionEnv(_Base):
         rho: float = 0.9,
         render_mode: str | None = None,
     ):
-        from ..experiments import Settings
+        from ..campaigns import Settings
 
         _check_not_forked()
         self.settings = settings if settings is not None else Settings()
@@ -276,6 +281,9 @@ class ActiveRecognitionEnv(_Base):
         self.step_cost = float(step_cost)
 
         self.model = load_env_model(model, rig, case, self.settings, cams)
+        self.shared_view = bool(self.settings.shared_view)
+        self.adaptive_scale = float(self.settings.adaptive_scale)
+        self.make_recognizer("random")  # the recognizer's checks of these options and the model, before any rig
         self.rig, self._occluders = build_rig(rig, case, self.settings, cams)
         E.check_layout(self.model, self.rig)
         self.case = case
@@ -332,6 +340,19 @@ class ActiveRecognitionEnv(_Base):
 
     # -- construction helpers -------------------------------------------------
 
+    def make_recognizer(self, planner: str):
+        """The recognizer of ``planner`` over the env's model, as a campaign
+        with the env's settings builds it (:func:`jaxrecog.recognizer_factory.make_recognizer`):
+        the planner's tables (:meth:`make_planner`), the env's stop rule
+        (``p_threshold``, ``max_steps``) and transition, and the settings'
+        ``min_views``, ``exclude_visited_positions``, ``adaptive_scale`` and
+        ``shared_view``."""
+        from ..recognizer_factory import make_recognizer
+
+        recipe = self.settings.recipe.replace(p_threshold=self.p_threshold)
+        return make_recognizer(self.model, self.make_planner(planner), recipe=recipe, max_steps=self.max_steps,
+                               transition=self.transition, rho=self.rho, shared_view=self.shared_view)
+
     def make_planner(self, name: str):
         """The planner ``name`` over the env's model, built as the campaigns
         build it (tables from ``PRNGKey(settings.seed)``, ``settings.samples``,
@@ -371,7 +392,7 @@ class ActiveRecognitionEnv(_Base):
         self._scene, self._noise = scene, noise
         self._views = 0
         E.start(self.rig, scene)
-        self._take_images(np.asarray(scene.initial, np.int32), E.uniform_prior(self.model))
+        self._take_images(np.asarray(scene.initial, np.int32), E.uniform_prior(self.model, self.shared_view))
         self._done = False
         return self._obs(), self._info()
 
@@ -395,7 +416,8 @@ class ActiveRecognitionEnv(_Base):
         """Capture at ``config`` and update the belief from ``prior`` (the
         episode changes only once both succeeded: a rig error loses nothing)."""
         images, occluded = E.capture(self.rig, config, self._noise + (self._views,))
-        posterior, feats, ok = E.observe(self.model, prior, jnp.asarray(config), images)
+        posterior, feats, ok = E.observe(self.model, prior, jnp.asarray(config), images, shared_view=self.shared_view,
+                                         adaptive_scale=self.adaptive_scale)
         self._config, self._images, self._occluded = config, images, occluded
         self._posterior, self._features, self._valid = posterior, feats, bool(ok)
         self._views += 1
@@ -492,7 +514,8 @@ class ActiveRecognitionEnv(_Base):
         return self._config.astype(np.int64)
 
     def _class_probs(self) -> np.ndarray:
-        return np.clip(np.asarray(K.class_marginal(self._posterior), np.float32), 0.0, 1.0)
+        belief = E.class_belief(self.model, self._posterior, self.shared_view)
+        return np.clip(np.asarray(K.class_marginal(belief), np.float32), 0.0, 1.0)
 
     def _obs(self) -> dict:
         obs = {"images": self._images.copy(), "configuration": self._configuration_obs()}
@@ -516,8 +539,9 @@ class ActiveRecognitionEnv(_Base):
             "prediction": {"target": self._target},
         }
         if self._planners:
-            predicted = K.transition_per_position(self._posterior, jnp.asarray(self._config), self.positions,
-                                                  kind=self.transition, rho=self.rho)
+            predicted = E.class_belief(self.model, K.transition_per_position(
+                self._posterior, jnp.asarray(self._config), self.positions, kind=self.transition, rho=self.rho),
+                self.shared_view)
             key = jr.fold_in(jr.PRNGKey(self.settings.seed), self._views)
             info["scores"] = {n: np.asarray(_scores(p, predicted, key)) for n, p in self._planners.items()}
         return info

@@ -13,7 +13,7 @@ drawn from a :class:`FeatureBank`: for every camera, position and class,
 as the sensor model assumes (eq. 4.17); real captures of one scene are not.
 
 **This form is for policy research.**  The recognition results we report
-(:mod:`jaxrecog.experiments`, :class:`~jaxrecog.envs.ActiveRecognitionEnv`)
+(:mod:`jaxrecog.campaigns`, :class:`~jaxrecog.envs.ActiveRecognitionEnv`)
 come from rendered images of each trial's scene, never from a feature bank.
 
 The dynamics are those of :class:`~jaxrecog.envs.ActiveRecognitionEnv` with

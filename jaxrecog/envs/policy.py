@@ -3,7 +3,8 @@
 A :class:`PlannerPolicy` acts from the env's own observation (the images and
 the current configuration) through the same recognizer a campaign runs (the
 planner's tables seeded by ``settings.seed`` as in
-:mod:`jaxrecog.experiments`, the env's stop rule and transition).  Each step it updates
+:mod:`jaxrecog.campaigns`, the env's stop rule and transition:
+:meth:`~jaxrecog.envs.ActiveRecognitionEnv.make_recognizer`).  Each step it updates
 its belief from the images (eq. 3.1), predicts the class marginal P(c) — the
 env ends the episode when that reaches P_th, as the recognizer stops — and
 moves to the planner's best not yet visited configuration.  Run with the
@@ -36,15 +37,12 @@ class PlannerPolicy:
     """
 
     def __init__(self, name: str, env):
-        from ..recognizer import Recognizer
-
         self.env = env.unwrapped
         self.name = name
         e = self.env
-        self.recognizer = Recognizer(e.model, e.make_planner(name), p_threshold=e.p_threshold, max_steps=e.max_steps,
-                                     transition=e.transition, rho=e.rho)
+        self.recognizer = e.make_recognizer(name)
         s = e.settings
-        self._base = jr.PRNGKey(s.seed + 1)  # run_campaign's key in the experiments
+        self._base = jr.PRNGKey(s.seed + 1)  # run_campaign's key in the campaigns
         self._episodes = 0
         self.reset()
 

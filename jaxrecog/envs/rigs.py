@@ -1,9 +1,9 @@
 """Rigs and models for the environment, by name.
 
 - ``"synthetic"`` (default): the rendered thesis rig of
-  :func:`jaxrecog.experiments.make_rig` (``settings.stride`` thins its table);
+  :func:`jaxrecog.campaigns.make_rig` (``settings.stride`` thins its table);
   ``case="occluded"`` adds the campaigns' cardboard occluders per episode.
-  Without a model, :func:`jaxrecog.experiments.prepare` renders the training
+  Without a model, :func:`jaxrecog.campaigns.prepare` renders the training
   database and trains the case's model (DB1 clean, DB2 occluded), cached in
   ``settings.workdir``.
 - ``"dataset:FOLDER"``: a :class:`~jaxrecog.hardware.DatasetRig` replaying the
@@ -32,19 +32,20 @@ def _check_case(case: str) -> None:
 def build_rig(rig: Any, case: str, settings, cameras: tuple[int, ...] | None) -> tuple[Any, Callable | None]:
     """``(rig, occluder factory or None)`` for a rig name or a rig object.
 
-    The factory is the campaigns' own (:mod:`jaxrecog.experiments`), so an
+    The factory is the campaigns' own (:func:`jaxrecog.scene.occluder_factory`), so an
     episode's scene is drawn exactly as a campaign trial's."""
-    from .. import experiments
+    from ..campaigns import make_rig
+    from ..scene import occluder_factory
 
     _check_case(case)
     if isinstance(rig, str):
         if rig == "synthetic":
-            rig = experiments.make_rig(settings, cameras, seed=settings.seed)
+            rig = make_rig(settings, cameras, seed=settings.seed)
         elif rig == "hardware-sim":
             from ..hardware import SimulatedHardwareRig
             from ..hardware.physical.config import RigConfig
 
-            renderer = experiments.make_rig(settings, cameras, seed=settings.seed)
+            renderer = make_rig(settings, cameras, seed=settings.seed)
             rig = SimulatedHardwareRig(renderer, RigConfig("simulated", renderer.table))
         elif rig.startswith("dataset:"):
             from ..hardware import DatasetRig
@@ -65,14 +66,14 @@ def build_rig(rig: Any, case: str, settings, cameras: tuple[int, ...] | None) ->
     scene = getattr(rig, "renderer", rig)
     if not (hasattr(scene, "table") and hasattr(scene, "radius")):
         raise ValueError(f"case 'occluded' needs a rendered scene to place occluders in; {type(rig).__name__} has none")
-    return rig, experiments.occluder_factory(scene)
+    return rig, occluder_factory(scene)
 
 
 def load_env_model(model: Any, rig: Any, case: str, settings, cameras: tuple[int, ...] | None):
     """The sensor model: a :class:`~jaxrecog.SensorModel`, a model file, or
     (``None``, synthetic rigs only) the case's model trained by
-    :func:`jaxrecog.experiments.prepare`; restricted to ``cameras``."""
-    from .. import experiments
+    :func:`jaxrecog.campaigns.prepare`; restricted to ``cameras``."""
+    from ..campaigns import prepare
     from ..modelfile import load_model
     from ..recognizer import restrict_cameras
 
@@ -81,7 +82,7 @@ def load_env_model(model: Any, rig: Any, case: str, settings, cameras: tuple[int
         if rig not in ("synthetic", "hardware-sim"):
             raise ValueError("a model (SensorModel or model file) is required unless the rig is 'synthetic' or 'hardware-sim'")
         kind = CASES[case]
-        model = experiments.prepare(settings, databases=(kind,)).models[kind]
+        model = prepare(settings, databases=(kind,)).models[kind]
     if isinstance(model, (str, Path)):
         model = load_model(model)
     if not all(hasattr(model, a) for a in ("cameras", "n_objects", "n_poses", "levels", "image_shape")):
