@@ -26,6 +26,7 @@ import jax.random as jr
 import numpy as np
 
 from jaxrecog.envs import FeatureBank, FunctionalEnv
+from jaxrecog.kernels import gaussian
 from jaxrecog.sensor_model import CameraModel, SensorModel
 
 
@@ -37,7 +38,7 @@ def thesis_sized(rng, positions=(32, 7), n_objects=8, n_poses=4, levels=6, dim=2
         mu = rng.normal(scale=0.3, size=(v, C, levels, dim)).astype(np.float32)
         var = rng.uniform(0.005, 0.02, size=(v, C, levels, dim)).astype(np.float32)
         cams.append(CameraModel(jnp.zeros((v, 1), jnp.float32), jnp.zeros((v, 1, dim), jnp.float32),
-                                jnp.ones((v, dim), jnp.float32), jnp.asarray(mu), jnp.asarray(var)))
+                                jnp.ones((v, dim), jnp.float32), gaussian(jnp.asarray(mu), jnp.asarray(var))))
         k = rng.integers(levels, size=(v, C, samples))
         idx = np.arange(v)[:, None, None], np.arange(C)[None, :, None], k
         g = mu[idx] + np.sqrt(var[idx]) * rng.standard_normal((v, C, samples, dim)).astype(np.float32)

@@ -102,7 +102,7 @@ def vegas_equal_error(rng, vegas_neval=2000, vegas_repeat=3):
         mu = rng.normal(size=(1, 2, 2, 1))
         var = rng.uniform(0.3, 1.2, size=(1, 2, 2, 1))
         log_p = np.log(np.full((2, 2), 0.25))
-        b = K.Belief(jnp.asarray(np.log([0.5, 0.5])), (jnp.asarray(np.log(np.full((2, 2), 0.5))),))
+        b = K.at_every_position(K.Belief(jnp.asarray(np.log([0.5, 0.5])), (jnp.asarray(np.log(np.full((2, 2), 0.5))),)), (1,))
 
         cs, ks = np.meshgrid(np.arange(2), np.arange(2), indexing="ij")
         cs, ks = cs.ravel(), ks.ravel()
@@ -136,8 +136,8 @@ def vegas_equal_error(rng, vegas_neval=2000, vegas_repeat=3):
         tried = []
         j = 1000
         for _ in range(8):
-            build = lambda j=j: tables_fn((jnp.asarray(mu),), (jnp.asarray(var),), key=jax.random.PRNGKey(0),
-                                          samples_per_stratum=j, store="full")
+            build = lambda j=j: tables_fn(K.gaussian_likelihoods((jnp.asarray(mu),), (jnp.asarray(var),)),
+                                          key=jax.random.PRNGKey(0), samples_per_stratum=j, store="full")
             tables = build()
             run = lambda tables=tables: fis_fn(tables, b, key=jax.random.PRNGKey(1), n_objects=2, n_poses=1, with_stderr=True)
             fis, se = run()
@@ -208,8 +208,7 @@ def mi_parts(tables, belief, repeat=20):
     mi_mod = importlib.import_module("jaxrecog.kernels.mutual_information")
     from jaxrecog.kernels._grid import grid_mixture, lse, to_grid
 
-    positions = tuple(t.shape[0] for t in tables.ld_self)
-    log_pk = [lp.astype(jnp.float32) for lp in mi_mod.per_position_levels(belief, positions)]
+    log_pk = [lp.astype(jnp.float32) for lp in belief.log_pk]
     lse_fn = jax.jit(lambda lds, lps: [lse(ld + lp[:, None, None, None], axis=-1) for ld, lp in zip(lds, lps)])
     level_fn = jax.jit(mi_mod.belief_level_tables)
     ts = level_fn(tables, log_pk)
@@ -476,6 +475,8 @@ def main(argv=None):
     n_c, n_l = 32, 6
     mus, vars = thesis_model(rng)
     belief = random_belief(rng, n_c, n_l, 2)
+    # the same non-uniform level rows at every position (the planner kernels' general path)
+    general = K.at_every_position(belief, (32, 7))
     out = {
         "device": str(jax.devices()[0]),
         "cpu_count": os.cpu_count(),
@@ -515,15 +516,15 @@ def main(argv=None):
     predicted = K.transition_per_position(belief, (3, 2), (32, 7), kind="uniform")
     out["pairwise"] = {f"{kind}/{levels}/{target}": _timeit(lambda b=b: pw_fn(pw_tables[kind], b, target=target, levels=lv),
                                                             repeat=args.repeat)
-                       for kind in K.DIVERGENCES for levels, b, lv in (("belief", belief, "belief"), ("transition", predicted, "belief"),
-                                                                       ("uniform", belief, "uniform"))
+                       for kind in K.DIVERGENCES for levels, b, lv in (("belief", general, "belief"), ("transition", predicted, "belief"),
+                                                                       ("uniform", general, "uniform"))
                        for target in ("state", "class")}
     fis_fn = jax.jit(K.fisher_information, static_argnames=("n_objects", "n_poses", "levels"))
     crit_fn = jax.jit(K.crlb_criterion, static_argnames=("kind",))
     out["mi"] = {}
     for j in (1, 4):
         t0 = time.perf_counter()
-        tables = jax.block_until_ready(tables_fn(mus, vars, key=jax.random.PRNGKey(0), samples_per_stratum=j))
+        tables = jax.block_until_ready(tables_fn(liks, key=jax.random.PRNGKey(0), samples_per_stratum=j))
         build_s = time.perf_counter() - t0
         spc = K.samples_per_configuration(tables)
         entry = {"samples_per_configuration": spc, "samples_per_stratum": j, "tables_build_s_incl_compile": build_s,
@@ -531,12 +532,12 @@ def main(argv=None):
         for levels in ("uniform", "belief"):
             for target in ("state", "class"):
                 entry[f"{levels}/{target}"] = _timeit(
-                    lambda: mi_fn(tables, belief, target=target, levels=levels), repeat=args.repeat
+                    lambda: mi_fn(tables, general, target=target, levels=levels), repeat=args.repeat
                 )
-        entry["parts"] = mi_parts(tables, belief, repeat=args.repeat)
+        entry["parts"] = mi_parts(tables, general, repeat=args.repeat)
         out["mi"][f"J={j}"] = entry
         if j == 1:
-            crlb = lambda: crit_fn(fis_fn(tables, belief, key=jax.random.PRNGKey(1), n_objects=8, n_poses=4))
+            crlb = lambda: crit_fn(fis_fn(tables, general, key=jax.random.PRNGKey(1), n_objects=8, n_poses=4))
             out["crlb"] = {"samples_per_configuration": spc, **_timeit(crlb, repeat=args.repeat)}
             tables1 = tables
     lls = tuple(jnp.asarray(rng.normal(size=(n_c, n_l)), jnp.float32) for _ in range(2))

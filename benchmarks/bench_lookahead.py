@@ -65,8 +65,9 @@ def main(argv=None):
                     tuple(jnp.asarray(np.log(rng.dirichlet(np.ones(n_l), size=n_c)), jnp.float32) for _ in positions))
     prior = K.transition_per_position(post, (3, 2), positions)
 
-    tables = jax.block_until_ready(K.mi_tables(mus, vars, key=jr.PRNGKey(0), samples_per_stratum=8, store="full"))
-    pw = jax.block_until_ready(K.pairwise_tables(mus, vars, kind="bhattacharyya"))
+    liks = K.gaussian_likelihoods(mus, vars)
+    tables = jax.block_until_ready(K.mi_tables(liks, key=jr.PRNGKey(0), samples_per_stratum=8, store="full"))
+    pw = jax.block_until_ready(K.pairwise_tables(liks, kind="bhattacharyya"))
     outcome_tables = tables._replace(ld_max=None, ld_exp=None)
     j = tables.ld[0].shape[3]
 

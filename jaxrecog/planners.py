@@ -1,7 +1,7 @@
 """View planners: a planner is a value that scores every camera configuration.
 
 Every planner maps the *predicted prior* of the next step (a
-:class:`~jaxrecog.kernels.Belief` whose level rows are per candidate position,
+:class:`~jaxrecog.kernels.PredictedBelief`: level rows per candidate position,
 ``[V_i, C, L_i]``, from :func:`~jaxrecog.kernels.transition_per_position`) and
 a key to ``[A]`` scores, higher = better, A = prod_i V_i (row-major).  The
 recognizer takes the argmax; it never branches on the planner's kind.
@@ -133,7 +133,7 @@ class Planner(eqx.Module):
     revisits: ClassVar[bool] = False
     n_configs: int = eqx.field(static=True)
 
-    def scores(self, prior: K.Belief, key: PRNGKeyArray) -> Float[Array, " A"]:
+    def scores(self, prior: K.PredictedBelief, key: PRNGKeyArray) -> Float[Array, " A"]:
         raise NotImplementedError
 
     def with_transition(self, kind: str, rho: float) -> "Planner":

@@ -184,10 +184,13 @@ def update_from_images(model, prior: K.Belief, config: Int[ArrayLike, " n"], ima
     return posterior, gs, info.ok, explained
 
 
-def view_marginal(model, belief: K.Belief, shared_view: bool = False) -> K.Belief:
+def view_marginal(model, belief: K.Belief | K.PredictedBelief, shared_view: bool = False
+                  ) -> K.Belief | K.PredictedBelief:
     """The belief over (class, levels): with ``shared_view`` the marginal of
-    one over the ``C * M`` extended classes (levels may carry a position axis,
-    :func:`~jaxrecog.kernels.transition_per_position`), else ``belief`` itself."""
+    one over the ``C * M`` extended classes, of the same form (a
+    :class:`~jaxrecog.kernels.PredictedBelief` from
+    :func:`~jaxrecog.kernels.transition_per_position` stays one), else
+    ``belief`` itself."""
     if not shared_view:
         return belief
     return K.shared_latent.marginal(belief, K.shared_latent.shared_components(model.likelihoods))
@@ -284,9 +287,10 @@ class Recognizer(eqx.Module):
         """``M`` of the shared view component (1 without ``shared_view``)."""
         return K.shared_latent.shared_components(self.model.likelihoods) if self.shared_view else 1
 
-    def belief(self, prior: K.Belief) -> K.Belief:
+    def belief(self, prior: K.Belief | K.PredictedBelief) -> K.Belief | K.PredictedBelief:
         """The belief over (class, levels) of a state's ``prior`` (with
-        ``shared_view``, its marginal over the view component; else itself)."""
+        ``shared_view``, its marginal over the view component; else itself),
+        of the same form (a :class:`~jaxrecog.kernels.PredictedBelief` stays one)."""
         return view_marginal(self.model, prior, self.shared_view)
 
     @property
@@ -395,7 +399,7 @@ class Recognizer(eqx.Module):
         next_config = jnp.stack(ConfigGrid(positions).configuration(nxt)).astype(jnp.int32)
 
         # the prior for the next images: the predicted prior at the chosen positions
-        next_prior = K.Belief(state_predicted.log_pc, tuple(lp[v] for lp, v in zip(state_predicted.log_pk, next_config)))
+        next_prior = state_predicted.at(next_config)
         new_state = RecognizerState(next_prior, next_config, steps, visited, seen, n_explained)
         step_trace = None
         if trace:

@@ -40,27 +40,16 @@ class CameraModel(eqx.Module):
             :func:`jaxrecog.calibration.apply_calibration`, kept so they can be
             reported; ``None`` = uncalibrated (all factors 1).
 
-    ``CameraModel(mean_image, basis, eigenvalues, mu, var[, chol])`` (the
-    Gaussian array form) builds the Gaussian likelihood; ``mu``, ``var`` and
-    ``chol`` read a Gaussian's arrays back (``chol`` is ``None`` for a diagonal one).
+    A Gaussian from its arrays is ``likelihood=K.gaussian(mu, var[, chol])``;
+    ``mu``, ``var`` and ``chol`` read a Gaussian's arrays back (``chol`` is
+    ``None`` for a diagonal one).
     """
 
     mean_image: MeanImages
     basis: Bases
     eigenvalues: Eigenvalues
     likelihood: K.Likelihood
-    calibration: Float[Array, "V L"] | None
-
-    def __init__(self, mean_image: MeanImages, basis: Bases, eigenvalues: Eigenvalues,
-                 mu: Means | None = None, var: Variances | None = None, chol: Cholesky | None = None,
-                 calibration: Float[Array, "V L"] | None = None, *, likelihood: K.Likelihood | None = None):
-        if (likelihood is None) == (mu is None):
-            raise TypeError("CameraModel: give either `likelihood` or the Gaussian arrays `mu`, `var` (, `chol`)")
-        self.mean_image = mean_image
-        self.basis = basis
-        self.eigenvalues = eigenvalues
-        self.likelihood = K.gaussian(mu, var, chol) if likelihood is None else likelihood
-        self.calibration = calibration
+    calibration: Float[Array, "V L"] | None = None
 
     @property
     def n_positions(self) -> int:
@@ -164,14 +153,16 @@ class SensorModel(eqx.Module):
     def summary(self) -> str:
         """A few human-readable lines: sizes, levels and feature statistics."""
         H, W = self.image_shape
-        gaussian = set(self.likelihood_kinds) <= {"diag", "full"}
+        # the families name themselves (Likelihood.summary_words); cameras of
+        # families that name themselves differently get the generic words
+        words = {type(lik).summary_words for lik in self.likelihoods}
+        label, plural = words.pop() if len(words) == 1 else K.Likelihood.summary_words
         lines = [
             f"SensorModel: {self.n_cameras} camera(s), positions {self.positions}, "
             f"{self.n_objects} objects x {self.n_poses} poses = {self.n_classes} classes",
             f"  images {H}x{W} (D={H * W}), K={self.n_components} components, "
             f"{self.n_levels} occlusion level(s) {tuple(round(x, 2) for x in self.levels)}, "
-            # the thesis's Gaussians keep their old wording (make demo's output is unchanged)
-            f"{'covariance' if gaussian else 'likelihood'} {self.covariance}",
+            f"{label} {self.covariance}",
         ]
         for i, st in enumerate(self.camera_stats()):
             lines.append(
@@ -187,7 +178,7 @@ class SensorModel(eqx.Module):
                     f"(median {np.median(f):.3g}) over {f.shape[0]} positions x {f.shape[1]} level(s)"
                 )
         n_comp = sum(c.n_positions for c in self.cameras) * self.n_classes * self.n_levels
-        lines.append(f"  {n_comp} {'Gaussians' if gaussian else 'likelihood components'} (positions x classes x levels)")
+        lines.append(f"  {n_comp} {plural} (positions x classes x levels)")
         return "\n".join(lines)
 
 

@@ -4,7 +4,9 @@ Cramér-Rao, pairwise-distance MI, two-step lookahead), each with a plain NumPy 
 Nothing here imports from ``jaxrecog`` proper or ``jaxrecog.hardware``.
 Per-camera values come as tuples, one entry per camera: likelihoods
 (:class:`Likelihood`, each over its ``V_i`` positions), log-likelihood arrays
-``[C, L_i]``, sample tables; configurations are the row-major product of the
+``[C, L_i]``, sample tables; the planners score a :class:`PredictedBelief`
+(level rows per candidate position ``[V_i, C, L_i]``), a step's update acts
+on a :class:`Belief` (``[C, L_i]``); configurations are the row-major product of the
 cameras' positions (:class:`ConfigGrid`, ``config_grid.py``).  Likelihood families register in :data:`LIKELIHOODS`
 (importing a family's module registers it: one line below per built-in kind).
 In the jaxtyping annotations a per-camera size is written with a leading ``_``
@@ -14,7 +16,9 @@ across the tuple, while shared sizes such as ``C`` are.
 
 from .belief import (
     Belief,
+    PredictedBelief,
     UpdateInfo,
+    at_every_position,
     class_marginal,
     entropy,
     joint,
@@ -74,11 +78,13 @@ __all__ = [
     "MITables",
     "PairwiseTables",
     "PairwiseFisherTables",
+    "PredictedBelief",
     "QMCFisherTables",
     "UpdateInfo",
     "ViewMixture",
     "shared_latent",
     "as_likelihoods",
+    "at_every_position",
     "camera_log_likelihoods",
     "class_marginal",
     "crlb_criterion",

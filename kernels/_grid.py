@@ -227,32 +227,6 @@ def mixture_information(ts, selfs, log_pc, log_pk):
 __all__ = ["check_options", "floor_log_probs", "grid_mixture", "level_tables", "lse", "mixture_information", "own_class", "weights"]
 
 
-def check_belief(tables, belief) -> None:
-    """The belief fits the sample tables (number of cameras, C); a clear
-    ``ValueError`` otherwise.  Shared by the MI and Fisher kernels."""
-    check_belief_sizes(len(tables.ld_self), tables.ld_self[0].shape[1], belief)
-
-
-def check_belief_sizes(n: int, c: int, belief) -> None:
-    """:func:`check_belief` for tables of ``n`` cameras and ``c`` classes."""
-    if len(belief.log_pk) != n:
-        raise ValueError(f"belief over {len(belief.log_pk)} cameras, tables for {n}")
-    if belief.log_pc.shape != (c,):
-        raise ValueError(f"belief.log_pc has shape {belief.log_pc.shape}, tables have C = {c}")
-    check_belief_values(belief)
-
-
-def check_belief_values(belief) -> None:
-    """A belief with concrete values holds no NaN (a ``ValueError`` naming the
-    array otherwise).  Traced values (under ``jit``) cannot be checked here;
-    the kernels keep their scores free of NaN instead."""
-    for name, x in [("log_pc", belief.log_pc)] + [(f"log_pk[{i}]", x) for i, x in enumerate(belief.log_pk)]:
-        if isinstance(x, jax.core.Tracer):  # under jit: checked by the caller's NaN-free outputs
-            continue
-        if bool(jnp.any(jnp.isnan(jnp.asarray(x)))):
-            raise ValueError(f"belief.{name} contains NaN (a belief must be log-probabilities, -inf allowed)")
-
-
 def to_grid(t):
     """``[V, C, L, J, ...] -> [C, J, V*L, ...]``: a camera's per-position table
     as the rows of the (v_1, v_2) grid product."""

@@ -12,15 +12,23 @@ likelihood is a product over cameras given c (eq. 4.17), and each camera's
 level transition acts on its own level only (eq. 3.7-3.9), so a prior of this
 form yields a posterior (and a predicted prior) of the same form.  The belief
 costs C + C * sum_i L_i numbers instead of C * prod_i L_i.
+
+The planners score the *predicted* prior of the next step, which depends on
+where each camera goes: :class:`PredictedBelief` holds it per candidate
+position (level rows ``[V_i, C, L_i]``), made by
+:func:`transition_per_position` (or :func:`at_every_position` for a belief
+scored as it is); ``predicted.at(config)`` is the :class:`Belief` at one
+configuration.
 """
 
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
+from typing import NamedTuple, Sequence
 
+import jax
 import jax.numpy as jnp
-from jaxtyping import Array, ArrayLike, Bool, Float
+from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from ._grid import lse as _lse
 
@@ -31,12 +39,41 @@ class Belief(NamedTuple):
     Attributes:
         log_pc: ``[C]`` log P(c), normalised (logsumexp = 0).
         log_pk: one ``[C, L_i]`` array per camera, log P_i(k_i | c); every row
-            normalised.  (The planners also accept a per-position predicted
-            form ``[V_i, C, L_i]``, see :func:`transition_per_position`.)
+            normalised.
     """
 
     log_pc: Float[ArrayLike, " C"]
     log_pk: tuple[Float[ArrayLike, "C _L"], ...]
+
+
+class PredictedBelief(NamedTuple):
+    """The predicted prior of the next step for every candidate position of
+    every camera (what the planners score, eq. 3.7-3.9 and 5.3):
+
+        P_a(s) = P(c) * prod_i P_i[v_i](k_i | c),    a = (v_0, v_1, ...).
+
+    Whether camera i's levels are kept or re-drawn depends only on its own
+    next position v_i, so the prediction still factorises, with one
+    ``[C, L_i]`` block of level rows per position (:func:`transition_per_position`).
+
+    Attributes:
+        log_pc: ``[C]`` log P(c), normalised (the transition never changes it).
+        log_pk: one ``[V_i, C, L_i]`` array per camera, log P_i[v](k | c);
+            every row normalised.
+    """
+
+    log_pc: Float[ArrayLike, " C"]
+    log_pk: tuple[Float[ArrayLike, "_V C _L"], ...]
+
+    @property
+    def positions(self) -> tuple[int, ...]:
+        """``(V_0, V_1, ...)``: the candidate positions of each camera."""
+        return tuple(int(lp.shape[0]) for lp in self.log_pk)
+
+    def at(self, config: Int[ArrayLike, " n"] | Sequence[Int[ArrayLike, ""]]) -> Belief:
+        """The prior at one configuration ``(v_0, v_1, ...)`` (may be traced):
+        level rows ``log_pk[i][v_i]``."""
+        return Belief(self.log_pc, tuple(lp[v] for lp, v in zip(self.log_pk, config)))
 
 
 class UpdateInfo(NamedTuple):
@@ -205,14 +242,14 @@ def transition_per_position(
     positions: tuple[int, ...],
     kind: str = "uniform",
     rho: float | Float[ArrayLike, ""] = 0.9,
-) -> Belief:
+) -> PredictedBelief:
     """The predicted prior for every candidate position of every camera.
 
     Whether camera i moves depends only on its own next position ``v_i``
     (``v_i != current[i]``), so the predicted level distribution of camera i
-    is a ``[V_i, C, L_i]`` array and the prediction still factorises.  The
-    planners (:func:`jaxrecog.kernels.mutual_information`,
-    :func:`jaxrecog.kernels.fisher_information`) accept this form.
+    is a ``[V_i, C, L_i]`` array and the prediction still factorises
+    (:class:`PredictedBelief`, what every planner scores).  Row ``v`` of
+    camera i is :func:`transition`'s with ``moved[i] = (v != current[i])``.
     """
     n = len(belief.log_pk)
     if len(positions) != n:
@@ -227,7 +264,52 @@ def transition_per_position(
             out.append(_sticky(lp[None], rho, stay))
         else:
             raise ValueError(f"transition_per_position: kind must be 'uniform' or 'sticky', got {kind!r}")
-    return Belief(belief.log_pc, tuple(out))
+    return PredictedBelief(belief.log_pc, tuple(out))
+
+
+def at_every_position(belief: Belief, positions: tuple[int, ...]) -> PredictedBelief:
+    """The belief as it is, at every candidate position: ``P_i[v](k | c) = P_i(k | c)``
+    for every v (the prediction of no level transition), e.g. to score the
+    state's own prior (``jaxrecog plan`` without images) or a belief in a test.
+    A broadcast: the values are the belief's."""
+    n = len(belief.log_pk)
+    if len(positions) != n:
+        raise ValueError(f"at_every_position: {len(positions)} position counts for {n} cameras")
+    return PredictedBelief(belief.log_pc, tuple(
+        jnp.broadcast_to(jnp.asarray(lp)[None], (int(v),) + tuple(jnp.shape(lp))) for lp, v in zip(belief.log_pk, positions)))
+
+
+def check_predicted(belief, tables) -> None:
+    """``belief`` is the :class:`~.belief.PredictedBelief` that the per-camera
+    ``tables`` (axes ``[V_i, C, L_i, ...]``, e.g. ``MITables.ld_self``) score:
+    the same cameras, C and level rows ``[V_i, C, L_i]``, no NaN where its
+    values are concrete; a ``TypeError`` / ``ValueError`` naming what differs
+    otherwise.  Shared by every planner kernel."""
+    if not isinstance(belief, PredictedBelief):
+        raise TypeError(f"a planner kernel scores a PredictedBelief (transition_per_position, or "
+                        f"at_every_position for a belief as it is), got {type(belief).__name__}")
+    n, c = len(tables), tables[0].shape[1]
+    if len(belief.log_pk) != n:
+        raise ValueError(f"belief over {len(belief.log_pk)} cameras, tables for {n}")
+    if jnp.shape(belief.log_pc) != (c,):
+        raise ValueError(f"belief.log_pc has shape {jnp.shape(belief.log_pc)}, tables have C = {c}")
+    for i, (lp, t) in enumerate(zip(belief.log_pk, tables)):
+        want = (t.shape[0], c, t.shape[2])
+        if jnp.shape(lp) != want:
+            raise ValueError(f"belief.log_pk[{i}] has shape {jnp.shape(lp)}, the tables' camera {i} wants "
+                             f"[V, C, L] = {want}")
+    _check_values(belief)
+
+
+def _check_values(belief) -> None:
+    """A belief with concrete values holds no NaN (a ``ValueError`` naming the
+    array otherwise).  Traced values (under ``jit``) cannot be checked here;
+    the kernels keep their scores free of NaN instead."""
+    for name, x in [("log_pc", belief.log_pc)] + [(f"log_pk[{i}]", x) for i, x in enumerate(belief.log_pk)]:
+        if isinstance(x, jax.core.Tracer):  # under jit: checked by the caller's NaN-free outputs
+            continue
+        if bool(jnp.any(jnp.isnan(jnp.asarray(x)))):
+            raise ValueError(f"belief.{name} contains NaN (a belief must be log-probabilities, -inf allowed)")
 
 
 def class_marginal(belief: Belief) -> Float[Array, " C"]:

@@ -46,10 +46,9 @@ import jax.random as jr
 from jax.scipy.linalg import solve_triangular
 from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray
 
-from ._grid import floor_log_probs, grid_mixture, lse, weights
-from .belief import Belief
-from ._grid import check_belief, to_grid
-from .mutual_information import MITables, per_position_levels
+from ._grid import floor_log_probs, grid_mixture, lse, to_grid, weights
+from .belief import PredictedBelief, check_predicted
+from .mutual_information import MITables
 
 DEFAULT_SIGMA_S = 0.4
 
@@ -80,7 +79,7 @@ def fisher_draws(key: PRNGKeyArray, tables: MITables) -> FisherDraws:
 
 def fisher_information(
     tables: MITables,
-    belief: Belief,
+    belief: PredictedBelief,
     *,
     key: PRNGKeyArray,
     n_objects: int,
@@ -93,7 +92,7 @@ def fisher_information(
 
     Args:
         tables: from :func:`jaxrecog.kernels.mi_tables` (needs ``tables.ld``).
-        belief: predicted prior; level rows ``[C, L_i]`` or ``[V_i, C, L_i]``.
+        belief: the predicted prior, level rows per position ``[V_i, C, L_i]``.
         key: PRNG key for the smoothing noise eps (shared by all configurations).
         n_objects, n_poses: with ``C = n_objects * n_poses``, c = object * n_poses + pose.
         sigma_s: smoothing width (static).
@@ -109,11 +108,9 @@ def fisher_information(
         ``[A, D, D]`` symmetric PSD matrices, coordinates (object, pose, k_0, ...);
         with ``with_stderr`` a pair ``(J, stderr [A, D, D])``.
     """
-    check_belief(tables, belief)
+    check_predicted(belief, tables.ld_self)
     if tables.ld is None:
         raise ValueError("fisher_information: needs tables built with store='full' or 'both'")
-    n = len(tables.ld)
-    positions = tuple(t.shape[0] for t in tables.ld)
     n_c, j = tables.ld[0].shape[1], tables.ld[0].shape[3]
     if n_objects * n_poses != n_c:
         raise ValueError(f"fisher_information: n_objects * n_poses = {n_objects * n_poses} != C = {n_c}")
@@ -127,7 +124,7 @@ def fisher_information(
 
 
 @functools.partial(jax.jit, static_argnames=("n_objects", "n_poses", "sigma_s", "levels", "with_stderr"))
-def _fisher_information(tables: MITables, belief: Belief, key: PRNGKeyArray, n_objects: int, n_poses: int,
+def _fisher_information(tables: MITables, belief: PredictedBelief, key: PRNGKeyArray, n_objects: int, n_poses: int,
                         sigma_s: float, levels: str, with_stderr: bool):
     """The body of :func:`fisher_information` (arguments checked), compiled as
     one program (one XLA compilation per shape when called eagerly, instead of
@@ -135,7 +132,7 @@ def _fisher_information(tables: MITables, belief: Belief, key: PRNGKeyArray, n_o
     return fisher_from_draws(tables, belief, fisher_draws(key, tables), n_objects, n_poses, sigma_s, levels, with_stderr)
 
 
-def fisher_from_draws(tables: MITables, belief: Belief, draws: FisherDraws, n_objects: int, n_poses: int,
+def fisher_from_draws(tables: MITables, belief: PredictedBelief, draws: FisherDraws, n_objects: int, n_poses: int,
                       sigma_s: float, levels: str = "belief", with_stderr: bool = False):
     """:func:`fisher_information` on given smoothing draws (arguments not
     checked; traceable, for callers that make their own draws, e.g. the
@@ -150,7 +147,7 @@ def fisher_from_draws(tables: MITables, belief: Belief, draws: FisherDraws, n_ob
     if levels == "uniform":
         log_pk = [jnp.full((v, n_c, t.shape[2]), -math.log(t.shape[2]), dtype) for v, t in zip(positions, tables.ld)]
     else:
-        log_pk = [lp.astype(dtype) for lp in per_position_levels(belief, positions)]
+        log_pk = [lp.astype(dtype) for lp in belief.log_pk]
 
     cls = jnp.arange(n_c)
     obj = (cls // n_poses).astype(dtype)

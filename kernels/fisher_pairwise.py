@@ -69,19 +69,18 @@ from __future__ import annotations
 
 import functools
 import math
-from typing import NamedTuple
+from typing import NamedTuple, Sequence
 
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Float
+from jaxtyping import Array, Float
 
-from ._grid import check_belief_sizes, floor_log_probs, weights
-from .belief import Belief
+from ._grid import floor_log_probs, weights
+from .belief import PredictedBelief, check_predicted
 from .config_grid import ConfigGrid, position_rows
 from .fisher import DEFAULT_SIGMA_S
-from .likelihood import as_likelihoods
-from .mutual_information import per_position_levels
+from .likelihood import Likelihood, as_likelihoods
 from .pairwise_mi import DIVERGENCES
 
 __all__ = ["PairwiseFisherTables", "pairwise_fisher_tables", "pairwise_fisher_information", "smoothing_kappa", "transition_form"]
@@ -119,18 +118,15 @@ def smoothing_kappa(sigma_s: float, kind: str) -> float:
 
 
 def pairwise_fisher_tables(
-    likelihoods,
-    vars: tuple[Float[ArrayLike, "_V C _L _K"], ...] | None = None,
+    likelihoods: Sequence[Likelihood],
     *,
     kind: str = "bhattacharyya",
     sigma_s: float = DEFAULT_SIGMA_S,
-    chols: tuple[Float[ArrayLike, "_V C _L _K _K"], ...] | None = None,
 ) -> PairwiseFisherTables:
     """The offline tables of :func:`pairwise_fisher_information` (once per model).
 
     Args:
-        likelihoods: one :class:`~jaxrecog.kernels.Likelihood` per camera, or
-            the Gaussian array form (means with ``vars`` or ``chols``), as
+        likelihoods: one :class:`~jaxrecog.kernels.Likelihood` per camera, as
             :func:`~jaxrecog.kernels.pairwise_tables`.
         kind: ``"bhattacharyya"`` (default) or ``"kl"``: the divergence of eq. (3)
             (:meth:`~jaxrecog.kernels.Likelihood.divergence`, and the smoothing term's).
@@ -140,7 +136,7 @@ def pairwise_fisher_tables(
         raise ValueError(f"pairwise_fisher_tables: kind must be one of {DIVERGENCES}, got {kind!r}")
     if not sigma_s > 0:
         raise ValueError(f"pairwise_fisher_tables: sigma_s must be > 0, got {sigma_s}")
-    liks = as_likelihoods(likelihoods, vars, chols, where="pairwise_fisher_tables")
+    liks = as_likelihoods(likelihoods, where="pairwise_fisher_tables")
     kappa = smoothing_kappa(sigma_s, kind)
     w_max, w_exp = [], []
     for lik in liks:
@@ -162,7 +158,7 @@ def pairwise_fisher_tables(
 
 def pairwise_fisher_information(
     tables: PairwiseFisherTables,
-    belief: Belief,
+    belief: PredictedBelief,
     *,
     n_objects: int,
     n_poses: int,
@@ -173,7 +169,7 @@ def pairwise_fisher_information(
 
     Args:
         tables: from :func:`pairwise_fisher_tables` (the divergence and sigma_s are theirs).
-        belief: predicted prior; level rows ``[C, L_i]`` or ``[V_i, C, L_i]``.
+        belief: the predicted prior, level rows per position ``[V_i, C, L_i]``.
         n_objects, n_poses: with ``C = n_objects * n_poses``, c = object * n_poses + pose.
         fast: the prior's level rows are equal at all positions of each camera
             but at most one, as :func:`~jaxrecog.kernels.transition_per_position`
@@ -189,11 +185,11 @@ def pairwise_fisher_information(
         times its largest is projected onto the PSD cone).
     """
     n_c = tables.w_max[0].shape[1]
-    check_belief_sizes(len(tables.w_max), n_c, belief)
+    check_predicted(belief, tables.w_max)
     if n_objects * n_poses != n_c:
         raise ValueError(f"pairwise_fisher_information: n_objects * n_poses = {n_objects * n_poses} != C = {n_c}")
     if fast and not any(isinstance(x, jax.core.Tracer) for x in (belief.log_pc, *belief.log_pk)):
-        fast = transition_form(belief, tuple(t.shape[0] for t in tables.w_max))
+        fast = transition_form(belief)
     return _pairwise_fisher(tables, belief, n_objects, n_poses, bool(fast))
 
 
@@ -344,11 +340,11 @@ def _representatives(log_pk):
     return cur, other
 
 
-def transition_form(belief: Belief, positions: tuple[int, ...]) -> bool:
+def transition_form(belief: PredictedBelief) -> bool:
     """Whether a concrete belief's level rows are equal at all positions of
     each camera but at most one (what ``fast=True`` of
     :func:`pairwise_fisher_information` needs).  Host-side NumPy."""
-    for lp in per_position_levels(belief, positions):
+    for lp in belief.log_pk:
         lp = np.asarray(lp)
         if lp.shape[0] > 2:
             d0 = np.any(lp != lp[:1], axis=(1, 2))
@@ -359,7 +355,7 @@ def transition_form(belief: Belief, positions: tuple[int, ...]) -> bool:
 
 
 @functools.partial(jax.jit, static_argnames=("n_objects", "n_poses", "fast"))
-def _pairwise_fisher(tables: PairwiseFisherTables, belief: Belief, n_objects: int, n_poses: int, fast: bool):
+def _pairwise_fisher(tables: PairwiseFisherTables, belief: PredictedBelief, n_objects: int, n_poses: int, fast: bool):
     """The body of :func:`pairwise_fisher_information` (arguments checked), one program.
 
     The smoothing side Sigma_0 depends on the configuration only through the
@@ -373,7 +369,7 @@ def _pairwise_fisher(tables: PairwiseFisherTables, belief: Belief, n_objects: in
     dtype = tables.w_max[0].dtype
     kappa = tables.kappa.astype(dtype)
     log_pc = floor_log_probs(belief.log_pc.astype(dtype))
-    log_pk = [lp.astype(dtype) for lp in per_position_levels(belief, positions)]
+    log_pk = [lp.astype(dtype) for lp in belief.log_pk]
 
     cls = jnp.arange(n_c)
     obj = (cls // n_poses).astype(dtype)

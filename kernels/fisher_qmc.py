@@ -28,7 +28,7 @@ kernel).  A replicate standard error needs independent randomisations
 from __future__ import annotations
 
 import functools
-from typing import NamedTuple
+from typing import NamedTuple, Sequence
 
 import jax
 import jax.numpy as jnp
@@ -37,10 +37,9 @@ import numpy as np
 from jax.scipy.special import ndtri
 from jaxtyping import Array, Float, PRNGKeyArray
 
-from ._grid import check_belief
-from .belief import Belief
+from .belief import PredictedBelief, check_predicted
 from .fisher import DEFAULT_SIGMA_S, FisherDraws, fisher_from_draws
-from .likelihood import as_likelihoods
+from .likelihood import Likelihood, as_likelihoods
 from .mutual_information import MITables, camera_log_densities
 
 __all__ = ["QMCFisherTables", "qmc_fisher_tables", "qmc_fisher_draws", "qmc_fisher_information", "sobol_normal_points"]
@@ -76,18 +75,17 @@ def sobol_normal_points(n_classes: int, j: int, dims: int, seed: int) -> np.ndar
                      for c in range(n_classes)])
 
 
-def qmc_fisher_tables(likelihoods, vars=None, *, seed: int, samples_per_stratum: int, chols=None) -> QMCFisherTables:
+def qmc_fisher_tables(likelihoods: Sequence[Likelihood], *, seed: int, samples_per_stratum: int) -> QMCFisherTables:
     """The offline tables (once per model and seed): Sobol points per class,
     the noise coordinates mapped to z = Phi^-1(u) and the log-density tables
     LD_i on them (:func:`~jaxrecog.kernels.mi_tables`'s ``store="full"`` part).
 
     Args:
-        likelihoods: one :class:`~jaxrecog.kernels.Likelihood` per camera, or
-            the Gaussian array form (means with ``vars`` or ``chols``).
+        likelihoods: one :class:`~jaxrecog.kernels.Likelihood` per camera.
         seed: the scrambling seed (an int: the points are made by NumPy).
         samples_per_stratum: J, a power of 2.
     """
-    liks = as_likelihoods(likelihoods, vars, chols, where="qmc_fisher_tables")
+    liks = as_likelihoods(likelihoods, where="qmc_fisher_tables")
     j = int(samples_per_stratum)
     n_c = liks[0].n_classes
     dims = 2 + sum(1 + lik.noise_dim for lik in liks)
@@ -130,7 +128,7 @@ def qmc_fisher_draws(key: PRNGKeyArray, qt: QMCFisherTables) -> FisherDraws:
 
 def qmc_fisher_information(
     qt: QMCFisherTables,
-    belief: Belief,
+    belief: PredictedBelief,
     *,
     key: PRNGKeyArray,
     n_objects: int,
@@ -140,7 +138,7 @@ def qmc_fisher_information(
     """Eq. 5.28 on the randomised Sobol points (module doc) for every
     configuration: ``[A, D, D]``, D = 2 + n_cameras, as
     :func:`~jaxrecog.kernels.fisher_information` (levels of the belief)."""
-    check_belief(qt.tables, belief)
+    check_predicted(belief, qt.tables.ld_self)
     n_c = qt.u_obj.shape[0]
     if n_objects * n_poses != n_c:
         raise ValueError(f"qmc_fisher_information: n_objects * n_poses = {n_objects * n_poses} != C = {n_c}")

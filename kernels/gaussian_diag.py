@@ -47,6 +47,7 @@ class DiagonalGaussian(Likelihood):
     """
 
     kind: ClassVar[str] = "diag"
+    summary_words: ClassVar[tuple[str, str]] = ("covariance", "Gaussians")
     name: ClassVar[str] = "gaussian-diag"
     field_shapes: ClassVar[dict[str, str]] = {"mu": "V C L K", "var": "V C L K"}
     second_moments: ClassVar[str] = "diag"

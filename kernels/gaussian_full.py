@@ -48,6 +48,7 @@ class FullGaussian(Likelihood):
     """
 
     kind: ClassVar[str] = "full"
+    summary_words: ClassVar[tuple[str, str]] = ("covariance", "Gaussians")
     name: ClassVar[str] = "gaussian-full"
     field_shapes: ClassVar[dict[str, str]] = {"mu": "V C L K", "var": "V C L K", "chol": "V C L K K"}
     second_moments: ClassVar[str] = "full"

@@ -112,6 +112,11 @@ class Likelihood(eqx.Module):
             database's ``jitter`` images of that view): training then passes
             :meth:`fit` per-component moments ``[C, L, M, K]`` and needs view
             jitter (``view_mixture.py``).
+        summary_words: how a model summary (``SensorModel.summary``, ``jaxrecog
+            inspect``) names the family's kind and its components when every
+            camera has it: ``(label, plural)``, default ``("likelihood",
+            "likelihood components")``; the thesis's Gaussians keep their
+            ``("covariance", "Gaussians")``.
     """
 
     kind: ClassVar[str]
@@ -122,6 +127,7 @@ class Likelihood(eqx.Module):
     calibration_shapes: ClassVar[tuple[str, ...]] = ()
     derived_shapes: ClassVar[dict[str, str]] = {}
     view_components: ClassVar[bool] = False
+    summary_words: ClassVar[tuple[str, str]] = ("likelihood", "likelihood components")
 
     def __check_init__(self):
         self.sizes()  # consistent axes across fields (raises otherwise)
@@ -357,15 +363,17 @@ def likelihood_names(trainable: bool = True) -> tuple[str, ...]:
 def gaussian(mu, var=None, chol=None) -> Likelihood:
     """The thesis's Gaussian from its arrays: ``"diag"`` from ``var``, or
     ``"full"`` from the lower Cholesky factor ``chol`` (then ``var``, if given,
-    is the diagonal of the covariance).  The array form of older callers."""
+    is the diagonal of the covariance)."""
     if chol is None:
         return likelihood_class("diag")(mu, var)
     return likelihood_class("full")(mu, chol, var)
 
 
-def gaussian_likelihoods(mus, vars=None, chols=None, *, where: str = "likelihoods") -> tuple[Likelihood, ...]:
-    """Per-camera Gaussians from ``mus`` and exactly one of ``vars`` (diagonal)
-    or ``chols`` (full covariance), shapes checked (``where`` prefixes the errors)."""
+def gaussian_likelihoods(mus, vars=None, chols=None, *, where: str = "gaussian_likelihoods") -> tuple[Likelihood, ...]:
+    """Per-camera Gaussians (:func:`gaussian`) from ``mus`` (``[V_i, C, L_i, K_i]``
+    per camera) and exactly one of ``vars`` (diagonal, the same shapes) or
+    ``chols`` (full covariance, ``[V_i, C, L_i, K_i, K_i]``), shapes checked
+    (``where`` prefixes the errors): what the kernels take for arrays."""
     if (vars is None) == (chols is None):
         raise ValueError(f"{where}: give exactly one of `vars` (diagonal) or `chols` (full)")
     other = vars if vars is not None else chols
@@ -383,17 +391,16 @@ def gaussian_likelihoods(mus, vars=None, chols=None, *, where: str = "likelihood
     return tuple(gaussian(m, chol=ch) for m, ch in zip(mus, chols))
 
 
-def as_likelihoods(likelihoods, vars=None, chols=None, *, where: str = "likelihoods") -> tuple[Likelihood, ...]:
-    """A tuple of per-camera :class:`Likelihood` s (each over its positions), or
-    the Gaussian array form ``(mus, vars | chols)`` converted by
-    :func:`gaussian_likelihoods`; every camera must have the same classes."""
-    items = tuple(likelihoods)
-    if items and all(isinstance(x, Likelihood) for x in items):
-        if vars is not None or chols is not None:
-            raise ValueError(f"{where}: `vars` / `chols` belong to the array form; likelihoods carry their own parameters")
-        liks = items
-    else:
-        liks = gaussian_likelihoods(items, vars, chols, where=where)
+def as_likelihoods(likelihoods, *, where: str = "likelihoods") -> tuple[Likelihood, ...]:
+    """The per-camera :class:`Likelihood` s (each over its positions) as a
+    tuple, checked: every camera has a position axis and the same classes.
+    Arrays are refused with a ``TypeError`` naming :func:`gaussian_likelihoods`,
+    which builds the Gaussians from them."""
+    liks = tuple(likelihoods)
+    if not liks or not all(isinstance(x, Likelihood) for x in liks):
+        got = ", ".join(sorted({type(x).__name__ for x in liks})) or "nothing"
+        raise TypeError(f"{where}: give one Likelihood per camera (e.g. gaussian_likelihoods(mus, vars) "
+                        f"for the Gaussian arrays), got {got}")
     c = liks[0].n_classes
     for i, lik in enumerate(liks):
         if "V" not in lik.sizes():
@@ -407,18 +414,15 @@ def camera_log_likelihoods(
     gs: tuple[Float[ArrayLike, " _K"], ...],
     config: Int[ArrayLike, " n"] | tuple[int, ...],
     likelihoods,
-    vars: tuple[Float[ArrayLike, "_V C _L _K"], ...] | None = None,
-    chols: tuple[Float[ArrayLike, "_V C _L _K _K"], ...] | None = None,
 ) -> tuple[Float[Array, "C _L"], ...]:
     """Per-camera log p(g_i | c, k_i, v_i) at configuration ``config = (v_0, v_1, ...)``.
 
     The joint log-likelihood of a state is the sum of these over cameras
     (eq. 4.17); :func:`jaxrecog.kernels.update` consumes the tuple directly.
-    ``likelihoods``: one :class:`Likelihood` per camera, or the Gaussian array
-    form ``mus`` with exactly one of ``vars`` / ``chols``.  ``config`` may be a
+    ``likelihoods``: one :class:`Likelihood` per camera.  ``config`` may be a
     traced integer array (no recompilation per position).
     """
-    liks = as_likelihoods(likelihoods, vars, chols, where="camera_log_likelihoods")
+    liks = as_likelihoods(likelihoods, where="camera_log_likelihoods")
     if len(gs) != len(liks):
         raise ValueError(f"camera_log_likelihoods: {len(gs)} feature vectors for {len(liks)} cameras")
     return tuple(lik.at(config[i]).log_density(g) for i, (lik, g) in enumerate(zip(liks, gs)))

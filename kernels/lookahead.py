@@ -67,10 +67,9 @@ import jax.numpy as jnp
 import jax.random as jr
 from jaxtyping import Array, Float, Int, PRNGKeyArray
 
-from ._grid import check_belief
-from .belief import Belief, transition_per_position, update
+from .belief import PredictedBelief, check_predicted, transition_per_position, update
 from .config_grid import ConfigGrid
-from .mutual_information import MITables, per_position_levels
+from .mutual_information import MITables
 
 __all__ = ["LookaheadDraws", "lookahead_draws", "lookahead_information", "outcome_strata"]
 
@@ -112,8 +111,8 @@ def outcome_strata(log_w: Float[Array, " N"], u: Float[Array, ""], n_outcomes: i
 
 def lookahead_information(
     tables: MITables,
-    score: Callable[[Belief], Float[Array, " A"]],
-    prior: Belief,
+    score: Callable[[PredictedBelief], Float[Array, " A"]],
+    prior: PredictedBelief,
     *,
     draws: LookaheadDraws,
     top_k: int,
@@ -127,14 +126,14 @@ def lookahead_information(
         tables: :func:`~jaxrecog.kernels.mi_tables` of the model (needs
             ``tables.ld``: the outcomes' log-likelihoods; ``ld_exp`` / ``ld_max``
             are not read).
-        score: the one-step score, ``Belief`` with per-position level rows
-            ``[V_i, C, L_i]`` -> ``[A]`` (higher = better; a failed estimate
+        score: the one-step score, :class:`~jaxrecog.kernels.PredictedBelief`
+            -> ``[A]`` (higher = better; a failed estimate
             ``-inf``, never NaN), e.g. a ``functools.partial`` of
             :func:`~jaxrecog.kernels.pairwise_mutual_information`.  It is
             evaluated ``top_k * S + 1`` times (all but one under the vmap):
             the cost of a call is about that many one-step calls.
-        prior: the predicted prior, level rows ``[C, L_i]`` or per position
-            ``[V_i, C, L_i]`` (:func:`~jaxrecog.kernels.transition_per_position`).
+        prior: the predicted prior, level rows per position ``[V_i, C, L_i]``
+            (:func:`~jaxrecog.kernels.transition_per_position`).
         draws: :func:`lookahead_draws` (``S = draws.j.shape[0]`` outcomes).
         top_k: first configurations evaluated two steps deep, 1 <= top_k <= A (static).
         transition, rho: the level transition between the two steps, as the
@@ -147,7 +146,7 @@ def lookahead_information(
         ``top_k`` best one-step configurations, the pruned ones below them in
         one-step order (module doc).
     """
-    check_belief(tables, prior)
+    check_predicted(prior, tables.ld_self)
     if tables.ld is None:
         raise ValueError("lookahead_information: needs tables built with store='full' or 'both'")
     if transition not in ("uniform", "sticky"):
@@ -167,8 +166,8 @@ def lookahead_information(
     n_out = draws.j.shape[0]
     dtype = tables.ld[0].dtype
     log_pc = prior.log_pc.astype(dtype)
-    log_pk = [lp.astype(dtype) for lp in per_position_levels(prior, positions)]  # [V_i, C, L_i]
-    prior = Belief(log_pc, tuple(log_pk))
+    log_pk = [lp.astype(dtype) for lp in prior.log_pk]  # [V_i, C, L_i]
+    prior = PredictedBelief(log_pc, tuple(log_pk))
 
     one = score(prior)
     one = jnp.where(jnp.isfinite(one), one, -jnp.inf)  # [A]
@@ -201,7 +200,7 @@ def lookahead_information(
         a, s, j = x
         v = config_of(a)
         c, *ks = stratum_grid.configuration(s)
-        here = Belief(log_pc, tuple(lp[vi] for lp, vi in zip(log_pk, v)))
+        here = prior.at(v)
         logliks = tuple(ld[vi, c, ki, j] for ld, vi, ki in zip(tables.ld, v, ks))  # [C, L_i] each
         post = update(here, logliks)
         current = jnp.stack(v).astype(jnp.result_type(int))  # the default int, as transition_per_position's arange

@@ -51,16 +51,16 @@ from __future__ import annotations
 
 import functools
 import math
-from typing import NamedTuple
+from typing import NamedTuple, Sequence
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import jax.random as jr
-from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray
+from jaxtyping import Array, Float, PRNGKeyArray
 
-from ._grid import check_belief, check_options, floor_log_probs, level_tables, lse, mixture_information, own_class
-from .belief import Belief
+from ._grid import check_options, floor_log_probs, level_tables, lse, mixture_information, own_class
+from .belief import PredictedBelief, check_predicted
 from .likelihood import Likelihood, as_likelihoods
 
 
@@ -107,12 +107,10 @@ def camera_log_densities(lik: Likelihood, z):
 
 
 def mi_tables(
-    likelihoods,
-    vars: tuple[Float[ArrayLike, "_V C _L _K"], ...] | None = None,
+    likelihoods: Sequence[Likelihood],
     *,
     key: PRNGKeyArray,
     samples_per_stratum: int,
-    chols: tuple[Float[ArrayLike, "_V C _L _K _K"], ...] | None = None,
     store: str = "both",
 ) -> MITables:
     """Offline sample tables (per model and key) for :func:`mutual_information`
@@ -120,16 +118,14 @@ def mi_tables(
 
     Args:
         likelihoods: one :class:`~jaxrecog.kernels.Likelihood` per camera (over
-            its positions), or the Gaussian array form: per camera
-            ``[V_i, C, L_i, K_i]`` means with exactly one of ``vars`` (diagonal
-            variances, same shapes) or ``chols`` (``[V_i, C, L_i, K_i, K_i]``
-            lower Cholesky factors).
+            its positions; :func:`~jaxrecog.kernels.gaussian_likelihoods`
+            builds the Gaussians from their arrays).
         key: PRNG key; camera i uses ``fold_in(key, i)``.
         samples_per_stratum: J (static; fixes the shapes).
         store: ``"full"`` (LD tables, any belief), ``"uniform"`` (only the
             belief-free uniform-level tables T_i), or ``"both"``.
     """
-    liks = as_likelihoods(likelihoods, vars, chols, where="mi_tables")
+    liks = as_likelihoods(likelihoods, where="mi_tables")
     if store not in ("full", "uniform", "both"):
         raise ValueError(f"mi_tables: store must be 'full', 'uniform' or 'both', got {store!r}")
     j = int(samples_per_stratum)
@@ -189,21 +185,9 @@ def belief_level_tables(tables: MITables, log_pk):
     return level_tables(tables.ld, tables.ld_max, tables.ld_exp, log_pk)
 
 
-def per_position_levels(belief: Belief, positions: tuple[int, ...]):
-    """Belief level rows as ``[V_i, C, L_i]`` (broadcast when given as ``[C, L_i]``)."""
-    out = []
-    for lp, v in zip(belief.log_pk, positions):
-        if lp.ndim == 2:
-            lp = jnp.broadcast_to(lp[None], (v,) + lp.shape)
-        elif lp.ndim != 3 or lp.shape[0] != v:
-            raise ValueError(f"belief levels of shape {lp.shape} do not match {v} positions")
-        out.append(lp)
-    return out
-
-
 def mutual_information(
     tables: MITables,
-    belief: Belief,
+    belief: PredictedBelief,
     target: str = "state",
     levels: str = "belief",
     with_stderr: bool = False,
@@ -213,8 +197,8 @@ def mutual_information(
 
     Args:
         tables: from :func:`mi_tables` (same model, fixed J).
-        belief: the predicted prior; level rows ``[C, L_i]`` or per position
-            ``[V_i, C, L_i]`` (:func:`jaxrecog.kernels.transition_per_position`).
+        belief: the predicted prior, level rows per position ``[V_i, C, L_i]``
+            (:func:`jaxrecog.kernels.transition_per_position`).
         target: ``"state"`` or ``"class"`` (static).
         levels: ``"belief"`` uses the belief's P_i(k|c) (needs ``tables.ld``;
             exact for any transition when given the per-position prediction).
@@ -235,16 +219,15 @@ def mutual_information(
         ``(mi [A], stderr [A])``.  Estimates are not clipped at 0.
     """
     check_options("mutual_information", target, levels)
-    check_belief(tables, belief)
-    positions = tuple(t.shape[0] for t in tables.ld_self)
-    n_c, j = tables.ld_self[0].shape[1], tables.ld_self[0].shape[3]
+    check_predicted(belief, tables.ld_self)
+    j = tables.ld_self[0].shape[3]
     if with_stderr and j < 2:
         raise ValueError("mutual_information: with_stderr needs samples_per_stratum >= 2")
     return _mutual_information(tables, belief, target, levels, with_stderr)
 
 
 @functools.partial(jax.jit, static_argnames=("target", "levels", "with_stderr"))
-def _mutual_information(tables: MITables, belief: Belief, target: str, levels: str, with_stderr: bool):
+def _mutual_information(tables: MITables, belief: PredictedBelief, target: str, levels: str, with_stderr: bool):
     """The body of :func:`mutual_information` (arguments checked), compiled as
     one program: called eagerly, it costs one XLA compilation per shape
     instead of one per operation (~70 here)."""
@@ -263,7 +246,7 @@ def _mutual_information(tables: MITables, belief: Belief, target: str, levels: s
     else:
         if tables.ld is None:
             raise ValueError("mutual_information: levels='belief' needs tables built with store='full' or 'both'")
-        log_pk = [lp.astype(dtype) for lp in per_position_levels(belief, positions)]
+        log_pk = [lp.astype(dtype) for lp in belief.log_pk]
         ts = belief_level_tables(tables, log_pk)
 
     # E_s E_g [log p(g|s,a) - log p(g|a)] per replicate, on the (v_0, v_1, ...) grid

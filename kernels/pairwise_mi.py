@@ -89,17 +89,16 @@ Gaussians; a moment-matched Gaussian approximation for a family without one.
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
+from typing import NamedTuple, Sequence
 
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, ArrayLike, Float
+from jaxtyping import Array, Float
 
-from ._grid import check_belief_sizes, check_options, floor_log_probs, lse
-from .belief import Belief
+from ._grid import check_options, floor_log_probs, lse
+from .belief import PredictedBelief, check_predicted
 from .config_grid import ConfigGrid, position_rows
-from .likelihood import as_likelihoods
-from .mutual_information import per_position_levels
+from .likelihood import Likelihood, as_likelihoods
 
 __all__ = ["PairwiseTables", "pairwise_tables", "pairwise_mutual_information", "DIVERGENCES"]
 
@@ -162,23 +161,20 @@ def _own_class(t):
 
 
 def pairwise_tables(
-    likelihoods,
-    vars: tuple[Float[ArrayLike, "_V C _L _K"], ...] | None = None,
+    likelihoods: Sequence[Likelihood],
     *,
     kind: str = "bhattacharyya",
-    chols: tuple[Float[ArrayLike, "_V C _L _K _K"], ...] | None = None,
 ) -> PairwiseTables:
     """The offline divergence tables of :func:`pairwise_mutual_information` (once per model).
 
     Args:
-        likelihoods: one :class:`~jaxrecog.kernels.Likelihood` per camera, or
-            the Gaussian array form (means with ``vars`` or ``chols``), as
+        likelihoods: one :class:`~jaxrecog.kernels.Likelihood` per camera, as
             :func:`~jaxrecog.kernels.mi_tables`.
         kind: ``"bhattacharyya"`` (lower bound) or ``"kl"`` (upper bound).
     """
     if kind not in DIVERGENCES:
         raise ValueError(f"pairwise_tables: kind must be one of {DIVERGENCES}, got {kind!r}")
-    liks = as_likelihoods(likelihoods, vars, chols, where="pairwise_tables")
+    liks = as_likelihoods(likelihoods, where="pairwise_tables")
     out = {name: [] for name in PairwiseTables._fields if name not in ("u_state", "u_class")}
     for lik in liks:
         d = jax.lax.map(lambda lik_v: lik_v.divergence(kind), lik)  # [V, C, L, C', L']
@@ -317,7 +313,7 @@ def _information(es, ms, selfs, log_pc, wks, weight_floor, patch=None):
 
 def pairwise_mutual_information(
     tables: PairwiseTables,
-    belief: Belief,
+    belief: PredictedBelief,
     target: str = "state",
     levels: str = "belief",
     fast: bool = True,
@@ -327,8 +323,8 @@ def pairwise_mutual_information(
 
     Args:
         tables: from :func:`pairwise_tables` (its ``kind`` decides the bound).
-        belief: the predicted prior; level rows ``[C, L_i]`` or per position
-            ``[V_i, C, L_i]`` (:func:`jaxrecog.kernels.transition_per_position`).
+        belief: the predicted prior, level rows per position ``[V_i, C, L_i]``
+            (:func:`jaxrecog.kernels.transition_per_position`).
         target: ``"state"`` or ``"class"`` (static).
         levels: ``"belief"`` (the prior's level rows) or ``"uniform"``
             (P_i(k|c) = 1/L_i everywhere, the belief-free tables; as
@@ -346,7 +342,7 @@ def pairwise_mutual_information(
         estimate, ranked last by the recognizer).
     """
     check_options("pairwise_mutual_information", target, levels)
-    check_belief_sizes(len(tables.log_w), tables.log_w[0].shape[1], belief)
+    check_predicted(belief, tables.log_w)
     positions = tuple(w.shape[0] for w in tables.log_w)
     n_levels = tuple(w.shape[2] for w in tables.log_w)
     n = len(positions)
@@ -365,7 +361,7 @@ def pairwise_mutual_information(
         mi = _information(tables.u_exp, tables.u_max, tables.u_self if klass else None, log_pc, wks, floor)
         return jnp.where(jnp.isnan(mi), -jnp.inf, mi)
 
-    log_pk = [floor_log_probs(lp.astype(dtype)) for lp in per_position_levels(belief, positions)]
+    log_pk = [floor_log_probs(lp.astype(dtype)) for lp in belief.log_pk]
     wks = grid_weights(log_pk)
 
     def general(_):

@@ -29,11 +29,16 @@ likelihood, an approximation of planning only: the belief itself is exact).
 
 from __future__ import annotations
 
+from typing import TypeVar
+
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float, Int
 
 from ._grid import lse
-from .belief import Belief
+from .belief import Belief, PredictedBelief
+
+#: a belief of either form (:func:`marginal` keeps the form)
+B = TypeVar("B", Belief, PredictedBelief)
 
 __all__ = ["shared_components", "extend", "marginal", "component_log_likelihoods"]
 
@@ -64,11 +69,13 @@ def extend(belief: Belief, log_pm: Float[ArrayLike, "C M"]) -> Belief:
     return Belief(log_pc, log_pk)
 
 
-def marginal(belief: Belief, n_components: int) -> Belief:
+def marginal(belief: B, n_components: int) -> B:
     """The belief over ``C`` classes from one over ``C * M`` (module docstring):
     ``log P(c) = lse_m log P(c, m)``, ``log P_i(k | c) = lse_m [log P(m | c) +
-    log P_i(k | c, m)]``.  Level rows may carry a leading position axis
-    (``[V, C * M, L]``, :func:`~.belief.transition_per_position`)."""
+    log P_i(k | c, m)]``.  A :class:`~.belief.Belief` gives a ``Belief``, a
+    :class:`~.belief.PredictedBelief` (level rows ``[V, C * M, L]``,
+    :func:`~.belief.transition_per_position`) a ``PredictedBelief``: the
+    level rows' leading axes are carried through."""
     m = int(n_components)
     joint = belief.log_pc.reshape(-1, m)                                   # [C, M]
     log_pc = lse(joint, axis=-1)
@@ -80,7 +87,7 @@ def marginal(belief: Belief, n_components: int) -> Belief:
         sh = lp.shape
         x = lp.reshape(sh[:-2] + (sh[-2] // m, m, sh[-1]))                  # [..., C, M, L]
         out.append(lse(x + log_pm.reshape((1,) * (x.ndim - 3) + log_pm.shape + (1,)), axis=-2))
-    return Belief(log_pc, tuple(out))
+    return belief._replace(log_pc=log_pc, log_pk=tuple(out))
 
 
 def component_log_likelihoods(

@@ -43,7 +43,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 from ._grid import lse
-from .belief import Belief
+from .belief import PredictedBelief
 from .pairwise_mi import PairwiseTables, pairwise_mutual_information
 
 __all__ = ["tempered_belief", "tempered_pairwise_mutual_information", "check_temper"]
@@ -60,7 +60,7 @@ def check_temper(tau) -> float:
     return t
 
 
-def tempered_belief(belief: Belief, tau: float) -> Belief:
+def tempered_belief(belief: PredictedBelief, tau: float) -> PredictedBelief:
     """``P_tau(c) ∝ P(c)^tau`` (module docstring), the level rows unchanged.
 
     ``tau`` is a Python float (static): ``0`` gives exactly the uniform class
@@ -71,14 +71,14 @@ def tempered_belief(belief: Belief, tau: float) -> Belief:
         return belief
     if tau == 0.0:
         n = log_pc.shape[-1]
-        return Belief(jnp.full(log_pc.shape, -math.log(n), log_pc.dtype), belief.log_pk)
+        return belief._replace(log_pc=jnp.full(log_pc.shape, -math.log(n), log_pc.dtype))
     t = jnp.asarray(tau, log_pc.dtype) * log_pc
-    return Belief(t - lse(t, axis=-1)[..., None], belief.log_pk)
+    return belief._replace(log_pc=t - lse(t, axis=-1)[..., None])
 
 
 def tempered_pairwise_mutual_information(
     tables: PairwiseTables,
-    belief: Belief,
+    belief: PredictedBelief,
     tau: float = 0.0,
     target: str = "class",
     levels: str = "belief",

@@ -172,6 +172,7 @@ def random_sensor_model(positions=(4, 3), n_objects=3, n_poses=2, levels=(0.0, 0
     recognizer and planner tests that need a model but no images."""
     import jax.numpy as jnp
 
+    from jaxrecog.kernels import gaussian
     from jaxrecog.sensor_model import CameraModel, SensorModel
 
     rng = np.random.default_rng(seed)
@@ -183,8 +184,8 @@ def random_sensor_model(positions=(4, 3), n_objects=3, n_poses=2, levels=(0.0, 0
             mean_image=jnp.asarray(rng.normal(0, 0.01, (v, d)), jnp.float32),
             basis=jnp.asarray(basis),
             eigenvalues=jnp.ones((v, k), jnp.float32),
-            mu=jnp.asarray(rng.normal(0, 0.3, (v, n_objects * n_poses, len(levels), k)), jnp.float32),
-            var=jnp.asarray(rng.uniform(0.01, 0.05, (v, n_objects * n_poses, len(levels), k)), jnp.float32),
+            likelihood=gaussian(jnp.asarray(rng.normal(0, 0.3, (v, n_objects * n_poses, len(levels), k)), jnp.float32),
+                                jnp.asarray(rng.uniform(0.01, 0.05, (v, n_objects * n_poses, len(levels), k)), jnp.float32)),
         ))
     return SensorModel(tuple(cams), n_objects, n_poses, tuple(levels), hw, "diag")
 

@@ -5,11 +5,12 @@ from __future__ import annotations
 import jax.numpy as jnp
 import numpy as np
 
-from jaxrecog.kernels import Belief
+from jaxrecog.kernels import Belief, PredictedBelief, at_every_position, gaussian_likelihoods
 
 
 def random_model(rng, n_classes=4, levels=(2, 3), positions=(3, 2), dims=(3, 2), spread=1.0):
-    """Per-camera (mus, vars) with means ~ N(0, spread^2) and variances in [0.3, 1.2]."""
+    """Per-camera (mus, vars) with means ~ N(0, spread^2) and variances in [0.3, 1.2]
+    (NumPy, for the oracles; :func:`gaussians` makes the kernels' likelihoods)."""
     mus, vars = [], []
     for l, v, k in zip(levels, positions, dims):
         mus.append(spread * rng.normal(size=(v, n_classes, l, k)))
@@ -48,11 +49,28 @@ def jitted():
     )
 
 
-def as_jax(arrays):
+def as_jax(arrays, dtype=None):
     """A tuple of NumPy arrays (one per camera) as JAX arrays."""
-    return tuple(jnp.asarray(a) for a in arrays)
+    return tuple(jnp.asarray(a, dtype) for a in arrays)
 
 
-def as_jax_belief(b: Belief) -> Belief:
-    """A belief of NumPy arrays (as :func:`random_belief` makes) as JAX arrays."""
-    return Belief(jnp.asarray(b.log_pc), as_jax(b.log_pk))
+def gaussians(mus, vars=None, chols=None, dtype=None):
+    """Per-camera Gaussian likelihoods (what the kernels take) from the NumPy
+    arrays of :func:`random_model` / :func:`random_chols`: means with the
+    diagonal variances ``vars`` or the Cholesky factors ``chols``, as JAX
+    arrays of ``dtype`` (default: JAX's for the input)."""
+    cast = lambda xs: None if xs is None else as_jax(xs, dtype)  # noqa: E731
+    return gaussian_likelihoods(cast(mus), cast(vars), cast(chols))
+
+
+def as_jax_belief(b):
+    """A belief of NumPy arrays (as :func:`random_belief` makes) as JAX arrays,
+    of the same form (:class:`Belief` or :class:`PredictedBelief`)."""
+    return type(b)(jnp.asarray(b.log_pc), as_jax(b.log_pk))
+
+
+def everywhere(b: Belief, positions) -> PredictedBelief:
+    """A belief (NumPy or JAX arrays) as the planners' predicted prior with the
+    same level rows at every position (:func:`~jaxrecog.kernels.at_every_position`),
+    JAX arrays: what the NumPy oracles score (one belief for every configuration)."""
+    return at_every_position(as_jax_belief(b), positions)

@@ -71,10 +71,25 @@ def test_transition_kinds(x64, rng):
 def test_transition_per_position(x64, rng):
     b = _to_jax(random_belief(rng, 3, (2, 3)))
     p = K.transition_per_position(b, (1, 0), (3, 2), kind="sticky", rho=0.8)
+    assert isinstance(p, K.PredictedBelief) and p.positions == (3, 2)
     assert p.log_pk[0].shape == (3, 3, 2) and p.log_pk[1].shape == (2, 3, 3)
     for v in range(3):
         want = K.transition(b, jnp.array([v != 1, False]), "sticky", 0.8).log_pk[0]
         np.testing.assert_allclose(p.log_pk[0][v], want, atol=1e-12)
+    # the prior at one configuration (v_0, v_1) is transition's with moved = (v_0 != 1, v_1 != 0)
+    for v0, v1 in np.ndindex(3, 2):
+        at = p.at((v0, v1))
+        want = K.transition(b, jnp.array([v0 != 1, v1 != 0]), "sticky", 0.8)
+        assert isinstance(at, K.Belief) and at.log_pc is p.log_pc
+        for got, w in zip(at.log_pk, want.log_pk):
+            np.testing.assert_allclose(got, w, atol=1e-12)
+    # a belief as it is, at every position: the same rows everywhere (a broadcast)
+    e = K.at_every_position(b, (3, 2))
+    assert isinstance(e, K.PredictedBelief) and e.positions == (3, 2)
+    for lp, rows in zip(b.log_pk, e.log_pk):
+        assert all(np.array_equal(r, lp) for r in np.asarray(rows))
+    with pytest.raises(ValueError, match="3 position counts for 2 cameras"):
+        K.at_every_position(b, (3, 2, 2))
 
 
 def test_marginals(x64, rng):

@@ -23,6 +23,7 @@ from jaxrecog.modelfile import (
     ModelFileVersionWarning, load_model, load_model_meta, save_model,
 )
 from jaxrecog.results import TrialResult
+from jaxrecog.kernels import gaussian
 from jaxrecog.sensor_model import CameraModel, SensorModel
 
 pytestmark = pytest.mark.usefixtures("strict_dtype_promotion")  # numerics: no implicit promotion
@@ -44,7 +45,7 @@ def _model(rng, V=3, n_objects=4, n_poses=2, L=1, K=5, full=False, sep=2.0):
         chol = None
     f32 = lambda x: None if x is None else jnp.asarray(x, jnp.float32)
     cam = CameraModel(f32(np.zeros((V, D))), f32(np.zeros((V, D, K))), f32(np.ones((V, K))),
-                      f32(mu), f32(var), f32(chol))
+                      gaussian(f32(mu), f32(var), f32(chol)))
     levels = tuple(0.05 * k for k in range(L))
     return SensorModel((cam,), n_objects, n_poses, levels, (3, 4), "full" if full else "diag")
 
@@ -149,7 +150,7 @@ def test_vmapped_fit_equals_per_position_fit(rng):
     for v in range(3):
         cam = model.cameras[0]
         one = CameraModel(cam.mean_image[v:v + 1], cam.basis[v:v + 1], cam.eigenvalues[v:v + 1],
-                          cam.mu[v:v + 1], cam.var[v:v + 1])
+                          gaussian(cam.mu[v:v + 1], cam.var[v:v + 1]))
         sel = feats.position == v
         s_one = fit_factors(one, CameraFeatures(feats.g[sel], feats.position[sel] * 0, feats.cls[sel]),
                             min_factor=None)[0]

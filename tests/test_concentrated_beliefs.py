@@ -7,12 +7,11 @@ floor must not change the answer."""
 from __future__ import annotations
 
 import jax.numpy as jnp
-import jax.random as jr
 import numpy as np
 import pytest
 
 from jaxrecog import kernels as K
-from kernel_models import random_model
+from kernel_models import gaussians, random_model
 
 pytestmark = pytest.mark.usefixtures("strict_dtype_promotion")  # numerics: no implicit promotion
 
@@ -22,14 +21,14 @@ def _beliefs(n_classes, levels):
     log_pc[:2] = np.log(0.5)
     tiny = K.Belief(jnp.asarray(log_pc, jnp.float32), tuple(jnp.full((n_classes, l), -np.log(l), jnp.float32) for l in levels))
     gone = K.Belief(jnp.asarray(np.where(log_pc < -50, -np.inf, log_pc), jnp.float32), tiny.log_pk)
-    return tiny, gone
+    return tuple(K.at_every_position(x, (3, 2)) for x in (tiny, gone))  # random_model's positions
 
 
 @pytest.mark.parametrize("target", ["state", "class"])
 def test_mi_ignores_subnormal_classes(target, rng, getkey):
     levels = (2, 3)
     mus, vars = random_model(rng, n_classes=6, levels=levels, spread=3.0)
-    tables = K.mi_tables(tuple(jnp.asarray(m, jnp.float32) for m in mus), tuple(jnp.asarray(v, jnp.float32) for v in vars), key=getkey(), samples_per_stratum=4)
+    tables = K.mi_tables(gaussians(mus, vars, dtype=jnp.float32), key=getkey(), samples_per_stratum=4)
     tiny, gone = _beliefs(6, levels)
     a = np.asarray(K.mutual_information(tables, tiny, target=target))
     b = np.asarray(K.mutual_information(tables, gone, target=target))
@@ -40,7 +39,7 @@ def test_mi_ignores_subnormal_classes(target, rng, getkey):
 def test_fisher_ignores_subnormal_classes(rng, getkey):
     levels = (2, 3)
     mus, vars = random_model(rng, n_classes=6, levels=levels, spread=3.0)
-    tables = K.mi_tables(tuple(jnp.asarray(m, jnp.float32) for m in mus), tuple(jnp.asarray(v, jnp.float32) for v in vars), key=getkey(), samples_per_stratum=4)
+    tables = K.mi_tables(gaussians(mus, vars, dtype=jnp.float32), key=getkey(), samples_per_stratum=4)
     tiny, gone = _beliefs(6, levels)
     key = getkey()
     a = np.asarray(K.fisher_information(tables, tiny, key=key, n_objects=3, n_poses=2))

@@ -4,7 +4,7 @@ VEGAS cross-check of the integral (eq. 5.22-5.28)."""
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from kernel_models import as_jax, as_jax_belief, jitted, random_belief, random_chols, random_model
+from kernel_models import as_jax_belief, everywhere, gaussians, jitted, random_belief, random_chols, random_model
 from oracles import crlb_criterion_ref, fisher_information_ref, fisher_score_difference_ref
 from scipy.special import logsumexp
 
@@ -21,9 +21,9 @@ MI_TABLES, _, FISHER = jitted()
 def test_matches_reference_on_same_samples(rng, getkey, x64, levels, positions, dims, m, n):
     mus, vars = random_model(rng, m * n, levels, positions, dims)
     b = as_jax_belief(random_belief(rng, m * n, levels))
-    tables = MI_TABLES(as_jax(mus), as_jax(vars), key=getkey(), samples_per_stratum=2)
+    tables = MI_TABLES(gaussians(mus, vars), key=getkey(), samples_per_stratum=2)
     key = getkey()
-    fis = FISHER(tables, b, key=key, n_objects=m, n_poses=n)
+    fis = FISHER(tables, everywhere(b, positions), key=key, n_objects=m, n_poses=n)
     d = 2 + len(levels)
     assert fis.shape == (int(np.prod(positions)), d, d)
     ref, _ = fisher_information_ref(mus, vars, tables.z, K.fisher_draws(key, tables), np.asarray(K.log_joint(b)), n, 0.4)
@@ -42,9 +42,9 @@ def test_full_covariance_matches_reference(rng, getkey, x64):
     mus, _ = random_model(rng, m * n, levels, positions, dims)
     chols = random_chols(rng, m * n, levels, positions, dims, scale=1.0)
     b = as_jax_belief(random_belief(rng, m * n, levels))
-    tables = MI_TABLES(as_jax(mus), chols=as_jax(chols), key=getkey(), samples_per_stratum=2)
+    tables = MI_TABLES(gaussians(mus, chols=chols), key=getkey(), samples_per_stratum=2)
     key = getkey()
-    fis = FISHER(tables, b, key=key, n_objects=m, n_poses=n)
+    fis = FISHER(tables, everywhere(b, positions), key=key, n_objects=m, n_poses=n)
     ref, _ = fisher_information_ref(
         mus, None, tables.z, K.fisher_draws(key, tables), np.asarray(K.log_joint(b)), n, 0.4, chols=chols
     )
@@ -110,8 +110,8 @@ def test_against_vegas_within_error_bars(rng, getkey, x64):
         )
         np.testing.assert_allclose(dl, want[[0, 2]], rtol=1e-10, atol=1e-12)
 
-    tables = MI_TABLES(as_jax(mus), as_jax(vars), key=getkey(), samples_per_stratum=4000)
-    fis, se = FISHER(tables, b, key=getkey(), n_objects=2, n_poses=1, sigma_s=sigma, with_stderr=True)
+    tables = MI_TABLES(gaussians(mus, vars), key=getkey(), samples_per_stratum=4000)
+    fis, se = FISHER(tables, everywhere(b, (2,)), key=getkey(), n_objects=2, n_poses=1, sigma_s=sigma, with_stderr=True)
     for v, r, c, res in vegas_fisher_entries(mus, vars, log_p, sigma, adapt=(8, 20000), final=(10, 20000)):
         val, err = res.mean, res.sdev
         tol = 4 * np.hypot(err, float(se[v, r, c])) + 1e-6
@@ -122,8 +122,8 @@ def test_against_vegas_within_error_bars(rng, getkey, x64):
 
 def test_symmetric_psd_and_criteria(rng, getkey):
     mus, vars = random_model(rng, 6, (2, 3), (3, 2), (3, 2), spread=2.0)
-    b = as_jax_belief(random_belief(rng, 6, (2, 3)))
-    tables = MI_TABLES(as_jax(mus), as_jax(vars), key=getkey(), samples_per_stratum=4)
+    b = everywhere(random_belief(rng, 6, (2, 3)), (3, 2))
+    tables = MI_TABLES(gaussians(mus, vars), key=getkey(), samples_per_stratum=4)
     fis = FISHER(tables, b, key=getkey(), n_objects=3, n_poses=2)
     assert np.all(np.isfinite(fis))
     np.testing.assert_allclose(fis, np.swapaxes(fis, -1, -2), rtol=1e-6)
@@ -149,8 +149,8 @@ def test_separating_configuration_has_smallest_bound(rng, getkey, x64):
     # camera 0 at position 1 and camera 1 at position 0 separate every class and level
     mu0[1] = 4.0 * rng.normal(size=(4, 2, 2))
     mu1[0] = 4.0 * rng.normal(size=(4, 2, 2))
-    tables = MI_TABLES((jnp.asarray(mu0), jnp.asarray(mu1)), as_jax(vars), key=getkey(), samples_per_stratum=8)
-    fis = FISHER(tables, K.uniform_belief(4, (2, 2)), key=getkey(), n_objects=2, n_poses=2)
+    tables = MI_TABLES(gaussians((mu0, mu1), vars), key=getkey(), samples_per_stratum=8)
+    fis = FISHER(tables, everywhere(K.uniform_belief(4, (2, 2)), (3, 2)), key=getkey(), n_objects=2, n_poses=2)
     best = 1 * 2 + 0
     # the bound is J^-1 of the full 4 x 4 J: rank by the default criterion, trace(J^-1)
     crit = np.asarray(K.crlb_criterion(fis))
@@ -161,12 +161,14 @@ def test_separating_configuration_has_smallest_bound(rng, getkey, x64):
 
 def test_bad_arguments(rng, getkey):
     mus, vars = random_model(rng)
-    tables = K.mi_tables(as_jax(mus), as_jax(vars), key=getkey(), samples_per_stratum=1)
-    b = K.uniform_belief(4, (2, 3))
+    tables = K.mi_tables(gaussians(mus, vars), key=getkey(), samples_per_stratum=1)
+    b = everywhere(K.uniform_belief(4, (2, 3)), (3, 2))
+    with pytest.raises(TypeError, match="PredictedBelief"):
+        K.fisher_information(tables, K.uniform_belief(4, (2, 3)), key=getkey(), n_objects=2, n_poses=2)
     with pytest.raises(ValueError, match="n_objects"):
         K.fisher_information(tables, b, key=getkey(), n_objects=3, n_poses=2)
     with pytest.raises(ValueError, match="sigma_s"):
         K.fisher_information(tables, b, key=getkey(), n_objects=2, n_poses=2, sigma_s=0.0)
-    only = K.mi_tables(as_jax(mus), as_jax(vars), key=getkey(), samples_per_stratum=1, store="uniform")
+    only = K.mi_tables(gaussians(mus, vars), key=getkey(), samples_per_stratum=1, store="uniform")
     with pytest.raises(ValueError, match="store"):
         K.fisher_information(only, b, key=getkey(), n_objects=2, n_poses=2)

@@ -8,7 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from compiles import count_compiles
-from kernel_models import as_jax, as_jax_belief, jitted, random_belief, random_model
+from kernel_models import as_jax_belief, everywhere, gaussians, jitted, random_belief, random_model
 from oracles_crlb import pairwise_fisher_ref
 from scipy.stats import spearmanr
 
@@ -36,7 +36,7 @@ def _per_position(b, positions, rng=None, current=None):
             r[:] = -np.log(lp.shape[-1])
             r[current[i]] = lp
         rows.append(r)
-    return K.Belief(b.log_pc, tuple(rows))
+    return K.PredictedBelief(b.log_pc, tuple(rows))
 
 
 @pytest.mark.parametrize("kind", ["bhattacharyya", "kl"])
@@ -46,8 +46,8 @@ def _per_position(b, positions, rng=None, current=None):
 def test_matches_reference(rng, x64, kind, levels, positions, dims, m, n):
     mus, vars = random_model(rng, m * n, levels, positions, dims)
     b = random_belief(rng, m * n, levels)
-    t = PFT(as_jax(mus), as_jax(vars), kind=kind, sigma_s=0.4)
-    got = PFI(t, as_jax_belief(b), n_objects=m, n_poses=n)
+    t = PFT(gaussians(mus, vars), kind=kind, sigma_s=0.4)
+    got = PFI(t, everywhere(b, positions), n_objects=m, n_poses=n)
     d = 2 + len(levels)
     assert got.shape == (int(np.prod(positions)), d, d)
     ref = pairwise_fisher_ref(mus, _covs(vars), np.asarray(K.log_joint(as_jax_belief(b))), n, 0.4, kind=kind)
@@ -62,8 +62,7 @@ def test_matches_reference(rng, x64, kind, levels, positions, dims, m, n):
             np.testing.assert_allclose(got_p, ref, rtol=1e-9, atol=1e-11)
         else:  # per-configuration prior: reference one configuration at a time
             for a, cfg in enumerate(np.ndindex(*positions)):
-                rows = K.Belief(pb.log_pc, tuple(r[v] for r, v in zip(pb.log_pk, cfg)))
-                lj = np.asarray(K.log_joint(as_jax_belief(rows)))
+                lj = np.asarray(K.log_joint(as_jax_belief(pb.at(cfg))))
                 want = pairwise_fisher_ref(mus, _covs(vars), lj, n, 0.4, kind=kind)[a]
                 np.testing.assert_allclose(got_p[a], want, rtol=1e-9, atol=1e-11)
 
@@ -73,33 +72,32 @@ def test_general_per_position_rows(rng, x64):
     checks the form) against the reference one configuration at a time."""
     levels, positions, dims, m, n = (2, 3), (3, 2), (2, 1), 2, 2
     mus, vars = random_model(rng, m * n, levels, positions, dims)
-    t = PFT(as_jax(mus), as_jax(vars), kind="bhattacharyya", sigma_s=0.4)
+    t = PFT(gaussians(mus, vars), kind="bhattacharyya", sigma_s=0.4)
     rows = tuple(np.log(rng.dirichlet(np.ones(l), size=(v, m * n))) for l, v in zip(levels, positions))
-    pb = K.Belief(np.log(rng.dirichlet(np.ones(m * n))), rows)
-    assert not K.fisher_pairwise.transition_form(pb, positions)
+    pb = K.PredictedBelief(np.log(rng.dirichlet(np.ones(m * n))), rows)
+    assert not K.fisher_pairwise.transition_form(pb)
     got = PFI(t, as_jax_belief(pb), n_objects=m, n_poses=n, fast=False)
     eager = K.pairwise_fisher_information(t, as_jax_belief(pb), n_objects=m, n_poses=n)  # checks: general path
     np.testing.assert_allclose(eager, got, rtol=1e-9, atol=1e-11)
     for a, cfg in enumerate(np.ndindex(*positions)):
-        one = K.Belief(pb.log_pc, tuple(r[v] for r, v in zip(pb.log_pk, cfg)))
-        want = pairwise_fisher_ref(mus, _covs(vars), np.asarray(K.log_joint(as_jax_belief(one))), n, 0.4)[a]
+        want = pairwise_fisher_ref(mus, _covs(vars), np.asarray(K.log_joint(as_jax_belief(pb.at(cfg)))), n, 0.4)[a]
         np.testing.assert_allclose(got[a], want, rtol=1e-9, atol=1e-11)
 
 
 def test_float32_symmetric_psd_and_finite(rng):
     mus, vars = random_model(rng, 6, (2, 3), (3, 2), (3, 2), spread=2.0)
-    t = K.pairwise_fisher_tables(tuple(jnp.asarray(x, jnp.float32) for x in mus),
-                                 tuple(jnp.asarray(x, jnp.float32) for x in vars))
+    t = K.pairwise_fisher_tables(gaussians(mus, vars, dtype=jnp.float32))
     b = random_belief(rng, 6, (2, 3))
     for log_pc in (b.log_pc, np.log(np.r_[1.0, np.full(5, 1e-40)] / (1 + 5e-40))):
-        bel = K.Belief(jnp.asarray(log_pc, jnp.float32), tuple(jnp.asarray(x, jnp.float32) for x in b.log_pk))
+        bel = everywhere(K.Belief(jnp.asarray(log_pc, jnp.float32), tuple(jnp.asarray(x, jnp.float32) for x in b.log_pk)),
+                         (3, 2))
         fis = np.asarray(PFI(t, bel, n_objects=3, n_poses=2), np.float64)
         assert np.all(np.isfinite(fis))
         np.testing.assert_allclose(fis, np.swapaxes(fis, -1, -2), atol=1e-6)
         ev = np.linalg.eigvalsh(fis)
         assert np.all(ev[:, 0] >= -1e-5 * np.maximum(ev[:, -1], 1.0))
     # a class ruled out (-inf) is a valid belief
-    zero = K.Belief(bel.log_pc.at[1].set(-jnp.inf), bel.log_pk)
+    zero = bel._replace(log_pc=bel.log_pc.at[1].set(-jnp.inf))
     assert np.all(np.isfinite(np.asarray(K.crlb_criterion(PFI(t, zero, n_objects=3, n_poses=2)))))
 
 
@@ -111,10 +109,10 @@ def test_limits(rng, x64):
     b = as_jax_belief(random_belief(rng, 4, levels))
     same = tuple(np.zeros((v, 4, l, k)) for v, l, k in zip(positions, levels, dims))
     ones = tuple(np.ones_like(x) for x in same)
-    fis = PFI(PFT(as_jax(same), as_jax(ones), sigma_s=0.4), b, n_objects=2, n_poses=2)
+    fis = PFI(PFT(gaussians(same, ones), sigma_s=0.4), everywhere(b, positions), n_objects=2, n_poses=2)
     np.testing.assert_allclose(fis, 0.0, atol=1e-12)
     far = tuple(1e3 * rng.normal(size=x.shape) for x in same)
-    fis = PFI(PFT(as_jax(far), as_jax(ones), sigma_s=0.4), b, n_objects=2, n_poses=2)
+    fis = PFI(PFT(gaussians(far, ones), sigma_s=0.4), everywhere(b, positions), n_objects=2, n_poses=2)
     ref = pairwise_fisher_ref(same, _covs(ones), np.asarray(K.log_joint(b)), 2, 0.4)  # D_i = 0: the smoothing side...
     ref_inf = pairwise_fisher_ref(far, _covs(ones), np.asarray(K.log_joint(b)), 2, 0.4)
     np.testing.assert_allclose(ref, 0.0, atol=1e-12)
@@ -133,9 +131,9 @@ def test_against_high_j_monte_carlo(rng, getkey, x64):
     model, where it is within the J = 64 oracle's own noise)."""
     levels, positions, dims, m, n = (2, 3), (4, 3), (2, 2), 2, 2
     mus, vars = random_model(rng, m * n, levels, positions, dims)
-    b = as_jax_belief(random_belief(rng, m * n, levels))
-    fp = np.asarray(PFI(PFT(as_jax(mus), as_jax(vars), sigma_s=0.4), b, n_objects=m, n_poses=n))
-    tables = MI_TABLES(as_jax(mus), as_jax(vars), key=getkey(), samples_per_stratum=2000)
+    b = everywhere(random_belief(rng, m * n, levels), positions)
+    fp = np.asarray(PFI(PFT(gaussians(mus, vars), sigma_s=0.4), b, n_objects=m, n_poses=n))
+    tables = MI_TABLES(gaussians(mus, vars), key=getkey(), samples_per_stratum=2000)
     fm, se = FISHER(tables, b, key=getkey(), n_objects=m, n_poses=n, with_stderr=True)
     fm, se = np.asarray(fm), np.asarray(se)
     ratio = np.diagonal(fp, axis1=1, axis2=2) / np.diagonal(fm, axis1=1, axis2=2)
@@ -161,7 +159,7 @@ def test_against_vegas(rng, x64):
     mus, vars = random_model(rng, 2, (2,), (2,), (1,), spread=1.0)
     b = as_jax_belief(random_belief(rng, 2, (2,), concentration=4.0))
     log_p = np.asarray(K.log_joint(b))
-    fis = np.asarray(PFI(PFT(as_jax(mus), as_jax(vars), sigma_s=sigma), b, n_objects=2, n_poses=1))
+    fis = np.asarray(PFI(PFT(gaussians(mus, vars), sigma_s=sigma), everywhere(b, (2,)), n_objects=2, n_poses=1))
     np.testing.assert_allclose(fis[:, 1], 0.0, atol=1e-12)  # a single pose: no information on it
     for v, r, c, res in vegas_fisher_entries(mus, vars, log_p, sigma):
         got = float(fis[v, r, c])
@@ -175,17 +173,16 @@ def test_against_vegas(rng, x64):
 
 def test_zero_recompiles_after_warm_up(rng):
     mus, vars = random_model(rng, 4, (2, 3), (3, 2), (2, 2))
-    t = K.pairwise_fisher_tables(tuple(jnp.asarray(x, jnp.float32) for x in mus),
-                                 tuple(jnp.asarray(x, jnp.float32) for x in vars))
+    t = K.pairwise_fisher_tables(gaussians(mus, vars, dtype=jnp.float32))
 
     def belief(current):
         r = random_belief(rng, 4, (2, 3))
         pb = _per_position(r, (3, 2), current=current)
-        return K.Belief(jnp.asarray(pb.log_pc, jnp.float32), tuple(jnp.asarray(x, jnp.float32) for x in pb.log_pk))
+        return K.PredictedBelief(jnp.asarray(pb.log_pc, jnp.float32), tuple(jnp.asarray(x, jnp.float32) for x in pb.log_pk))
 
     def general():
         rows = tuple(jnp.asarray(np.log(rng.dirichlet(np.ones(l), size=(v, 4))), jnp.float32) for l, v in zip((2, 3), (3, 2)))
-        return K.Belief(jnp.asarray(np.log(rng.dirichlet(np.ones(4))), jnp.float32), rows)
+        return K.PredictedBelief(jnp.asarray(np.log(rng.dirichlet(np.ones(4))), jnp.float32), rows)
 
     score = lambda b: K.crlb_criterion(K.pairwise_fisher_information(t, b, n_objects=2, n_poses=2))
     jax.block_until_ready(score(belief(None)))
@@ -207,7 +204,7 @@ def test_planner_registry_entry(getkey, rng):
                                                tuple(jnp.asarray(x, jnp.float32) for x in vars))
     p = make_planner("crlb-pairwise", Model, key=getkey())
     assert isinstance(p, PairwiseCRLBPlanner) and planner_spec("crlb-pairwise").thesis == "crlb"
-    b = K.uniform_belief(4, (2, 3))
+    b = everywhere(K.uniform_belief(4, (2, 3)), (3, 2))
     s = np.asarray(p.scores(b, getkey()))
     assert s.shape == (6,) and np.all(np.isfinite(s))
     np.testing.assert_array_equal(s, np.asarray(p.scores(b, getkey())))  # deterministic: the key is unused

@@ -7,7 +7,7 @@ import pytest
 from kernel_models import random_chols, random_model
 from oracles import log_likelihood_full_ref, log_likelihood_ref
 
-from jaxrecog.kernels import camera_log_likelihoods, log_likelihood, log_likelihood_full
+from jaxrecog.kernels import camera_log_likelihoods, gaussian_likelihoods, log_likelihood, log_likelihood_full
 
 pytestmark = pytest.mark.usefixtures("strict_dtype_promotion")  # numerics: no implicit promotion
 
@@ -50,7 +50,7 @@ def test_camera_log_likelihoods_select_position_and_sum_is_eq_4_17(rng, x64):
     mus, vars = random_model(rng)
     gs = tuple(jnp.asarray(rng.normal(size=m.shape[-1])) for m in mus)
     cfg = jnp.array([2, 1])
-    lls = jax.jit(camera_log_likelihoods)(gs, cfg, tuple(map(jnp.asarray, mus)), tuple(map(jnp.asarray, vars)))
+    lls = jax.jit(camera_log_likelihoods)(gs, cfg, gaussian_likelihoods(tuple(map(jnp.asarray, mus)), tuple(map(jnp.asarray, vars))))
     for i in range(2):
         np.testing.assert_allclose(
             lls[i], log_likelihood_ref(np.asarray(gs[i]), mus[i][int(cfg[i])], vars[i][int(cfg[i])]), rtol=1e-12
@@ -61,6 +61,6 @@ def test_camera_log_likelihoods_rejects_bad_arguments(rng):
     mus, vars = random_model(rng)
     gs = (jnp.zeros(3),)
     with pytest.raises(ValueError, match="feature vectors"):
-        camera_log_likelihoods(gs, (0, 0), mus, vars)
-    with pytest.raises(ValueError, match="exactly one"):
+        camera_log_likelihoods(gs, (0, 0), gaussian_likelihoods(mus, vars))
+    with pytest.raises(TypeError, match="one Likelihood per camera"):  # the arrays: one input form, likelihoods
         camera_log_likelihoods(gs, (0, 0), mus)

@@ -205,8 +205,6 @@ def test_registry_and_interface_errors(rng, unchecked):
         toy.at(0).bhattacharyya()
     with pytest.raises(ValueError, match="no position axis"):
         K.mi_tables((toy.at(0),), key=jr.PRNGKey(0), samples_per_stratum=1)
-    with pytest.raises(ValueError, match="belong to the array form"):
-        K.camera_log_likelihoods((jnp.zeros(2),), (0,), (toy,), vars=(jnp.ones((2, 3, 1, 2)),))
 
 
 # ---------------------------------------------------------------- a third family, a third camera
@@ -264,7 +262,8 @@ def test_third_family_and_camera_through_the_planner_kernels(x64, getkey):
     a, b = (tables(m.likelihoods, key=key, samples_per_stratum=2) for m in (mixed, plain))
     for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b)):
         np.testing.assert_allclose(x, y, rtol=1e-10, atol=1e-10)
-    belief = K.uniform_belief(_N_OBJ * _N_POSE, (len(_LEVELS),) * 3, dtype=jnp.float64)
+    belief = K.at_every_position(K.uniform_belief(_N_OBJ * _N_POSE, (len(_LEVELS),) * 3, dtype=jnp.float64),
+                                 mixed.positions)
     np.testing.assert_allclose(mi(a, belief, "class"), mi(b, belief, "class"), rtol=1e-9, atol=1e-12)
     fa, fb = (fisher(t, belief, key=fkey, n_objects=_N_OBJ, n_poses=_N_POSE) for t in (a, b))
     np.testing.assert_allclose(fa, fb, rtol=1e-8, atol=1e-12)
@@ -350,12 +349,17 @@ def test_training_and_calibration_of_the_third_family(small_db, rng):
     diag = train_model(small_db, kind="DB1", n_components=3, samples_per_image=6, var_floor=0.0)
     toy = train_model(small_db, kind="DB1", n_components=3, samples_per_image=6, var_floor=0.0,
                       likelihood="test-isotropic")
+    # the summary names each family as it names itself (Likelihood.summary_words)
+    assert "likelihood test-isotropic" in toy.summary() and "likelihood components (positions" in toy.summary()
+    assert "covariance diag" in diag.summary() and " Gaussians (positions" in diag.summary()
+    mixed = SensorModel((diag.cameras[0], toy.cameras[1]), diag.n_objects, diag.n_poses, diag.levels, diag.image_shape)
+    assert "likelihood mixed" in mixed.summary() and "likelihood components" in mixed.summary()
     for a, b in zip(diag.cameras, toy.cameras):
         np.testing.assert_array_equal(a.mu, b.likelihood.mu)
         np.testing.assert_allclose(b.likelihood.s2, np.asarray(a.var, np.float64).mean(-1), rtol=1e-6)
     # the toy as an equivalent diagonal model, calibrated both ways
-    plain_cams = tuple(CameraModel(c.mean_image, c.basis, c.eigenvalues, c.likelihood.mu,
-                                   jnp.repeat(c.likelihood.s2[..., None], 3, axis=-1)) for c in toy.cameras)
+    plain_cams = tuple(CameraModel(c.mean_image, c.basis, c.eigenvalues, likelihood=K.gaussian(
+                                   c.likelihood.mu, jnp.repeat(c.likelihood.s2[..., None], 3, axis=-1))) for c in toy.cameras)
     plain = SensorModel(plain_cams, toy.n_objects, toy.n_poses, toy.levels, toy.image_shape)
     feats = []
     for cam in toy.cameras:

@@ -15,7 +15,7 @@ import numpy as np
 from builders import random_sensor_model
 import pytest
 from compiles import count_compiles
-from kernel_models import as_jax, as_jax_belief, random_belief, random_model
+from kernel_models import as_jax_belief, gaussians, random_belief, random_model
 from oracles import lookahead_ref
 
 from jaxrecog import kernels as K
@@ -40,8 +40,8 @@ def _setup(rng, getkey, *, n_classes=3, levels=(2, 2), positions=(2, 2), dims=(2
     mus, vars = random_model(rng, n_classes, levels, positions, dims, spread=1.5)
     post = random_belief(rng, n_classes, levels, concentration=concentration)
     prior = K.transition_per_position(as_jax_belief(post), current, positions, kind, rho)
-    tables = MI_TABLES(as_jax(mus), as_jax(vars), key=getkey(), samples_per_stratum=j, store="full")
-    pw = PT(as_jax(mus), as_jax(vars), kind="bhattacharyya")
+    tables = MI_TABLES(gaussians(mus, vars), key=getkey(), samples_per_stratum=j, store="full")
+    pw = PT(gaussians(mus, vars), kind="bhattacharyya")
     draws = K.lookahead_draws(getkey(), n_out, j, dtype=jnp.float64)
     return mus, vars, post, prior, tables, pw, draws
 
@@ -116,8 +116,8 @@ def _dead_end_model():
 @pytest.mark.parametrize("target", ["state", "class"])
 def test_lookahead_leaves_the_myopic_dead_end(getkey, x64, target):
     mus, vars = _dead_end_model()
-    tables = MI_TABLES(as_jax(mus), as_jax(vars), key=getkey(), samples_per_stratum=16, store="full")
-    pw = PT(as_jax(mus), as_jax(vars), kind="bhattacharyya")
+    tables = MI_TABLES(gaussians(mus, vars), key=getkey(), samples_per_stratum=16, store="full")
+    pw = PT(gaussians(mus, vars), kind="bhattacharyya")
     prior = K.transition_per_position(K.uniform_belief(4, (1, 1), dtype=jnp.float64), (3, 0), (4, 1))
     one = np.asarray(K.pairwise_mutual_information(pw, prior, target=target))
     assert int(np.argmax(one)) == 0 and one[0] > math.log(2) + 0.1
@@ -140,9 +140,11 @@ def test_bad_input_is_a_clear_error(rng, getkey, x64):
         K.lookahead_information(tables, score, prior, draws=draws, top_k=5)
     with pytest.raises(ValueError, match="top_k"):
         K.lookahead_information(tables, score, prior, draws=draws, top_k=0)
-    nan = K.Belief(prior.log_pc.at[1].set(jnp.nan), prior.log_pk)
+    nan = prior._replace(log_pc=prior.log_pc.at[1].set(jnp.nan))
     with pytest.raises(ValueError, match="NaN"):
         K.lookahead_information(tables, score, nan, draws=draws, top_k=2)
+    with pytest.raises(TypeError, match="PredictedBelief"):
+        K.lookahead_information(tables, score, prior.at((0, 0)), draws=draws, top_k=2)
     with pytest.raises(ValueError, match="transition"):
         K.lookahead_information(tables, score, prior, draws=draws, top_k=2, transition="teleport")
     uniform_only = tables._replace(ld=None)
@@ -164,9 +166,9 @@ def test_planner_rejects_more_first_moves_than_configurations(getkey):
 @pytest.mark.parametrize("dtype", ["float32", "float64"])
 def test_never_nan_on_concentrated_and_degenerate_beliefs(rng, getkey, x64, dtype):
     mus, vars = random_model(rng, 4, (2, 3), (3, 2), (2, 2), spread=4.0)
-    cast = lambda xs: tuple(jnp.asarray(x, dtype) for x in xs)  # noqa: E731
-    tables = MI_TABLES(cast(mus), cast(vars), key=getkey(), samples_per_stratum=2, store="full")
-    pw = PT(cast(mus), cast(vars), kind="bhattacharyya")
+    liks = gaussians(mus, vars, dtype=dtype)
+    tables = MI_TABLES(liks, key=getkey(), samples_per_stratum=2, store="full")
+    pw = PT(liks, kind="bhattacharyya")
     draws = K.lookahead_draws(getkey(), 8, 2, dtype=jnp.dtype(dtype))
     certain = np.full(4, -np.inf)
     certain[2] = 0.0

@@ -131,12 +131,13 @@ _WRITER = textwrap.dedent("""
     import os, sys, time
     import numpy as np
     import jax.numpy as jnp
+    from jaxrecog.kernels import gaussian
     from jaxrecog.sensor_model import CameraModel, SensorModel
     from jaxrecog.modelfile import save_model
     V, C, L, K, H, W = 4, 8, 2, 30, 120, 160
     r = np.random.default_rng(1)
     f = lambda *s: jnp.asarray(r.random(s, dtype=np.float32) + 0.5)
-    cam = CameraModel(f(V, H * W), f(V, H * W, K), f(V, K), f(V, C, L, K), f(V, C, L, K))
+    cam = CameraModel(f(V, H * W), f(V, H * W, K), f(V, K), gaussian(f(V, C, L, K), f(V, C, L, K)))
     m = SensorModel((cam,), 4, 2, (0.0, 0.1), (H, W), "diag")
     real_fsync = os.fsync
     def stall(fd):           # the data is written; stop right before the rename

@@ -8,7 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from compiles import count_compiles
-from kernel_models import as_jax, as_jax_belief, jitted, random_belief, random_chols, random_model
+from kernel_models import as_jax, as_jax_belief, everywhere, gaussians, jitted, random_belief, random_chols, random_model
 from oracles import bhattacharyya_ref, kl_ref, pairwise_mi_ref
 
 from jaxrecog import kernels as K
@@ -95,10 +95,11 @@ def test_matches_brute_force_reference(rng, x64, levels, positions, dims, target
     b = random_belief(rng, 3, levels)
     # per-position level rows, as the planner's predicted prior has
     rows = [np.stack([random_belief(rng, 3, levels).log_pk[i] for _ in range(v)]) for i, v in enumerate(positions)]
-    mi = np.asarray(PMI(PT(as_jax(mus), as_jax(vars), kind=kind), K.Belief(jnp.asarray(b.log_pc), as_jax(rows)), target))
+    predicted = K.PredictedBelief(jnp.asarray(b.log_pc), as_jax(rows))
+    mi = np.asarray(PMI(PT(gaussians(mus, vars), kind=kind), predicted, target))
     assert mi.shape == (int(np.prod(positions)),)
     for a, cfg in enumerate(np.ndindex(*positions)):
-        single = K.Belief(jnp.asarray(b.log_pc), tuple(jnp.asarray(r[v]) for r, v in zip(rows, cfg)))
+        single = predicted.at(cfg)
         lj = np.asarray(K.log_joint(single))
         sub = tuple(m[v:v + 1] for m, v in zip(mus, cfg))
         ref = pairwise_mi_ref(sub, tuple(c[v:v + 1] for c, v in zip(_covs(vars), cfg)), lj, kind, target)
@@ -113,7 +114,7 @@ def test_full_covariance_matches_brute_force(rng, x64, target):
     b = random_belief(rng, 3, levels)
     lj = np.asarray(K.log_joint(as_jax_belief(b)))
     for kind in K.DIVERGENCES:
-        mi = PMI(PT(as_jax(mus), chols=as_jax(chols), kind=kind), as_jax_belief(b), target)
+        mi = PMI(PT(gaussians(mus, chols=chols), kind=kind), everywhere(b, positions), target)
         np.testing.assert_allclose(mi, pairwise_mi_ref(mus, _covs(chols=chols), lj, kind, target), rtol=1e-9, atol=1e-12)
 
 
@@ -122,15 +123,15 @@ def test_bhattacharyya_below_monte_carlo_below_kl(rng, getkey, x64):
     the KL estimate an upper bound; the Monte Carlo MI lies between, within 4 se."""
     for spread in (0.5, 1.0, 2.0):
         mus, vars = random_model(rng, 4, (2, 3), (3, 2), (2, 2), spread=spread)
-        b = as_jax_belief(random_belief(rng, 4, (2, 3)))
-        mc, se = MI(MI_TABLES(as_jax(mus), as_jax(vars), key=getkey(), samples_per_stratum=300), b, "state", with_stderr=True)
-        lo = PMI(PT(as_jax(mus), as_jax(vars), kind="bhattacharyya"), b, "state")
-        hi = PMI(PT(as_jax(mus), as_jax(vars), kind="kl"), b, "state")
+        b = everywhere(random_belief(rng, 4, (2, 3)), (3, 2))
+        mc, se = MI(MI_TABLES(gaussians(mus, vars), key=getkey(), samples_per_stratum=300), b, "state", with_stderr=True)
+        lo = PMI(PT(gaussians(mus, vars), kind="bhattacharyya"), b, "state")
+        hi = PMI(PT(gaussians(mus, vars), kind="kl"), b, "state")
         mc, se, lo, hi = (np.asarray(x) for x in (mc, se, lo, hi))
         assert np.all(lo <= mc + 4 * se), (spread, lo - mc, se)
         assert np.all(mc <= hi + 4 * se), (spread, hi - mc, se)
         assert np.all(lo <= hi + 1e-12)
-        assert np.all(lo >= -1e-12) and np.all(hi <= float(K.entropy(b, "state")) + 1e-9)
+        assert np.all(lo >= -1e-12) and np.all(hi <= float(K.entropy(b.at((0, 0)), "state")) + 1e-9)
 
 
 @pytest.mark.parametrize("target", ["state", "class"])
@@ -138,27 +139,30 @@ def test_bhattacharyya_below_monte_carlo_below_kl(rng, getkey, x64):
 def test_exact_on_separated_and_on_identical_components(rng, x64, target, kind):
     mus, vars = random_model(rng, 4, (2, 3), (3, 2), (2, 2))
     b = as_jax_belief(random_belief(rng, 4, (2, 3)))
+    h = float(K.entropy(b, target))
+    b = everywhere(b, (3, 2))
     # perfectly separated: every D -> inf, I = H(s) (state) or H(c) (class)
-    sharp = PMI(PT(as_jax(tuple(1e4 * m for m in mus)), as_jax(vars), kind=kind), b, target)
-    np.testing.assert_allclose(sharp, float(K.entropy(b, target)), rtol=1e-10)
+    sharp = PMI(PT(gaussians(tuple(1e4 * m for m in mus), vars), kind=kind), b, target)
+    np.testing.assert_allclose(sharp, h, rtol=1e-10)
     # identical components at every position: D = 0, I = 0
     same_mu = tuple(np.broadcast_to(m[:, :1, :1], m.shape).copy() for m in mus)
     same_var = tuple(np.broadcast_to(v[:, :1, :1], v.shape).copy() for v in vars)
-    np.testing.assert_allclose(PMI(PT(as_jax(same_mu), as_jax(same_var), kind=kind), b, target), 0.0, atol=1e-12)
+    np.testing.assert_allclose(PMI(PT(gaussians(same_mu, same_var), kind=kind), b, target), 0.0, atol=1e-12)
 
 
 def test_uniform_levels_equal_belief_path_with_uniform_rows(rng, x64):
     mus, vars = random_model(rng, 4, (2, 3), (3, 2), (2, 2))
     b = as_jax_belief(random_belief(rng, 4, (2, 3)))
-    t = PT(as_jax(mus), as_jax(vars), kind="bhattacharyya")
+    t = PT(gaussians(mus, vars), kind="bhattacharyya")
     uni = K.Belief(b.log_pc, tuple(jnp.full_like(x, -np.log(x.shape[1])) for x in b.log_pk))
+    b, uni = everywhere(b, (3, 2)), everywhere(uni, (3, 2))
     for target in ("state", "class"):
         np.testing.assert_allclose(PMI(t, b, target, levels="uniform"), PMI(t, uni, target), rtol=1e-12, atol=1e-12)
 
 
 def _uniform_class(b):
     """``b`` with the uniform class prior (the level rows kept)."""
-    return K.Belief(jnp.full_like(b.log_pc, -np.log(b.log_pc.shape[0])), b.log_pk)
+    return b._replace(log_pc=jnp.full_like(b.log_pc, -np.log(b.log_pc.shape[0])))
 
 
 def _transition_beliefs(rng, n_c, levels, positions):
@@ -182,13 +186,13 @@ def test_fast_path_equals_general_path(rng, x64, levels, positions, dims, target
     predicted priors, and a general belief (non-uniform rows at several
     positions) takes the general computation; both against brute force."""
     mus, vars = random_model(rng, 3, levels, positions, dims, spread=1.5)
-    t = PT(as_jax(mus), as_jax(vars), kind="bhattacharyya")
+    t = PT(gaussians(mus, vars), kind="bhattacharyya")
     cases = _transition_beliefs(rng, 3, levels, positions)
     # the same priors under the uniform class prior (the tempered planner's
     # tau = 0): the uniform-class path, offline values off the current positions
     cases += [(f"{kind}, uniform class", current, _uniform_class(b)) for kind, current, b in cases]
     rows = [np.stack([random_belief(rng, 3, levels).log_pk[i] for _ in range(v)]) for i, v in enumerate(positions)]
-    general = K.Belief(jnp.asarray(random_belief(rng, 3, levels).log_pc), as_jax(rows))
+    general = K.PredictedBelief(jnp.asarray(random_belief(rng, 3, levels).log_pc), as_jax(rows))
     cases.append(("general", None, general))
     for kind, current, b in cases:
         ok, cur = pairwise_mi._transition_form(b.log_pk)
@@ -207,7 +211,7 @@ def test_fast_path_equals_general_path(rng, x64, levels, positions, dims, target
     for _, _, b in (cases[1], cases[7], cases[-1]):
         mi = np.asarray(PMI(t, b, target))
         for a, cfg in enumerate(np.ndindex(*positions)):
-            single = K.Belief(b.log_pc, tuple(r[v] for r, v in zip(b.log_pk, cfg)))
+            single = b.at(cfg)
             sub = tuple(m[v:v + 1] for m, v in zip(mus, cfg))
             ref = pairwise_mi_ref(sub, tuple(c[v:v + 1] for c, v in zip(_covs(vars), cfg)),
                                   np.asarray(K.log_joint(single)), "bhattacharyya", target)
@@ -223,10 +227,10 @@ def test_fast_path_float32_thesis_like(rng):
         mus = tuple(m.astype(np.float32) for m in mus)
         vars = tuple((v * 0.1).astype(np.float32) for v in vars)
         for kind in K.DIVERGENCES:
-            t = PT(as_jax(mus), as_jax(vars), kind=kind)
+            t = PT(gaussians(mus, vars), kind=kind)
             beliefs = [b for _, _, b in _transition_beliefs(rng, 8, levels, positions)]
             for b in beliefs + [_uniform_class(b) for b in beliefs[:3]]:
-                b = K.Belief(b.log_pc.astype(jnp.float32), tuple(x.astype(jnp.float32) for x in b.log_pk))
+                b = K.PredictedBelief(b.log_pc.astype(jnp.float32), tuple(x.astype(jnp.float32) for x in b.log_pk))
                 for target in ("state", "class"):
                     fast = np.asarray(PMI(t, b, target, fast=True))
                     slow = np.asarray(PMI(t, b, target, fast=False))
@@ -239,10 +243,10 @@ def test_fast_path_under_vmap(rng, x64):
     becomes a select, the values are those of the unbatched calls."""
     levels, positions = (2, 3), (3, 2)
     mus, vars = random_model(rng, 3, levels, positions, (2, 2))
-    t = PT(as_jax(mus), as_jax(vars), kind="kl")
+    t = PT(gaussians(mus, vars), kind="kl")
     bs = [b for _, _, b in _transition_beliefs(rng, 3, levels, positions)][:3]
     rows = [np.stack([random_belief(rng, 3, levels).log_pk[i] for _ in range(v)]) for i, v in enumerate(positions)]
-    bs.append(K.Belief(jnp.asarray(random_belief(rng, 3, levels).log_pc), as_jax(rows)))
+    bs.append(K.PredictedBelief(jnp.asarray(random_belief(rng, 3, levels).log_pc), as_jax(rows)))
     stacked = jax.tree.map(lambda *x: jnp.stack(x), *bs)
     for target in ("state", "class"):
         got = np.asarray(jax.vmap(lambda b: K.pairwise_mutual_information(t, b, target))(stacked))
@@ -259,9 +263,9 @@ def test_float32_sharp_model_falls_back_and_stays_finite(rng, getkey):
     b = as_jax_belief(random_belief(rng, 6, (3, 2), concentration=0.2))
     b = K.Belief(b.log_pc.astype(jnp.float32), tuple(x.astype(jnp.float32) for x in b.log_pk))
     for kind in K.DIVERGENCES:
-        t = PT(as_jax(mus), as_jax(vars), kind=kind)
+        t = PT(gaussians(mus, vars), kind=kind)
         for target in ("state", "class"):
-            mi = np.asarray(PMI(t, b, target))
+            mi = np.asarray(PMI(t, everywhere(b, (3, 2)), target))
             assert mi.dtype == np.float32 and np.all(np.isfinite(mi))
             assert np.all(mi <= float(K.entropy(b, target)) + 1e-3)  # exact bound, both targets
             if target == "state":
@@ -270,33 +274,35 @@ def test_float32_sharp_model_falls_back_and_stays_finite(rng, getkey):
 
 def test_bad_input_and_nan_beliefs(rng):
     mus, vars = random_model(rng, 4, (2, 3), (3, 2), (2, 2))
-    t = PT(as_jax(mus), as_jax(vars), kind="bhattacharyya")
-    b = K.uniform_belief(4, (2, 3))
+    t = PT(gaussians(mus, vars), kind="bhattacharyya")
+    b = everywhere(K.uniform_belief(4, (2, 3)), (3, 2))
     with pytest.raises(ValueError, match="kind"):
-        K.pairwise_tables(as_jax(mus), as_jax(vars), kind="hellinger")
-    with pytest.raises(ValueError, match="exactly one"):
+        K.pairwise_tables(gaussians(mus, vars), kind="hellinger")
+    with pytest.raises(TypeError):  # arrays: one input form, likelihoods
         K.pairwise_tables(as_jax(mus))
     with pytest.raises(ValueError, match="target"):
         K.pairwise_mutual_information(t, b, "object")
     with pytest.raises(ValueError, match="levels"):
         K.pairwise_mutual_information(t, b, levels="sticky")
     with pytest.raises(ValueError, match="cameras"):
-        K.pairwise_mutual_information(t, K.uniform_belief(4, (2,)))
+        K.pairwise_mutual_information(t, everywhere(K.uniform_belief(4, (2,)), (3,)))
     with pytest.raises(ValueError, match="C = 4"):
-        K.pairwise_mutual_information(t, K.uniform_belief(5, (2, 3)))
-    nan_pc = K.Belief(b.log_pc.at[1].set(jnp.nan), b.log_pk)
-    nan_pk = K.Belief(b.log_pc, (b.log_pk[0].at[0, 1].set(jnp.nan), b.log_pk[1]))
+        K.pairwise_mutual_information(t, everywhere(K.uniform_belief(5, (2, 3)), (3, 2)))
+    with pytest.raises(TypeError, match="PredictedBelief"):
+        K.pairwise_mutual_information(t, K.uniform_belief(4, (2, 3)))
+    nan_pc = b._replace(log_pc=b.log_pc.at[1].set(jnp.nan))
+    nan_pk = b._replace(log_pk=(b.log_pk[0].at[0, 0, 1].set(jnp.nan), b.log_pk[1]))
     for bad in (nan_pc, nan_pk):
         with pytest.raises(ValueError, match="contains NaN"):
             K.pairwise_mutual_information(t, bad)
         with pytest.raises(ValueError, match="contains NaN"):
-            K.mutual_information(MI_TABLES(as_jax(mus), as_jax(vars), key=jax.random.PRNGKey(0), samples_per_stratum=1), bad)
+            K.mutual_information(MI_TABLES(gaussians(mus, vars), key=jax.random.PRNGKey(0), samples_per_stratum=1), bad)
         # under jit the values are unknown: no error, and no NaN score either
         for target in ("state", "class"):
             mi = np.asarray(PMI(t, bad, target))
             assert not np.any(np.isnan(mi)), mi
     # -inf (a class ruled out) is a valid belief, and its scores are finite
-    zero = K.Belief(b.log_pc.at[1].set(-jnp.inf), b.log_pk)
+    zero = b._replace(log_pc=b.log_pc.at[1].set(-jnp.inf))
     assert np.all(np.isfinite(np.asarray(K.pairwise_mutual_information(t, zero))))
 
 
@@ -304,13 +310,13 @@ def test_zero_recompiles_after_warm_up(rng):
     mus, vars = random_model(rng, 4, (2, 3), (3, 2), (2, 2))
     mus = tuple(m.astype(np.float32) for m in mus)
     vars = tuple(v.astype(np.float32) for v in vars)
-    t = K.pairwise_tables(as_jax(mus), as_jax(vars), kind="kl")
+    t = K.pairwise_tables(gaussians(mus, vars), kind="kl")
     fn = jax.jit(K.pairwise_mutual_information, static_argnames=("target", "levels"))
 
     def belief():
         r = random_belief(rng, 4, (2, 3))
         rows = tuple(jnp.asarray(np.stack([lp] * v), jnp.float32) for lp, v in zip(r.log_pk, (3, 2)))
-        return K.Belief(jnp.asarray(r.log_pc, jnp.float32), rows)
+        return K.PredictedBelief(jnp.asarray(r.log_pc, jnp.float32), rows)
 
     for target in ("state", "class"):
         jax.block_until_ready(fn(t, belief(), target))

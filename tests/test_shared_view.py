@@ -69,6 +69,7 @@ def test_extend_then_marginal_is_the_belief(rng, x64):
     assert x.log_pc.shape == (C * M,) and x.log_pk[0].shape == (C * M, L)
     np.testing.assert_allclose(x.log_pc.reshape(C, M), lpc[:, None] + log_pm, rtol=1e-12)
     back = K.shared_latent.marginal(x, M)
+    assert isinstance(back, K.Belief)
     np.testing.assert_allclose(back.log_pc, lpc, atol=1e-12)
     for got, want in zip(back.log_pk, lpk):
         np.testing.assert_allclose(got, want, atol=1e-12)
@@ -82,8 +83,9 @@ def test_marginal_of_levels_that_depend_on_the_component(rng, x64):
     pcm[1] = 0.0
     pk = rng.dirichlet(np.ones(L), size=(V, C, M))                         # [V, C, M, L]
     with np.errstate(divide="ignore"):
-        b = K.Belief(jnp.asarray(np.log(pcm).reshape(-1)), (jnp.asarray(np.log(pk).reshape(V, C * M, L)),))
+        b = K.PredictedBelief(jnp.asarray(np.log(pcm).reshape(-1)), (jnp.asarray(np.log(pk).reshape(V, C * M, L)),))
     out = K.shared_latent.marginal(b, M)
+    assert isinstance(out, K.PredictedBelief)  # the form is kept
     assert np.all(np.isfinite(np.asarray(out.log_pk[0])))
     np.testing.assert_allclose(np.exp(out.log_pc), pcm.sum(1), atol=1e-12)
     want = np.einsum("cm,vcml->vcl", pcm[:1] / pcm[:1].sum(1, keepdims=True), pk[:, :1])

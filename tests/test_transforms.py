@@ -6,7 +6,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from compiles import count_compiles
-from kernel_models import random_belief, random_model
+from kernel_models import gaussians, random_belief, random_model
 
 from jaxrecog import kernels as K
 
@@ -21,19 +21,25 @@ def _belief(b, dtype=None):
     return K.Belief(jnp.asarray(b.log_pc, dtype), _j(b.log_pk, dtype))
 
 
+def _predicted(b):
+    """The planners' form of a belief on random_model's positions (3, 2): its rows everywhere."""
+    return K.at_every_position(b, (3, 2))
+
+
 @pytest.mark.slow
 def test_jit_equals_eager(rng, getkey, x64):
     mus, vars = random_model(rng, 4, (2, 2), (3, 2), (2, 2))
     b = _belief(random_belief(rng, 4, (2, 2)))
-    tables = K.mi_tables(_j(mus), _j(vars), key=getkey(), samples_per_stratum=2)
+    p = _predicted(b)
+    tables = K.mi_tables(gaussians(mus, vars), key=getkey(), samples_per_stratum=2)
     key = getkey()
     with jax.disable_jit():
-        mi_e = K.mutual_information(tables, b, "class")
-        f_e = K.fisher_information(tables, b, key=key, n_objects=2, n_poses=2)
+        mi_e = K.mutual_information(tables, p, "class")
+        f_e = K.fisher_information(tables, p, key=key, n_objects=2, n_poses=2)
         u_e = K.update(b, (jnp.ones((4, 2)), jnp.zeros((4, 2))))
-    mi_j = jax.jit(K.mutual_information, static_argnames="target")(tables, b, target="class")
+    mi_j = jax.jit(K.mutual_information, static_argnames="target")(tables, p, target="class")
     f_j = jax.jit(K.fisher_information, static_argnames=("n_objects", "n_poses"))(
-        tables, b, key=key, n_objects=2, n_poses=2
+        tables, p, key=key, n_objects=2, n_poses=2
     )
     u_j = jax.jit(K.update)(b, (jnp.ones((4, 2)), jnp.zeros((4, 2))))
     np.testing.assert_allclose(mi_j, mi_e, rtol=1e-12)
@@ -44,16 +50,17 @@ def test_jit_equals_eager(rng, getkey, x64):
 @pytest.mark.slow
 def test_vmap_over_beliefs(rng, getkey):
     mus, vars = random_model(rng, 4, (2, 3), (3, 2), (2, 2))
-    tables = K.mi_tables(_j(mus), _j(vars), key=getkey(), samples_per_stratum=2)
+    tables = K.mi_tables(gaussians(mus, vars), key=getkey(), samples_per_stratum=2)
     beliefs = [_belief(random_belief(rng, 4, (2, 3)), jnp.float32) for _ in range(3)]
     stacked = jax.tree_util.tree_map(lambda *x: jnp.stack(x), *beliefs)
-    mi = jax.jit(jax.vmap(K.mutual_information, in_axes=(None, 0)))(tables, stacked)
-    fis = jax.jit(jax.vmap(lambda b: K.fisher_information(tables, b, key=jax.random.PRNGKey(0), n_objects=2, n_poses=2)))(stacked)
+    predicted = jax.tree_util.tree_map(lambda *x: jnp.stack(x), *(_predicted(b) for b in beliefs))
+    mi = jax.jit(jax.vmap(K.mutual_information, in_axes=(None, 0)))(tables, predicted)
+    fis = jax.jit(jax.vmap(lambda b: K.fisher_information(tables, b, key=jax.random.PRNGKey(0), n_objects=2, n_poses=2)))(predicted)
     ups = jax.vmap(K.update, in_axes=(0, None))(stacked, (jnp.ones((4, 2)), jnp.zeros((4, 3))))
     for i, b in enumerate(beliefs):
-        np.testing.assert_allclose(mi[i], K.mutual_information(tables, b), rtol=1e-5, atol=1e-6)
+        np.testing.assert_allclose(mi[i], K.mutual_information(tables, _predicted(b)), rtol=1e-5, atol=1e-6)
         np.testing.assert_allclose(
-            fis[i], K.fisher_information(tables, b, key=jax.random.PRNGKey(0), n_objects=2, n_poses=2),
+            fis[i], K.fisher_information(tables, _predicted(b), key=jax.random.PRNGKey(0), n_objects=2, n_poses=2),
             rtol=1e-4, atol=1e-5,
         )
         np.testing.assert_allclose(ups.log_pc[i], K.update(b, (jnp.ones((4, 2)), jnp.zeros((4, 3)))).log_pc, rtol=1e-6)
@@ -67,8 +74,8 @@ def test_float32_matches_float64(rng, getkey):
     mus, vars = random_model(rng, 4, (2, 2), (3, 2), (2, 2))
     bn = random_belief(rng, 4, (2, 2))
     fkey = getkey()
-    t32 = K.mi_tables(_j(mus, jnp.float32), _j(vars, jnp.float32), key=getkey(), samples_per_stratum=2)
-    b32 = _belief(bn, jnp.float32)
+    t32 = K.mi_tables(gaussians(mus, vars, dtype=jnp.float32), key=getkey(), samples_per_stratum=2)
+    b32 = _predicted(_belief(bn, jnp.float32))
     mi32 = jax.jit(K.mutual_information)(t32, b32)
     f32 = jax.jit(K.fisher_information, static_argnames=("n_objects", "n_poses"))(t32, b32, key=fkey, n_objects=2, n_poses=2)
     assert mi32.dtype == jnp.float32 and f32.dtype == jnp.float32
@@ -84,8 +91,8 @@ def test_float32_matches_float64(rng, getkey):
 def test_no_recompilation_when_only_values_change(rng, getkey):
     mus, vars = random_model(rng, 4, (2, 2), (3, 2), (2, 2))
 
-    def tables_fn(mus, vars, key):
-        return K.mi_tables(mus, vars, key=key, samples_per_stratum=2)
+    def tables_fn(likelihoods, key):
+        return K.mi_tables(likelihoods, key=key, samples_per_stratum=2)
 
     def plan(tables, belief, key):
         mi = K.mutual_information(tables, belief, "class")
@@ -102,9 +109,10 @@ def test_no_recompilation_when_only_values_change(rng, getkey):
         lls = (jnp.asarray(rng.normal(size=(4, 2)), jnp.float32), jnp.asarray(rng.normal(size=(4, 2)), jnp.float32))
         moved = jnp.asarray(rng.random(2) < 0.5)
         keys = getkey(), getkey()
+        p = _predicted(b)
         with count_compiles() as compiled:
-            tables = tables_fn(_j(m2), _j(v2), keys[0])
-            mi, crlb = plan(tables, b, keys[1])
+            tables = tables_fn(gaussians(m2, v2), keys[0])
+            mi, crlb = plan(tables, p, keys[1])
             jax.block_until_ready(step(b, lls, moved))
         assert np.all(np.isfinite(mi)) and np.all(np.isfinite(crlb))
         if i == 0:

@@ -60,7 +60,8 @@ def test_expected_instability_is_the_brute_force_sum_over_cameras_row_major():
 
 def test_planner_is_the_robust_score_minus_the_weighted_expected_instability(getkey):
     model = _mixture_model()
-    prior = K.uniform_belief(model.n_classes, tuple(len(model.levels) for _ in model.positions))
+    prior = K.at_every_position(K.uniform_belief(model.n_classes, tuple(len(model.levels) for _ in model.positions)),
+                                model.positions)
     prior = prior._replace(log_pc=jax.nn.log_softmax(jnp.arange(model.n_classes, dtype=prior.log_pc.dtype)))
     robust = make_planner("mi-class-pairwise-robust", model, key=getkey(), temper=1.0)
     assert make_planner("mi-class-pairwise-stable", model, key=getkey()).temper == 1.0   # the plain belief by default

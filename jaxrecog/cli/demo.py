@@ -10,6 +10,7 @@ import jax.random as jr
 import numpy as np
 
 from .. import campaigns  # as a module: tests stub its prepare / run_case / run_trace
+from .. import kernels as K
 from .. import plots
 from ..modelfile import load_model
 from .._progress import enabled as progress_bars
@@ -74,8 +75,9 @@ def _model_plots(prepared, settings, out: Path, seed: int) -> list[Path]:
     model = load_model(str(path))
     k1, k2 = jr.split(key(seed))
     rec = make_recognizer(model, "mi", key=k1, samples=settings.samples, min_per_stratum=settings.min_per_stratum)
-    prior = rec.init(config=(0,) * len(model_positions(model))).prior
-    scores = np.asarray(rec.planner.scores(prior, k2))
+    positions = model_positions(model)
+    prior = rec.init(config=(0,) * len(positions)).prior
+    scores = np.asarray(rec.planner.scores(K.at_every_position(prior, positions), k2))
     return plots.model_figures(model, scores, out, image=_first_train_image(Path(settings.workdir)))
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import jax.random as jr
 import numpy as np
 
+from .. import kernels as K
 from .. import plots
 from ..hardware.rigs.rig import config_from_index
 from ..modelfile import load_model
@@ -86,7 +87,7 @@ def _report(args) -> tuple[dict, str]:
                   "object": int(dec.object), "pose": int(dec.pose), "probability": float(dec.probability)}
     else:
         state = rec.init(config=(0,) * len(positions))
-        scores = np.asarray(planner.scores(rec.belief(state.prior), k_score))
+        scores = np.asarray(planner.scores(K.at_every_position(rec.belief(state.prior), positions), k_score))
     ranking = _ranking(scores, positions, args.top)
     written = []
     if args.plot:

@@ -79,9 +79,10 @@ def uniform_prior(model, shared_view: bool = False) -> K.Belief:
     return initial_belief(model, shared_view)
 
 
-def class_belief(model, belief: K.Belief, shared_view: bool = False) -> K.Belief:
+def class_belief(model, belief: K.Belief | K.PredictedBelief, shared_view: bool = False
+                 ) -> K.Belief | K.PredictedBelief:
     """The belief over (class, levels) of an env belief (its marginal over
-    the view component with ``shared_view``)."""
+    the view component with ``shared_view``), of the same form."""
     return view_marginal(model, belief, shared_view)
 
 

@@ -91,7 +91,7 @@ _P_FLOOR = 1e-12
 
 
 @eqx.filter_jit
-def _scores(planner, predicted: K.Belief, key):
+def _scores(planner, predicted: K.PredictedBelief, key):
     return planner.scores(predicted, key)
 
 
