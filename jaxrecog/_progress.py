@@ -12,7 +12,7 @@ import contextlib
 import sys
 from typing import Iterator
 
-__all__ = ["set_quiet", "is_quiet", "enabled", "bar", "Bar"]
+__all__ = ["set_quiet", "enabled", "bar", "Bar"]
 
 _QUIET = False
 
@@ -21,10 +21,6 @@ def set_quiet(quiet: bool) -> None:
     """Turn every bar off (``True``) or back to the terminal rule (``False``)."""
     global _QUIET
     _QUIET = bool(quiet)
-
-
-def is_quiet() -> bool:
-    return _QUIET
 
 
 def enabled(stream=None) -> bool:

@@ -16,14 +16,13 @@ from typing import Any
 
 import equinox as eqx
 import jax
-import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
 from . import kernels as K
 from ._types import Bases, Cholesky, Eigenvalues, MeanImages, Means, Variances
 
-__all__ = ["CameraModel", "SensorModel", "GaussianAccumulator", "fit_gaussians"]
+__all__ = ["CameraModel", "SensorModel", "GaussianAccumulator"]
 
 
 class CameraModel(eqx.Module):
@@ -252,16 +251,3 @@ class GaussianAccumulator:
         """
         lik = self.fit(K.FullGaussian if self.full else K.DiagonalGaussian, var_floor)
         return lik.mu, lik.var, getattr(lik, "chol", None)
-
-
-def fit_gaussians(g: np.ndarray, classes: np.ndarray, levels: np.ndarray, n_classes: int,
-                  n_levels: int, *, full: bool = False, var_floor: float = 0.0):
-    """ML Gaussians of samples ``g [B, K]`` in one pass (convenience wrapper of
-    :class:`GaussianAccumulator`)."""
-    acc = GaussianAccumulator(n_classes, n_levels, g.shape[1], full=full)
-    acc.add(g, classes, levels)
-    return acc.finalize(var_floor)
-
-
-def as_jax(x: np.ndarray | None):
-    return None if x is None else jnp.asarray(np.asarray(x, np.float32))
