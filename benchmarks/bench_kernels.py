@@ -206,7 +206,8 @@ def mi_parts(tables, belief, repeat=20):
       c' on the (v_0, v_1) grid and the log of the result; both variants.
     """
     mi_mod = importlib.import_module("jaxrecog.kernels.mutual_information")
-    from jaxrecog.kernels._grid import grid_mixture, lse, to_grid
+    from jaxrecog.kernels._grid import grid_mixture, lse
+    from jaxrecog.kernels.config_grid import position_rows
 
     log_pk = [lp.astype(jnp.float32) for lp in belief.log_pk]
     lse_fn = jax.jit(lambda lds, lps: [lse(ld + lp[:, None, None, None], axis=-1) for ld, lp in zip(lds, lps)])
@@ -216,7 +217,7 @@ def mi_parts(tables, belief, repeat=20):
 
     def mixture(ts, log_pc):
         extra = jnp.broadcast_to(log_pc[None, None, :], (n_c, j, n_c))
-        return grid_mixture([to_grid(t) for t in ts], extra)[0]
+        return grid_mixture([position_rows(t, front=(1, 3)) for t in ts], extra)[0]
 
     return {
         "ld_entries": int(sum(x.size for x in tables.ld)),

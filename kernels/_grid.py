@@ -33,6 +33,24 @@ def lse(x, axis):
     return jnp.log(s) + jnp.squeeze(m, axis)
 
 
+def flushed_exp(x, floor: float):
+    """``exp(x)`` with every value below ``exp(floor)`` flushed to exactly 0
+    (``floor`` at or above ``log(tiny)``: no subnormal float comes out; they
+    are ~100x slower on x86 CPUs)."""
+    return jnp.where(x < floor, 0.0, jnp.exp(jnp.maximum(x, floor)))
+
+
+def shifted_exp(x):
+    """``(M, E)`` over the last axis: M = max (0 where not finite, as in
+    :func:`lse`) and E = exp(x - M[..., None]), flushed to 0 below the
+    smallest normal float (:func:`flushed_exp`).  The offline tables of the
+    Monte Carlo and the pairwise MI hold such pairs, so their online sums over
+    the last axis are batched matrix products without an exp."""
+    m = jnp.max(x, axis=-1)
+    m = jnp.where(jnp.isfinite(m), m, 0.0)
+    return m, flushed_exp(x - m[..., None], math.log(float(jnp.finfo(x.dtype).tiny)))
+
+
 def weights(log_p, n_factors: int = 1):
     """``exp(log_p)`` with values that a product of ``n_factors`` such weights
     could take below the smallest normal float flushed to exactly 0.
@@ -44,8 +62,7 @@ def weights(log_p, n_factors: int = 1):
     weight times the largest term, which is negligible for planning.
     """
     finfo = jnp.finfo(log_p.dtype)
-    floor = math.log(float(finfo.tiny)) / max(int(n_factors), 1)
-    return jnp.where(log_p < floor, 0.0, jnp.exp(jnp.maximum(log_p, floor)))
+    return flushed_exp(log_p, math.log(float(finfo.tiny)) / max(int(n_factors), 1))
 
 
 def floor_log_probs(log_p):
@@ -173,10 +190,12 @@ def check_options(kernel: str, target: str, levels: str) -> None:
         raise ValueError(f"{kernel}: levels must be 'belief' or 'uniform', got {levels!r}")
 
 
-def own_class(t):
-    """``[V, C, L, J, C'] -> [V, C, L, J]``: the entries at c' = c (the table of
-    a sample's own class)."""
-    return jnp.transpose(jnp.diagonal(t, axis1=1, axis2=4), (0, 3, 1, 2))
+def own_class(t, class_axis: int, other_class_axis: int):
+    """The entries at c' = c (the table of a sample's own class): the diagonal
+    of axes ``class_axis`` (c) and ``other_class_axis`` (c'), put where c was,
+    e.g. ``[V, C, L, J, C'] -> [V, C, L, J]`` with axes (1, 4) or
+    ``[C, X, C'] -> [C, X]`` with axes (0, 2)."""
+    return jnp.moveaxis(jnp.diagonal(t, axis1=class_axis, axis2=other_class_axis), -1, class_axis)
 
 
 def mixture_information(ts, selfs, log_pc, log_pk):
@@ -205,7 +224,7 @@ def mixture_information(ts, selfs, log_pc, log_pk):
     n_c, j = ts[0].shape[1], ts[0].shape[3]
     dtype = ts[0].dtype
     # E_s log sum_c' ...: mixture over c' on the (v_0, v_1, ...) grid.
-    grid_tabs = [to_grid(t) for t in ts]  # [C, J, X_i, C']
+    grid_tabs = [position_rows(t, front=(1, 3)) for t in ts]  # [C, J, X_i, C']
     extra = jnp.broadcast_to(log_pc[None, None, :], (n_c, j, n_c))
     logp, _, _ = grid_mixture(grid_tabs, extra)  # [C, J, X_0, ..., X_{n-1}]
     pc = weights(log_pc, n + 1)
@@ -224,10 +243,6 @@ def mixture_information(ts, selfs, log_pc, log_pk):
     return grid.flatten(e_self - e_logp)
 
 
-__all__ = ["check_options", "floor_log_probs", "grid_mixture", "level_tables", "lse", "mixture_information", "own_class", "weights"]
+__all__ = ["check_options", "floor_log_probs", "flushed_exp", "grid_mixture", "level_tables", "lse", "mixture_information",
+           "own_class", "shifted_exp", "weights"]
 
-
-def to_grid(t):
-    """``[V, C, L, J, ...] -> [C, J, V*L, ...]``: a camera's per-position table
-    as the rows of the (v_1, v_2) grid product."""
-    return position_rows(t, front=(1, 3))

@@ -46,8 +46,9 @@ import jax.random as jr
 from jax.scipy.linalg import solve_triangular
 from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray
 
-from ._grid import floor_log_probs, grid_mixture, lse, to_grid, weights
+from ._grid import floor_log_probs, grid_mixture, lse, weights
 from .belief import PredictedBelief, check_predicted
+from .config_grid import position_rows
 from .mutual_information import MITables
 
 DEFAULT_SIGMA_S = 0.4
@@ -174,10 +175,8 @@ def fisher_from_draws(tables: MITables, belief: PredictedBelief, draws: FisherDr
         ba = jnp.sum(jnp.exp(x - la[..., None]) * levb, axis=-1)
         la0 = lse(x0, axis=-1)
         ba0 = jnp.sum(jnp.exp(x0 - la0[..., None]) * levb, axis=-1)
-        tabs_g.append(to_grid(la))
-        b_g.append(to_grid(ba))
-        tabs_0.append(to_grid(la0))
-        b_0.append(to_grid(ba0))
+        for acc, t in zip((tabs_g, b_g, tabs_0, b_0), (la, ba, la0, ba0)):
+            acc.append(position_rows(t, front=(1, 3)))  # [C, J, X_i, ...]: the rows of the grid product
 
     fo = obj[None, None, None, :]
     fp = pose[None, None, None, :]

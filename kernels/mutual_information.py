@@ -59,7 +59,7 @@ import jax.numpy as jnp
 import jax.random as jr
 from jaxtyping import Array, Float, PRNGKeyArray
 
-from ._grid import check_options, floor_log_probs, level_tables, lse, mixture_information, own_class
+from ._grid import check_options, floor_log_probs, level_tables, lse, mixture_information, own_class, shifted_exp
 from .belief import PredictedBelief, check_predicted
 from .likelihood import Likelihood, as_likelihoods
 
@@ -149,9 +149,9 @@ def _mi_tables(liks: tuple[Likelihood, ...], key: PRNGKeyArray, j: int, store: s
         selfs.append(jnp.transpose(d2, (0, 2, 3, 1)))
         if store != "uniform":
             lds.append(ld)
-            mx, ex = _shifted_exp(ld)
+            mx, ex = shifted_exp(ld)
             mxs.append(mx)
-            exs.append(ex)
+            exs.append(jnp.transpose(ex, (0, 4, 5, 1, 2, 3)))  # [V, C', L', C, L, J] (MITables.ld_exp)
         if store != "full":
             tus.append(lse(ld, axis=-1) - math.log(l))
         zs.append(z)
@@ -163,19 +163,6 @@ def _mi_tables(liks: tuple[Likelihood, ...], key: PRNGKeyArray, j: int, store: s
         tuple(mxs) if store != "uniform" else None,
         tuple(exs) if store != "uniform" else None,
     )
-
-
-def _shifted_exp(ld):
-    """(M, E): M = max over the last axis (0 where not finite, as in ``lse``) and
-    E = exp(ld - M[..., None]), flushed to 0 below the smallest normal float
-    (no subnormals: ~100x slower on x86, see :mod:`._grid`), stored as
-    ``[V, C', L', C, L, J]``."""
-    m = jnp.max(ld, axis=-1)
-    m = jnp.where(jnp.isfinite(m), m, 0.0)
-    d = ld - m[..., None]
-    floor = math.log(float(jnp.finfo(ld.dtype).tiny))
-    e = jnp.where(d < floor, 0.0, jnp.exp(jnp.maximum(d, floor)))
-    return m, jnp.transpose(e, (0, 4, 5, 1, 2, 3))
 
 
 def belief_level_tables(tables: MITables, log_pk):
@@ -250,7 +237,7 @@ def _mutual_information(tables: MITables, belief: PredictedBelief, target: str, 
         ts = belief_level_tables(tables, log_pk)
 
     # E_s E_g [log p(g|s,a) - log p(g|a)] per replicate, on the (v_0, v_1, ...) grid
-    selfs = list(tables.ld_self) if target == "state" else [own_class(t) for t in ts]
+    selfs = list(tables.ld_self) if target == "state" else [own_class(t, 1, 4) for t in ts]
     reps = mixture_information(ts, selfs, log_pc, log_pk)  # [J, A]
     mi = jnp.mean(reps, axis=0)
     if not with_stderr:

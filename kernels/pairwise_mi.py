@@ -95,7 +95,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from ._grid import check_options, floor_log_probs, lse
+from ._grid import check_options, floor_log_probs, flushed_exp, lse, own_class, shifted_exp
 from .belief import PredictedBelief, check_predicted
 from .config_grid import ConfigGrid, position_rows
 from .likelihood import Likelihood, as_likelihoods
@@ -146,20 +146,6 @@ class PairwiseTables(NamedTuple):
     u_class: Float[Array, " A"] | None = None
 
 
-def _shifted(w):
-    """(M, E) with M = max over the last axis and E = exp(w - M), values below
-    the smallest normal float flushed to 0 (no subnormals: ~100x slower on x86)."""
-    m = jnp.max(w, axis=-1)
-    floor = math.log(float(jnp.finfo(w.dtype).tiny))
-    s = w - m[..., None]
-    return m, jnp.where(s < floor, 0.0, jnp.exp(jnp.maximum(s, floor)))
-
-
-def _own_class(t):
-    """``[C, X, C'] -> [C, X]``: the entries at c' = c."""
-    return jnp.transpose(jnp.diagonal(t, axis1=0, axis2=2))
-
-
 def pairwise_tables(
     likelihoods: Sequence[Likelihood],
     *,
@@ -182,16 +168,16 @@ def pairwise_tables(
         n_c, n_l = d.shape[1], d.shape[2]
         eye = (jnp.eye(n_c, dtype=bool)[:, None, :, None] & jnp.eye(n_l, dtype=bool)[None, :, None, :])
         w = -jnp.where(eye[None], 0.0, jnp.maximum(d, 0.0))  # [V, C, L, C', L']
-        m, e = _shifted(w)
+        m, e = shifted_exp(w)
         u = position_rows(lse(w, axis=-1) - math.log(n_l))  # [C, X, C']
-        um, ue = _shifted(u)
+        um, ue = shifted_exp(u)
         out["log_w"].append(w)
         out["w_max"].append(position_rows(m))
         out["w_exp"].append(jnp.transpose(e, (0, 3, 1, 2, 4)))
         out["u_log"].append(u)
         out["u_max"].append(um)
         out["u_exp"].append(ue)
-        out["u_self"].append(_own_class(u))
+        out["u_self"].append(own_class(u, 0, 2))
     per_camera = {name: tuple(v) for name, v in out.items()}
     # the uniform-class values (module docstring, "Uniform class prior"), belief-free
     dtype = per_camera["u_exp"][0].dtype
@@ -262,9 +248,8 @@ def _information(es, ms, selfs, log_pc, wks, weight_floor, patch=None):
     if patch is not None and patch[0] == small:
         patch = (patch[0], patch[1], patch[2] * pc_inner[None, None, :])
     # weights of the strata (c, k_0, ...) per configuration, factors below the floor flushed
-    flush = lambda lp: jnp.where(lp < weight_floor, 0.0, jnp.exp(jnp.maximum(lp, weight_floor)))
-    pc = flush(log_pc)
-    ws = [flush(w) for w in wks]  # [C, V_i, L_i]
+    pc = flushed_exp(log_pc, weight_floor)
+    ws = [flushed_exp(w, weight_floor) for w in wks]  # [C, V_i, L_i]
     wg = [w.reshape(n_c, -1) for w in ws]  # [C, X_i]
     wg[0] = wg[0] * pc[:, None]
     letters = _GRID_LETTERS[:n]
@@ -366,8 +351,8 @@ def pairwise_mutual_information(
 
     def general(_):
         ws = [_level_rows(e, m, lp) for e, m, lp in zip(tables.w_exp, tables.w_max, log_pk)]
-        mes = [_shifted(w) for w in ws]
-        selfs = [_own_class(w) for w in ws] if klass else None
+        mes = [shifted_exp(w) for w in ws]
+        selfs = [own_class(w, 0, 2) for w in ws] if klass else None
         return _information([e for _, e in mes], [m for m, _ in mes], selfs, log_pc, wks, floor)
 
     big = max(range(n), key=lambda i: positions[i] * n_levels[i])
@@ -382,8 +367,8 @@ def pairwise_mutual_information(
             e_rows = jax.lax.dynamic_slice_in_dim(tables.w_exp[i], c, 1, axis=0)
             m_rows = jax.lax.dynamic_slice_in_dim(tables.w_max[i], start, l, axis=1)
             w = _level_rows(e_rows, m_rows, lp)  # [C, L, C']
-            m, e = _shifted(w)
-            out.append((start, m, e, _own_class(w) if klass else None))
+            m, e = shifted_exp(w)
+            out.append((start, m, e, own_class(w, 0, 2) if klass else None))
         return out
 
     def patched(i, row, patch_e: bool):

@@ -35,6 +35,8 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Int, Real
 from .. import kernels as K
 from ..counts import check_counts
 from ..driver import TrialSpec
+from ..hardware.rigs.rig import CaptureJob
+from ..hardware.rigs.rig_pool import run_job
 from ..recognizer import initial_belief, update_from_images, view_marginal
 
 __all__ = ["check_layout", "start", "capture", "observe", "class_belief", "belief_from_features", "belief_from_logliks",
@@ -60,16 +62,16 @@ def start(rig, scene: TrialSpec) -> None:
 
 def capture(rig, config: Sequence[int] | np.ndarray, noise_seed) -> tuple[np.ndarray, np.ndarray]:
     """One image set at ``config``, taken as :func:`jaxrecog.driver.run_trials`
-    takes it: the capture noise reseeded with ``noise_seed`` (the driver's
-    ``(seed, trial, step)``), the cameras moved, one ``Rig.capture``.
+    takes it (:func:`~jaxrecog.hardware.rigs.rig_pool.run_job`, the one place the
+    order of a capture's rig calls is written): the capture noise reseeded
+    with ``noise_seed`` (the driver's ``(seed, trial, step)``), the cameras
+    moved, one ``Rig.capture``.
 
     Returns ``(images uint8 [n, H, W], true occluded fraction float64 [n])``;
     the fractions are empty (shape ``(0,)``) where the rig does not know them
     (stored or real images), as in :class:`~jaxrecog.hardware.Capture`.
     """
-    rig.reseed(noise_seed)
-    rig.move(tuple(int(v) for v in config))
-    cap = rig.capture()
+    cap = run_job(rig, CaptureJob(0, None, noise_seed, tuple(int(v) for v in config)))
     return np.asarray(cap.images, np.uint8), np.asarray(cap.occluded, np.float64)
 
 
