@@ -110,8 +110,10 @@ class StepRecord:
     decision: Decision
 
 
-def _slot_step(recognizer: Recognizer, trace: bool, state: RecognizerState, fresh, config, images, key, trial, step):
-    start = recognizer.init(config=config)
+def _slot_step(recognizer: Recognizer, trace: bool, start: RecognizerState, state: RecognizerState, fresh, config,
+               images, key, trial, step):
+    # a new trial (fresh) restarts from ``start``, the uniform state, at its own configuration
+    start = start._replace(config=jnp.asarray(config, jnp.int32))
     state = jax.tree.map(lambda a, b: jnp.where(fresh, a, b), start, state)
     k = jr.fold_in(jr.fold_in(key, trial), step)
     # a trial's stopping step needs no next configuration: skip its planner
@@ -120,9 +122,13 @@ def _slot_step(recognizer: Recognizer, trace: bool, state: RecognizerState, fres
 
 
 def _map_slots(recognizer: Recognizer, states, fresh, configs, images, key, trials, steps, vectorize: bool, trace: bool):
+    # the uniform start state is the same for every slot but its configuration:
+    # built once per batch, not in every slot (``Recognizer.init`` at a configuration)
+    start = recognizer.init(config=jnp.zeros(jnp.shape(configs)[1:], jnp.int32))
+
     def one(args):
         state, fresh_b, config, imgs, trial, step = args
-        return _slot_step(recognizer, trace, state, fresh_b, config, imgs, key, trial, step)
+        return _slot_step(recognizer, trace, start, state, fresh_b, config, imgs, key, trial, step)
 
     xs = (states, fresh, configs, images, trials, steps)
     if vectorize:
