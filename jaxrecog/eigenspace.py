@@ -95,7 +95,8 @@ class Eigenspace:
 def position_eigenspace(images: np.ndarray) -> Eigenspace:
     """Eigenspace of the training images ``[C, H, W]`` (or ``[C, D]``) of one
     camera position via the Gram matrix ``Sᵀ S`` (eq. 4.1-4.10), in float64;
-    its basis is formed when first used (:class:`Eigenspace`)."""
+    its basis is formed when first used (:class:`Eigenspace`), from ``images``
+    kept by reference until then (do not change them in between)."""
     xhat = unit_energy(images)                      # [C, D]   eq. 4.1
     mean = xhat.mean(axis=0)                        # [D]      eq. 4.4
     S = (xhat - mean).T                             # [D, C]   eq. 4.3, 4.5
