@@ -208,19 +208,38 @@ def features_from_database(model: SensorModel, database: ImageDatabase | str | o
             bad = sel[db.position[sel] >= cam.n_positions][0]
             raise CalibrationError(f"{db.paths[bad]}: camera {i} position {db.position[bad]} "
                                    f"not in the model ({cam.n_positions} positions)")
-        mean = np.asarray(cam.mean_image, np.float64)
-        basis = np.asarray(cam.basis, np.float64)
-        g = np.zeros((sel.size, cam.n_components))
-        for j, r in enumerate(sel):
-            y = check_image(db.images[r], model.image_shape, name=db.paths[r]).astype(np.float64)
-            v = db.position[r]
-            g[j] = (y / np.linalg.norm(y) - mean[v]) @ basis[v]
+        g = _project_rows(cam, db, sel, model.image_shape)
         cams.append(CameraFeatures(g, db.position[sel].copy(), db.class_index[sel].copy()))
     extra = rows[db.camera[rows] >= model.n_cameras]
     if extra.size:
         raise CalibrationError(f"{db.paths[extra[0]]}: camera {db.camera[extra[0]]} not in the model "
                                f"({model.n_cameras} cameras)")
     return CalibrationFeatures(tuple(cams))
+
+
+def _project_rows(cam: CameraModel, db: ImageDatabase, sel: np.ndarray, image_shape) -> np.ndarray:
+    """``g = basis[v]ᵀ (y / ||y|| - mean[v])`` (eq. 4.1-4.11) of the rows ``sel``
+    of ``db`` taken by ``cam``, float64 ``[len(sel), K]``: every image checked
+    (:func:`~jaxrecog.features.check_image`; the first bad one, in row order,
+    raises), then one product per position.  ``||y||²`` of 8-bit pixels is a
+    sum of integers below 2^53, exact in any order."""
+    images = db.images[sel]
+    flat = images.reshape(len(sel), -1)
+    bad = np.flatnonzero(flat.min(axis=1, initial=255) == flat.max(axis=1, initial=0)) \
+        if images.dtype == np.uint8 and images.shape[1:] == tuple(image_shape) else range(len(sel))
+    for j in bad:   # all black or constant (or not 8-bit): check_image names what is wrong
+        check_image(images[j], image_shape, name=db.paths[sel[j]])
+    mean = np.asarray(cam.mean_image, np.float64)
+    basis = np.asarray(cam.basis, np.float64)
+    g = np.zeros((len(sel), cam.n_components))
+    pos = db.position[sel]
+    for v in np.unique(pos):
+        at = np.flatnonzero(pos == v)
+        y = flat[at].astype(np.float64)
+        norm = np.sqrt(np.einsum("nd,nd->n", y, y))
+        for j, row in zip(at, y / norm[:, None] - mean[v]):
+            g[j] = row @ basis[v]      # one row at a time: the same products as projecting each image alone
+    return g
 
 
 def holdout_calibration(database: ImageDatabase, fraction: float, *, seed: int = 0,

@@ -364,3 +364,33 @@ def test_synthetic_calib_split_is_perturbed_near_the_training_view(tmp_path):
     calib = db.images[db.rows("calib")]
     train = db.images[db.rows("train")]
     assert not any(np.array_equal(c, tr) for c, tr in zip(calib, train))
+
+
+def test_features_are_each_image_projected_alone_and_bad_images_are_named(trained):
+    """``features_from_database`` checks and normalises all the rows of a
+    position at once: the same numbers, bit for bit, as projecting each image
+    alone (the per-image loop it replaces), and the first bad image named."""
+    from jaxrecog.calibration import features_from_database
+    from jaxrecog.database import ImageDatabase
+    from jaxrecog.features import ImageError
+
+    db, model = trained
+    held = holdout_calibration(db, 0.5, seed=1)
+    feats = features_from_database(model, held)
+    for i, (f, cam) in enumerate(zip(feats.cameras, model.cameras)):
+        rows = held.rows("calib")
+        rows = rows[held.camera[rows] == i]
+        mean, basis = (np.asarray(x, np.float64) for x in (cam.mean_image, cam.basis))
+        want = [(y / np.linalg.norm(y) - mean[v]) @ basis[v]
+                for y, v in ((held.images[r].astype(np.float64).ravel(), held.position[r]) for r in rows)]
+        assert f.g.tobytes() == np.asarray(want).tobytes()
+        assert f.cls.tolist() == held.class_index[rows].tolist()
+    images = held.images.copy()
+    rows = held.rows("calib")
+    rows = rows[held.camera[rows] == 0]
+    images[rows[1]] = 0          # all black: the first bad row
+    images[rows[2]] = 7          # constant
+    bad = ImageDatabase.from_arrays(images, held.camera, held.position, held.object, held.pose, held.split,
+                                    paths=[f"img{j}.png" for j in range(len(images))])
+    with pytest.raises(ImageError, match=f"^img{rows[1]}.png: all-black"):
+        features_from_database(model, bad)
