@@ -238,6 +238,7 @@ def _measure_objects(spec: str, args) -> dict:
     rss_before = _peak_rss_mb()
     model, train_wall, train_cpu = _timed(lambda: train_model(
         db, kind=args.kind, n_components=args.components, samples_per_image=args.samples, seed=0))
+    rss_trained = _peak_rss_mb()
     info, cal_wall, cal_cpu = None, None, None
     if not args.no_calibrate:
         (_, info), cal_wall, cal_cpu = _timed(lambda: calibrate_model(model, db))
@@ -247,6 +248,7 @@ def _measure_objects(spec: str, args) -> dict:
         "calibrate_wall_s": cal_wall, "calibrate_cpu_s": cal_cpu,
         "total_wall_s": train_wall + (cal_wall or 0.0), "total_cpu_s": train_cpu + (cal_cpu or 0.0),
         "peak_rss_mb": _peak_rss_mb(), "peak_rss_mb_before_training": rss_before,
+        "peak_rss_mb_after_training": rss_trained,
         "database_seconds": t_db,
         "sizes": {"positions": list(db.positions), "poses": db.n_poses, "image_shape": list(db.image_shape),
                   "train_images": int(db.rows("train").size), "calib_images": int(db.rows("calib").size),

@@ -418,6 +418,36 @@ class CameraFit(NamedTuple):
     n_images: np.ndarray
 
 
+#: elements of a family's per-feature intermediates (``V x chunk x C x L x K`` for the
+#: Gaussians) that :func:`_scaling_terms` lets one product hold: 64 MB of float32
+_TERMS_BUDGET = 1 << 24
+
+
+def _scaling_terms(lik: K.Likelihood, g: Float[Array, "V N K"], budget: int = _TERMS_BUDGET):
+    """``vmap`` over positions of ``lik.scaling_terms(g[v])``, bit for bit, in
+    chunks of the ``N`` features (a power of two): the Gaussians' ``[V, N, C,
+    L, K]`` differences, 1.2 GB (held three times over) at 200 objects x 4
+    poses, 18 positions and ``N`` = 1024, are made ``budget`` elements at a
+    time.  The terms with an ``N`` axis (found by their shapes at two ``N``)
+    are concatenated along it, the others (``log|2πΣ|``) taken once."""
+    terms_of = jax.vmap(lambda lik_v, g_v: lik_v.scaling_terms(g_v))
+    V, N, dim = g.shape
+    per_feature = V * lik.n_classes * lik.n_levels * dim
+    chunk = 1 << max(0, (budget // max(per_feature, 1)).bit_length() - 1)
+    if chunk >= N or N % chunk:
+        return terms_of(lik, g)
+    full = jax.tree_util.tree_leaves(jax.eval_shape(terms_of, lik, g))
+    host = np.asarray(g)   # sliced on the host: a device slice compiles once per offset
+    parts = [terms_of(lik, jnp.asarray(host[:, j:j + chunk])) for j in range(0, N, chunk)]
+    flat = [jax.tree_util.tree_leaves(p) for p in parts]
+    out = []
+    for i, want in enumerate(full):
+        got = flat[0][i].shape
+        axis = next((a for a, (x, y) in enumerate(zip(want.shape, got)) if x != y), None)
+        out.append(flat[0][i] if axis is None else jnp.concatenate([f[i] for f in flat], axis=axis))
+    return jax.tree_util.tree_unflatten(jax.tree_util.tree_structure(parts[0]), out)
+
+
 def fit_camera(camera: CameraModel, features: CameraFeatures, *, per_level: bool = False,
                prior_sd: float = 1.0, max_iter: int = 100, tol: float = 1e-5,
                min_factor: float | None = 1.0, fit_shape: bool = True) -> CameraFit:
@@ -455,7 +485,7 @@ def fit_camera(camera: CameraModel, features: CameraFeatures, *, per_level: bool
     dtype = lik.dtype
     g = jnp.asarray(features.g, dtype)[idx] if features.g.shape[0] else jnp.zeros((V, n_max, dim), dtype)
     cls = jnp.asarray(features.cls[idx] if features.cls.size else np.zeros((V, n_max), np.int64))
-    terms = jax.vmap(lambda lik_v, g_v: lik_v.scaling_terms(g_v))(lik, g)
+    terms = _scaling_terms(lik, g)
     theta, it, conv, nll0, nll1 = _fit_positions(
         lik, terms, cls, jnp.asarray(mask), jnp.asarray(prior_sd, dtype), jnp.asarray(int(max_iter)),
         jnp.asarray(tol, dtype), jnp.asarray(-jnp.inf if min_factor is None else math.log(min_factor), dtype),

@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import warnings
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -394,3 +395,20 @@ def test_features_are_each_image_projected_alone_and_bad_images_are_named(traine
                                     paths=[f"img{j}.png" for j in range(len(images))])
     with pytest.raises(ImageError, match=f"^img{rows[1]}.png: all-black"):
         features_from_database(model, bad)
+
+
+@pytest.mark.parametrize("full", [False, True])
+def test_scaling_terms_in_chunks_equal_the_vmap_over_positions(rng, full):
+    """The calibration terms are made a few features at a time (memory): bit
+    for bit the one ``vmap`` over positions, and the terms without a feature
+    axis (``log|2πΣ|``) once."""
+    from jaxrecog.calibration import _scaling_terms
+
+    lik = _model(rng, V=3, L=2, full=full).cameras[0].likelihood
+    g = jnp.asarray(rng.normal(size=(3, 16, 5)) * 2.0, jnp.float32)
+    want = jax.vmap(lambda lik_v, g_v: lik_v.scaling_terms(g_v))(lik, g)
+    per_feature = 3 * lik.n_classes * 2 * 5
+    got = _scaling_terms(lik, g, budget=4 * per_feature)             # chunks of 4 features
+    assert jax.tree_util.tree_structure(got) == jax.tree_util.tree_structure(want)
+    for a, b in zip(jax.tree_util.tree_leaves(want), jax.tree_util.tree_leaves(got)):
+        assert a.shape == b.shape and np.asarray(a).tobytes() == np.asarray(b).tobytes()
