@@ -55,7 +55,7 @@ def _peak_rss_mb() -> float:
     return r / 1024.0 if sys.platform != "darwin" else r / 2**20
 
 
-def main(argv=None) -> int:
+def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", default="out/bench/training.json")
     ap.add_argument("--positions", help="positions per camera, e.g. 32,7 (default 32,7; scaling: 18)")
@@ -83,7 +83,11 @@ def main(argv=None) -> int:
                     help="scaling: every size in this process (quicker; peak memory is then the running maximum)")
     ap.add_argument("--no-calibrate", action="store_true", help="scaling: time training alone")
     ap.add_argument("--scale-one", help=argparse.SUPPRESS)   # a child of the scaling mode: synthetic:N or a folder
-    args = ap.parse_args(argv)
+    return ap
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
     scaling = bool(args.scale_objects or args.scale_databases or args.scale_one)
     args.positions = args.positions or ("18" if scaling else "32,7")
     args.kind = args.kind or ("DB1" if scaling else "DB2")
