@@ -47,14 +47,15 @@ every kernel and planner uses it unchanged; the factors are kept in
 ``CameraModel.calibration`` ``[V, L]`` and saved in the model file (format
 version 2).
 
-Public entry for the CLI: :func:`calibrate_model`.
+Public entry for the CLI: :func:`calibrate_model`.  The held-out features
+(:func:`features_from_database`, :func:`holdout_calibration`) live in
+:mod:`jaxrecog.calibration_data` and are re-exported here.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
-import os
 from typing import NamedTuple, Sequence
 
 import equinox as eqx
@@ -65,9 +66,8 @@ import optax
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from . import kernels as K
-from .counts import CountsMismatchError, check_counts
-from .database import ImageDatabase, load_database
-from .features import check_image
+from .calibration_data import (CalibrationError, CalibrationFeatures, CameraFeatures,  # noqa: F401 (re-exported)
+                               checked_features, features_from_database, holdout_calibration)
 from .sensor_model import CameraModel, SensorModel
 
 __all__ = [
@@ -87,30 +87,6 @@ __all__ = [
     "uncalibrated",
     "calibrate_model",
 ]
-
-
-class CalibrationError(ValueError):
-    """Calibration data that cannot be used (no images, wrong sizes, bad labels)."""
-
-
-class CameraFeatures(NamedTuple):
-    """Held-out features of one camera.
-
-    Attributes:
-        g: ``float [N, K]`` eigenspace features (eq. 4.1-4.11).
-        position: ``int [N]`` position index of each feature.
-        cls: ``int [N]`` true class ``c = object · n_poses + pose``.
-    """
-
-    g: np.ndarray
-    position: np.ndarray
-    cls: np.ndarray
-
-
-class CalibrationFeatures(NamedTuple):
-    """Held-out features of every camera of a model (one entry per camera)."""
-
-    cameras: tuple[CameraFeatures, ...]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -179,110 +155,7 @@ class CalibrationInfo:
         return "\n".join(lines)
 
 
-# ---------------------------------------------------------------- data
-
-
-def features_from_database(model: SensorModel, database: ImageDatabase | str | os.PathLike,
-                           split: str = "calib") -> CalibrationFeatures:
-    """Project the ``split`` rows of an image database with ``model`` (eq. 4.1-4.11).
-
-    Raises:
-        CalibrationError: no rows of that split, or sizes that do not match the model.
-        jaxrecog.features.ImageError: a bad image (named by its path).
-    """
-    db = database if isinstance(database, ImageDatabase) else load_database(database)
-    rows = db.rows(split)
-    if rows.size == 0:
-        raise CalibrationError(
-            f"database {db._where()}: no '{split}' rows to calibrate on (render a calib split, "
-            f"or hold out part of the test split with holdout_calibration)"
-        )
-    try:  # a calibration split may cover fewer positions (each row is checked below)
-        check_counts(model, db, other_name=f"database {db._where()}", only=("objects", "poses", "image"))
-    except CountsMismatchError as e:
-        raise CalibrationError(str(e)) from None
-    cams = []
-    for i, cam in enumerate(model.cameras):
-        sel = rows[db.camera[rows] == i]
-        if np.any(db.position[sel] >= cam.n_positions):
-            bad = sel[db.position[sel] >= cam.n_positions][0]
-            raise CalibrationError(f"{db.paths[bad]}: camera {i} position {db.position[bad]} "
-                                   f"not in the model ({cam.n_positions} positions)")
-        mean = np.asarray(cam.mean_image, np.float64)
-        basis = np.asarray(cam.basis, np.float64)
-        g = np.zeros((sel.size, cam.n_components))
-        for j, r in enumerate(sel):
-            y = check_image(db.images[r], model.image_shape, name=db.paths[r]).astype(np.float64)
-            v = db.position[r]
-            g[j] = (y / np.linalg.norm(y) - mean[v]) @ basis[v]
-        cams.append(CameraFeatures(g, db.position[sel].copy(), db.class_index[sel].copy()))
-    extra = rows[db.camera[rows] >= model.n_cameras]
-    if extra.size:
-        raise CalibrationError(f"{db.paths[extra[0]]}: camera {db.camera[extra[0]]} not in the model "
-                               f"({model.n_cameras} cameras)")
-    return CalibrationFeatures(tuple(cams))
-
-
-def holdout_calibration(database: ImageDatabase, fraction: float, *, seed: int = 0,
-                        source: str = "test") -> ImageDatabase:
-    """A copy of ``database`` with a seeded ``fraction`` of its ``source`` rows
-    relabelled ``calib`` (held out from evaluation).
-
-    The ``train`` split cannot be the source: the model needs exactly one train
-    image per (camera, position, class).
-    """
-    if source == "train":
-        raise CalibrationError("the train split cannot be held out: training needs exactly one "
-                               "train image per (camera, position, object, pose); use source='test'")
-    if not 0.0 < fraction < 1.0:
-        raise CalibrationError(f"fraction must be in (0, 1), got {fraction}")
-    rows = database.rows(source)
-    if rows.size == 0:
-        raise CalibrationError(f"database {database._where()}: no '{source}' rows to hold out")
-    rng = np.random.default_rng(seed)
-    take = rng.choice(rows, size=max(1, int(round(fraction * rows.size))), replace=False)
-    split = database.split.astype(object).copy()
-    split[take] = "calib"
-    return ImageDatabase.from_arrays(database.images, database.camera, database.position,
-                                     database.object, database.pose, split.astype(str),
-                                     paths=database.paths, root=database.root)
-
-
-def _as_features(model: SensorModel, calib, split: str) -> CalibrationFeatures:
-    if isinstance(calib, CalibrationFeatures):
-        feats = calib
-    elif isinstance(calib, (ImageDatabase, str, os.PathLike)):
-        return features_from_database(model, calib, split)
-    elif isinstance(calib, (tuple, list)) and all(isinstance(c, CameraFeatures) for c in calib):
-        feats = CalibrationFeatures(tuple(calib))
-    else:
-        raise TypeError(f"calibration data must be an ImageDatabase, a folder or CalibrationFeatures, "
-                        f"got {type(calib).__name__}")
-    if len(feats.cameras) != model.n_cameras:
-        raise CalibrationError(f"calibration features for {len(feats.cameras)} camera(s), the model "
-                               f"has {model.n_cameras}")
-    out = []
-    for i, (f, cam) in enumerate(zip(feats.cameras, model.cameras)):
-        g = np.asarray(f.g, np.float64)
-        pos = np.asarray(f.position)
-        cls = np.asarray(f.cls)
-        if g.ndim != 2 or g.shape[1] != cam.n_components or pos.shape != (g.shape[0],) \
-                or cls.shape != (g.shape[0],):
-            raise CalibrationError(f"camera {i}: features {g.shape}, positions {pos.shape}, classes "
-                                   f"{cls.shape}; expected [N, {cam.n_components}], [N], [N]")
-        if not np.all(np.isfinite(g)):
-            raise CalibrationError(f"camera {i}: calibration features contain NaN or inf")
-        if pos.size and (pos.min() < 0 or pos.max() >= cam.n_positions):
-            raise CalibrationError(f"camera {i}: positions must be in 0..{cam.n_positions - 1}")
-        if cls.size and (cls.min() < 0 or cls.max() >= model.n_classes):
-            raise CalibrationError(f"camera {i}: classes must be in 0..{model.n_classes - 1}")
-        out.append(CameraFeatures(g, pos.astype(np.int64), cls.astype(np.int64)))
-    if sum(f.g.shape[0] for f in out) == 0:
-        raise CalibrationError("no calibration features")
-    return CalibrationFeatures(tuple(out))
-
-
-# ---------------------------------------------------------------- math
+# ---------------------------------------------------------------- math (the data: calibration_data.py)
 
 
 def mahalanobis_terms(mu: Float[ArrayLike, "C L K"], var: Float[ArrayLike, "C L K"],
@@ -399,6 +272,36 @@ class CameraFit(NamedTuple):
     n_images: np.ndarray
 
 
+#: elements of a family's per-feature intermediates (``V x chunk x C x L x K`` for the
+#: Gaussians) that :func:`_scaling_terms` lets one product hold: 64 MB of float32
+_TERMS_BUDGET = 1 << 24
+
+
+def _scaling_terms(lik: K.Likelihood, g: Float[Array, "V N K"], budget: int = _TERMS_BUDGET):
+    """``vmap`` over positions of ``lik.scaling_terms(g[v])``, bit for bit, in
+    chunks of the ``N`` features (a power of two): the Gaussians' ``[V, N, C,
+    L, K]`` differences, 1.2 GB (held three times over) at 200 objects x 4
+    poses, 18 positions and ``N`` = 1024, are made ``budget`` elements at a
+    time.  The terms with an ``N`` axis (found by their shapes at two ``N``)
+    are concatenated along it, the others (``log|2πΣ|``) taken once."""
+    terms_of = jax.vmap(lambda lik_v, g_v: lik_v.scaling_terms(g_v))
+    V, N, dim = g.shape
+    per_feature = V * lik.n_classes * lik.n_levels * dim
+    chunk = 1 << max(0, (budget // max(per_feature, 1)).bit_length() - 1)
+    if chunk >= N or N % chunk:
+        return terms_of(lik, g)
+    full = jax.tree_util.tree_leaves(jax.eval_shape(terms_of, lik, g))
+    host = np.asarray(g)   # sliced on the host: a device slice compiles once per offset
+    parts = [terms_of(lik, jnp.asarray(host[:, j:j + chunk])) for j in range(0, N, chunk)]
+    flat = [jax.tree_util.tree_leaves(p) for p in parts]
+    out = []
+    for i, want in enumerate(full):
+        got = flat[0][i].shape
+        axis = next((a for a, (x, y) in enumerate(zip(want.shape, got)) if x != y), None)
+        out.append(flat[0][i] if axis is None else jnp.concatenate([f[i] for f in flat], axis=axis))
+    return jax.tree_util.tree_unflatten(jax.tree_util.tree_structure(parts[0]), out)
+
+
 def fit_camera(camera: CameraModel, features: CameraFeatures, *, per_level: bool = False,
                prior_sd: float = 1.0, max_iter: int = 100, tol: float = 1e-5,
                min_factor: float | None = 1.0, fit_shape: bool = True) -> CameraFit:
@@ -436,7 +339,7 @@ def fit_camera(camera: CameraModel, features: CameraFeatures, *, per_level: bool
     dtype = lik.dtype
     g = jnp.asarray(features.g, dtype)[idx] if features.g.shape[0] else jnp.zeros((V, n_max, dim), dtype)
     cls = jnp.asarray(features.cls[idx] if features.cls.size else np.zeros((V, n_max), np.int64))
-    terms = jax.vmap(lambda lik_v, g_v: lik_v.scaling_terms(g_v))(lik, g)
+    terms = _scaling_terms(lik, g)
     theta, it, conv, nll0, nll1 = _fit_positions(
         lik, terms, cls, jnp.asarray(mask), jnp.asarray(prior_sd, dtype), jnp.asarray(int(max_iter)),
         jnp.asarray(tol, dtype), jnp.asarray(-jnp.inf if min_factor is None else math.log(min_factor), dtype),
@@ -548,7 +451,7 @@ def calibrate_model(model: SensorModel, calib, *, per_level: bool = False, prior
         ``(calibrated model, CalibrationInfo)``; the model's ``calibration``
         holds the accumulated factors, ``info.factors`` this fit's.
     """
-    feats = _as_features(model, calib, split)
+    feats = checked_features(model, calib, split)
     res = [fit_camera(cam, f, per_level=per_level, prior_sd=prior_sd, max_iter=max_iter, tol=tol,
                       min_factor=min_factor, fit_shape=fit_shape)
            for cam, f in zip(model.cameras, feats.cameras)]

@@ -43,12 +43,30 @@ class Eigenspace:
         basis: ``[D, R]`` orthonormal eigenvectors of ``S Sᵀ`` (eq. 4.10),
             ``R`` = numerical rank (at most ``C - 1``), eigenvalues descending.
         eigenvalues: ``[R]`` (eq. 4.9, 4.12).
+
+    An eigenspace from :func:`position_eigenspace` forms its basis (eq. 4.10)
+    only when asked: :attr:`basis` forms all ``R`` vectors (once),
+    :meth:`truncate` only the ``k`` it returns.  Forming ``R`` vectors costs
+    ``O(D R²)`` (the re-orthonormalising QR), ``k`` of them ``O(D C k)``: a
+    model keeps ``K`` of up to ``C - 1``, so training cost stays linear in the
+    number of classes ``C`` there.
     """
 
-    def __init__(self, mean: np.ndarray, basis: np.ndarray, eigenvalues: np.ndarray):
+    def __init__(self, mean: np.ndarray, basis: np.ndarray | None, eigenvalues: np.ndarray, *,
+                 images: np.ndarray | None = None, gram_vectors: np.ndarray | None = None):
+        if basis is None and (images is None or gram_vectors is None):
+            raise ValueError("Eigenspace: give the basis, or the images and the Gram eigenvectors to form it")
         self.mean = mean
-        self.basis = basis
+        self._basis = basis
         self.eigenvalues = eigenvalues
+        self._images, self._gram_vectors = images, gram_vectors   # [C, ...] and [C, R]: what forms the basis
+
+    @property
+    def basis(self) -> np.ndarray:
+        if self._basis is None:
+            self._basis = self._form(self.rank)
+            self._images = self._gram_vectors = None
+        return self._basis
 
     @property
     def rank(self) -> int:
@@ -58,27 +76,37 @@ class Eigenspace:
         """``(mean [D], basis [D, k], eigenvalues [k])``."""
         if not 1 <= k <= self.rank:
             raise ValueError(f"n_components={k} but this position's eigenspace has rank {self.rank}")
-        return self.mean, self.basis[:, :k], self.eigenvalues[:k]
+        basis = self._basis[:, :k] if self._basis is not None else self._form(k)
+        return self.mean, basis, self.eigenvalues[:k]
+
+    def _form(self, k: int) -> np.ndarray:
+        """The top ``k`` basis vectors ``v_i = λ_i^{-1/2} S v'_i`` (eq. 4.10),
+        re-orthonormalised against round-off (they are orthonormal in exact
+        arithmetic), each signed so that its largest-magnitude entry is positive."""
+        S = (unit_energy(self._images) - self.mean).T   # [D, C]   eq. 4.3, 4.5 (the same numbers as before)
+        lam = self.eigenvalues[:k]
+        vp = self._gram_vectors if k == self._gram_vectors.shape[1] else self._gram_vectors[:, :k]
+        V = (S @ vp) / np.sqrt(lam)                     # [D, k]   eq. 4.10
+        V, _ = np.linalg.qr(V)
+        idx = np.argmax(np.abs(V), axis=0)
+        return V * np.sign(V[idx, np.arange(V.shape[1])])
 
 
 def position_eigenspace(images: np.ndarray) -> Eigenspace:
     """Eigenspace of the training images ``[C, H, W]`` (or ``[C, D]``) of one
-    camera position via the Gram matrix ``Sᵀ S`` (eq. 4.1-4.10), in float64."""
+    camera position via the Gram matrix ``Sᵀ S`` (eq. 4.1-4.10), in float64;
+    its basis is formed when first used (:class:`Eigenspace`), from ``images``
+    kept by reference until then (do not change them in between)."""
     xhat = unit_energy(images)                      # [C, D]   eq. 4.1
     mean = xhat.mean(axis=0)                        # [D]      eq. 4.4
     S = (xhat - mean).T                             # [D, C]   eq. 4.3, 4.5
     T = S.T @ S                                     # [C, C]   eq. 4.7
+    del xhat, S
     lam, vp = np.linalg.eigh(T)
     order = np.argsort(lam)[::-1]
     lam, vp = lam[order], vp[:, order]
     keep = lam > RANK_TOL * max(lam[0], np.finfo(np.float64).tiny)
-    lam, vp = lam[keep], vp[:, keep]
-    V = (S @ vp) / np.sqrt(lam)                     # [D, R]   eq. 4.10
-    # re-orthonormalise against round-off (V is orthonormal in exact arithmetic)
-    V, _ = np.linalg.qr(V)
-    idx = np.argmax(np.abs(V), axis=0)
-    V = V * np.sign(V[idx, np.arange(V.shape[1])])
-    return Eigenspace(mean, V, lam)
+    return Eigenspace(mean, None, lam[keep], images=images, gram_vectors=vp[:, keep])
 
 
 class ComponentsError(ValueError):

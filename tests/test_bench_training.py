@@ -1,10 +1,13 @@
 """benchmarks/bench_training.py on a tiny database: one row per likelihood,
 each trained in its own child process, with the ratio against the diagonal
-Gaussian of the same run; an unknown family is a usage error."""
+Gaussian of the same run; an unknown family is a usage error; the objects
+scaling mode's rows and per-class ratios."""
 
 from __future__ import annotations
 
 import json
+
+import pytest
 
 from clirun import script
 
@@ -58,3 +61,38 @@ def test_translated_view_mixtures_sample_jitter_images_at_level_0(tmp_path):
     assert row["occluded_jitter"] == "translated"
     # 6 levels of each of the 2*1 + 1 = 3 positions x 4 classes, plus 2 jitter images at level 0
     assert row["sizes"]["augmented_samples"] == 3 * 4 * 4 * (6 + 2)
+
+
+def test_objects_scaling_rows_and_per_class_ratios(tmp_path, capsys):
+    """``--scale-objects``: one row per size of a turntable-shaped database
+    (one camera, one train and one calib view per position and class), each
+    cost per class against the smallest size's; training alone here
+    (``--no-calibrate``: calibration compiles per size) and in this process."""
+    out = tmp_path / "s.json"
+    tiny = ["--positions", "2", "--poses", "2", "--height", "12", "--width", "16", "--samples", "4",
+            "--components", "2"]
+    assert _bench().main([*tiny, "--scale-objects", "2", "4", "--in-process", "--no-calibrate",
+                          "--out", str(out)]) == 0
+    res = json.loads(out.read_text())
+    rows = res["rows"]
+    assert res["benchmark"] == "training-objects" and [r["objects"] for r in rows] == [2, 4]
+    assert [r["classes"] for r in rows] == [4, 8]
+    assert [r["sizes"]["train_images"] for r in rows] == [8, 16] == [r["sizes"]["calib_images"] for r in rows]
+    assert rows[0]["sizes"]["kind"] == "DB1" and rows[0]["sizes"]["positions"] == [2]
+    for r in rows:
+        assert r["train_wall_s"] > 0 and r["peak_rss_mb"] > 0 and r["calibrate_wall_s"] is None
+        q = r["per_class_vs_smallest"]
+        assert q["calibrate_cpu_s"] is None
+        want = (r["train_wall_s"] / 8) / (rows[0]["train_wall_s"] / 4) if r is rows[1] else 1.0
+        assert q["train_wall_s"] == pytest.approx(want, rel=1e-12)
+    assert "per class vs smallest" in capsys.readouterr().out
+    assert _bench().main(["--scale-objects", "0", "--out", str(out)]) == 2
+
+
+def test_per_class_ratios_say_how_costs_grow():
+    rows = [{"classes": 40, **dict.fromkeys(_bench()._SCALED, 10.0)},
+            {"classes": 200, **dict.fromkeys(_bench()._SCALED, 50.0), "calibrate_cpu_s": 250.0}]
+    _bench().per_class_ratios(rows[::-1])   # the smallest is the base, in any order
+    assert rows[0]["per_class_vs_smallest"]["total_wall_s"] == 1.0
+    assert rows[1]["per_class_vs_smallest"]["total_wall_s"] == 1.0     # linear
+    assert rows[1]["per_class_vs_smallest"]["calibrate_cpu_s"] == 5.0  # quadratic

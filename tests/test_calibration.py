@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import warnings
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -365,3 +366,50 @@ def test_synthetic_calib_split_is_perturbed_near_the_training_view(tmp_path):
     calib = db.images[db.rows("calib")]
     train = db.images[db.rows("train")]
     assert not any(np.array_equal(c, tr) for c, tr in zip(calib, train))
+
+
+def test_features_are_each_image_projected_alone_and_bad_images_are_named(trained):
+    """``features_from_database`` checks and normalises all the rows of a
+    position at once: the same numbers, bit for bit, as projecting each image
+    alone (the per-image loop it replaces), and the first bad image named."""
+    from jaxrecog.calibration import features_from_database
+    from jaxrecog.database import ImageDatabase
+    from jaxrecog.features import ImageError
+
+    db, model = trained
+    held = holdout_calibration(db, 0.5, seed=1)
+    feats = features_from_database(model, held)
+    for i, (f, cam) in enumerate(zip(feats.cameras, model.cameras)):
+        rows = held.rows("calib")
+        rows = rows[held.camera[rows] == i]
+        mean, basis = (np.asarray(x, np.float64) for x in (cam.mean_image, cam.basis))
+        want = [(y / np.linalg.norm(y) - mean[v]) @ basis[v]
+                for y, v in ((held.images[r].astype(np.float64).ravel(), held.position[r]) for r in rows)]
+        assert f.g.tobytes() == np.asarray(want).tobytes()
+        assert f.cls.tolist() == held.class_index[rows].tolist()
+    images = held.images.copy()
+    rows = held.rows("calib")
+    rows = rows[held.camera[rows] == 0]
+    images[rows[1]] = 0          # all black: the first bad row
+    images[rows[2]] = 7          # constant
+    bad = ImageDatabase.from_arrays(images, held.camera, held.position, held.object, held.pose, held.split,
+                                    paths=[f"img{j}.png" for j in range(len(images))])
+    with pytest.raises(ImageError, match=f"^img{rows[1]}.png: all-black"):
+        features_from_database(model, bad)
+
+
+@pytest.mark.parametrize("full", [False, True])
+def test_scaling_terms_in_chunks_equal_the_vmap_over_positions(rng, full):
+    """The calibration terms are made a few features at a time (memory): bit
+    for bit the one ``vmap`` over positions, and the terms without a feature
+    axis (``log|2πΣ|``) once."""
+    from jaxrecog.calibration import _scaling_terms
+
+    lik = _model(rng, V=3, L=2, full=full).cameras[0].likelihood
+    g = jnp.asarray(rng.normal(size=(3, 16, 5)) * 2.0, jnp.float32)
+    want = jax.vmap(lambda lik_v, g_v: lik_v.scaling_terms(g_v))(lik, g)
+    per_feature = 3 * lik.n_classes * 2 * 5
+    got = _scaling_terms(lik, g, budget=4 * per_feature)             # chunks of 4 features
+    assert jax.tree_util.tree_structure(got) == jax.tree_util.tree_structure(want)
+    for a, b in zip(jax.tree_util.tree_leaves(want), jax.tree_util.tree_leaves(got)):
+        assert a.shape == b.shape and np.asarray(a).tobytes() == np.asarray(b).tobytes()

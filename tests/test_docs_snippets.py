@@ -7,7 +7,7 @@ The checks (``check_of``; the blocks each one takes today in brackets):
 
 - ``commands`` (here): every command of a ``sh`` block or of an indented
   block of commands [README ``make``, install, tutorial steps 5-6;
-  docs/results.md (13 fenced, 1 indented), docs/envs.md (2),
+  docs/results.md (13 fenced, 2 indented), docs/envs.md (2),
   docs/campaigns.md (3 indented)] parses against the real argument parser of its program --
   ``jaxrecog`` (:func:`jaxrecog.cli.build_parser`), a script's
   ``build_parser()``, ``make -n TARGET`` and the ``jaxrecog`` lines it

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from builders import make_database
 
-from jaxrecog.eigenspace import ComponentsError, choose_n_components, position_eigenspace, unit_energy
+from jaxrecog.eigenspace import ComponentsError, Eigenspace, choose_n_components, position_eigenspace, unit_energy
 
 
 def _full_svd(images):
@@ -62,3 +62,22 @@ def test_unit_energy_rejects_black():
     with pytest.raises(ValueError, match="training image 1 has zero"):
         unit_energy(imgs)
     np.testing.assert_allclose(np.linalg.norm(unit_energy(np.ones((2, 4, 4)) * 7), axis=1), 1.0)
+
+
+def test_truncate_forms_only_the_vectors_it_returns(rng):
+    """Training keeps K of up to C - 1 vectors: ``truncate(k)`` forms those k
+    alone (``O(D C k)``, not the ``O(D C²)`` of all of them), the same vectors
+    as the full basis's first k up to round-off; the full basis is formed once
+    on first use."""
+    imgs = make_database(positions=(1,), n_objects=4, n_poses=3).train_images(0)[0]
+    imgs = np.clip(imgs.astype(int) + rng.integers(-5, 6, imgs.shape), 0, 255)
+    full = position_eigenspace(imgs).basis
+    lazy = position_eigenspace(imgs)
+    for k in (1, 4, lazy.rank):
+        mean, basis, lam = lazy.truncate(k)
+        assert basis.shape == (imgs[0].size, k) and lam.shape == (k,)
+        np.testing.assert_allclose(basis, full[:, :k], rtol=0, atol=1e-12)
+    assert lazy._basis is None                               # truncate formed no more than it returned
+    assert lazy.basis is lazy.basis                          # formed once
+    with pytest.raises(ValueError, match="give the basis"):
+        Eigenspace(lazy.mean, None, lazy.eigenvalues)
