@@ -117,6 +117,9 @@ def run_campaign(
         if progress is not None:
             progress(1)
 
-    run_trials(recognizer, rig, todo, key=key, batch=batch, seed=seed, trace=trace, on_result=finished,
-               devices=devices)
+    kw = dict(key=key, batch=batch, seed=seed, trace=trace, on_result=finished, devices=devices)
+    if hasattr(rig, "run_trials"):  # a pool that runs whole trials itself (a cluster: jaxrecog.ray_rigs)
+        rig.run_trials(recognizer, todo, **kw)
+    else:
+        run_trials(recognizer, rig, todo, **kw)
     return [done[k] for k in sorted(done) if k in by_id]
