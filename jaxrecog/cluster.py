@@ -129,7 +129,7 @@ def connect(spec: str, *, timeout: float = CONNECT_TIMEOUT_S, num_cpus: int | No
     test's own ``ray.init``) keeps its connection.  ``ray`` starts a local
     instance (``num_cpus``: its CPUs, default all) without the dashboard;
     ``ray://HOST:PORT`` first checks that something answers there, then joins.
-    Errors are one-line :class:`ClusterError`\\ s, within ``timeout`` seconds
+    Errors are one-line, a :class:`ClusterError`, within ``timeout`` seconds
     (the connection attempt runs in a helper thread, abandoned on time-out)."""
     spec = check_cluster(spec)
     if spec is None:

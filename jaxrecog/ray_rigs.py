@@ -94,7 +94,9 @@ class _Worker:
     def run(self, recognizer_box: list, specs: list[TrialSpec], key, batch: int, seed: int, trace: bool,
             devices):
         """Run ``specs`` with the trial driver on this actor's rigs and yield
-        each :class:`TrialResult` as its trial finishes (a streaming call)."""
+        the results (:class:`TrialResult`) as their trials finish (a streaming call):
+        a list of every result that is ready, so a busy worker sends one
+        message per step, not one per trial."""
         ref = recognizer_box[0]
         if self._recognizer is None or self._recognizer[0] != ref.hex():
             self._recognizer = (ref.hex(), ray.get(ref))  # once per actor and campaign
@@ -111,12 +113,17 @@ class _Worker:
 
         threading.Thread(target=work, daemon=True, name="jaxrecog-trials").start()
         while True:
-            item = out.get()
-            if isinstance(item, _End):
-                return
-            if isinstance(item, _Raised):
-                raise item.error
-            yield item
+            items = [out.get()]
+            while not out.empty():
+                items.append(out.get())
+            results = [r for r in items if isinstance(r, TrialResult)]
+            if results:
+                yield results
+            for item in items:
+                if isinstance(item, _Raised):
+                    raise item.error
+                if isinstance(item, _End):
+                    return
 
     def close(self) -> None:
         if self._pool is not None:
@@ -308,11 +315,13 @@ class RayRigs:
     # -- whole trials
     def run_trials(self, recognizer, specs: Iterable[TrialSpec], *, key, batch: int = 16, seed: int = 0,
                    trace: bool = False, on_result: Callable[[TrialResult], None] | None = None,
+                   on_results: Callable[[list[TrialResult]], None] | None = None,
                    devices=None) -> list[TrialResult]:
         """:func:`jaxrecog.driver.run_trials` on the cluster: the same
         arguments (no ``on_step``) and the same results, returned in the order
-        they finished; ``on_result`` is called here, in this process, as each
-        trial comes back."""
+        they finished; here, in this process, ``on_result`` is called with
+        each trial as it comes back and ``on_results`` with each group of
+        trials that came back together (one message of a worker)."""
         from .counts import check_counts
 
         self._check_open()
@@ -351,7 +360,7 @@ class RayRigs:
                         continue
                     b = flying[item]
                     try:
-                        res = ray.get(next(item))
+                        group = ray.get(next(item))
                     except StopIteration:
                         del flying[item]
                         if b.pending:  # a batch that ended without all its trials: not the driver's way
@@ -364,13 +373,18 @@ class RayRigs:
                         del flying[item]
                         self._lost(b, todo, attempts, stats, starting)
                         continue
-                    if res.trial in done or res.trial not in b.pending:
-                        stats["repeats_ignored"] += 1
-                        continue
-                    del b.pending[res.trial]
-                    done.add(res.trial)
-                    results.append(res)
-                    if on_result is not None:
+                    new = []
+                    for res in group:
+                        if res.trial in done or res.trial not in b.pending:
+                            stats["repeats_ignored"] += 1
+                            continue
+                        del b.pending[res.trial]
+                        done.add(res.trial)
+                        new.append(res)
+                    results += new
+                    if on_results is not None and new:
+                        on_results(new)
+                    for res in new if on_result is not None else ():
                         on_result(res)
         except BaseException:
             self.close()  # batches cut short: the workers' state is unknown
