@@ -37,8 +37,8 @@ from typing import Callable, Iterable, Sequence
 from .cluster import ClusterError, connect, import_ray, local_versions, version_problems
 
 ray = import_ray()  # without Ray installed: one line saying how to install it
-from ray.exceptions import (ActorDiedError, ActorUnavailableError, GetTimeoutError, RayTaskError,  # noqa: E402
-                            WorkerCrashedError)
+from ray.exceptions import (ActorDiedError, ActorUnavailableError, GetTimeoutError, OutOfMemoryError,  # noqa: E402
+                            RayTaskError, WorkerCrashedError)
 
 from .driver import TrialSpec, run_trials  # noqa: E402
 from .hardware.rigs.rig import Capture, CaptureJob, Rig, RigError  # noqa: E402
@@ -51,7 +51,8 @@ START_TIMEOUT_S = 300.0
 #: A worker holds at most this many trial batches (one runs, the next waits
 #: in its queue, so it never idles between batches).
 _IN_FLIGHT = 2
-_LOST = (ActorDiedError, ActorUnavailableError, WorkerCrashedError)
+#: a worker gone: its process died, its node left, or Ray's memory monitor killed it
+_LOST = (ActorDiedError, ActorUnavailableError, WorkerCrashedError, OutOfMemoryError)
 
 
 class _End:
@@ -221,6 +222,20 @@ class RayRigs:
         self._info.append(None)
         return len(self._actors) - 1
 
+    def _replace(self, w: int) -> tuple[int, object]:
+        """Worker ``w`` is gone: make sure, and start another; returns its
+        index and the reference its :meth:`_Worker.info` answers on."""
+        self._live[w] = False
+        try:
+            ray.kill(self._actors[w])
+        except Exception:  # noqa: BLE001 -- already gone
+            pass
+        new = self._start()
+        return new, self._actors[new].info.remote()
+
+    def _usable(self, w: int) -> bool:
+        return self._live[w] and self._info[w] is not None
+
     def _check_info(self, w: int, info: dict) -> None:
         problem = version_problems(local_versions(), info["versions"], f"{w} (node {info['node']})")
         if problem:
@@ -334,101 +349,121 @@ class RayRigs:
         if batch < 1:
             raise ValueError(f"batch must be >= 1, got {batch}")
         size = self.trials_per_task or max(2 * batch, math.ceil(len(specs) / (4 * self.workers)))
-        todo = collections.deque(specs[i:i + size] for i in range(0, len(specs), size))
-        box = [ray.put(recognizer)]  # the model and planner tables, once
-        args = (box, key, batch, seed, trace, devices)
+        run = _Run(self, [specs[i:i + size] for i in range(0, len(specs), size)],
+                   ([ray.put(recognizer)], key, batch, seed, trace, devices))  # the model and tables, once
+        self.last_run = run.stats
         results: list[TrialResult] = []
-        done: set[int] = set()
-        attempts: collections.Counter = collections.Counter()
-        stats = {"workers_lost": 0, "sent_again": [], "repeats_ignored": 0}
-        self.last_run = stats
-        flying: dict = {}      # streaming generator -> _Batch
-        starting: dict = {}    # info() ref of a replacement -> worker index
+
+        def deliver():
+            new, run.out = run.out, []
+            results.extend(new)
+            if new and on_results is not None:
+                on_results(new)
+            for res in new if on_result is not None else ():
+                on_result(res)
+
         try:
-            while todo or flying:
-                self._submit(todo, flying, args)
-                waitable = list(flying) + list(starting)
-                if not waitable:
-                    raise ClusterError(f"every worker of the cluster was lost; {sum(map(len, todo))} trials are "
-                                       "not done (the finished ones are stored: run again to resume)")
-                ready, _ = ray.wait(waitable, num_returns=1, timeout=None if flying else START_TIMEOUT_S)
-                if not ready:
-                    raise ClusterError(f"no replacement worker started within {START_TIMEOUT_S:g} s")
-                for item in ready:
-                    if item in starting:
-                        self._started(starting.pop(item), item)
-                        continue
-                    b = flying[item]
-                    try:
-                        group = ray.get(next(item))
-                    except StopIteration:
-                        del flying[item]
-                        if b.pending:  # a batch that ended without all its trials: not the driver's way
-                            raise ClusterError(f"worker {b.w} ended a batch with trials "
-                                               f"{sorted(b.pending)} not done") from None
-                        continue
-                    except RayTaskError as e:
-                        raise _cause(e) from None
-                    except _LOST:
-                        del flying[item]
-                        self._lost(b, todo, attempts, stats, starting)
-                        continue
-                    new = []
-                    for res in group:
-                        if res.trial in done or res.trial not in b.pending:
-                            stats["repeats_ignored"] += 1
-                            continue
-                        del b.pending[res.trial]
-                        done.add(res.trial)
-                        new.append(res)
-                    results += new
-                    if on_results is not None and new:
-                        on_results(new)
-                    for res in new if on_result is not None else ():
-                        on_result(res)
+            while run.todo or run.flying:
+                try:
+                    run.step()
+                finally:
+                    deliver()  # what came back is stored, whatever happens next
         except BaseException:
             self.close()  # batches cut short: the workers' state is unknown
             raise
         return results
 
-    def _submit(self, todo: collections.deque, flying: dict, args: tuple) -> None:
+
+class _Run:
+    """One :meth:`RayRigs.run_trials`: the batches to send, those in flight
+    (streaming calls) and the replacements starting; :meth:`step` takes every
+    message that is in and leaves its new results in ``out``."""
+
+    def __init__(self, pool: RayRigs, batches: list[list[TrialSpec]], args: tuple):
+        self.pool, self.args = pool, args
+        self.todo = collections.deque(batches)
+        self.flying: dict = {}      # streaming call -> _Batch
+        self.starting: dict = {}    # info() ref of a replacement -> worker index
+        self.done: set[int] = set()
+        self.attempts: collections.Counter = collections.Counter()
+        self.stats = {"workers_lost": 0, "sent_again": [], "repeats_ignored": 0}
+        self.out: list[TrialResult] = []
+
+    def step(self) -> None:
+        self._submit()
+        waitable = list(self.flying) + list(self.starting)
+        if not waitable:
+            raise ClusterError(f"every worker of the cluster was lost; {sum(map(len, self.todo))} trials are not "
+                               "done (the finished ones are stored: run again to resume)")
+        ready, rest = ray.wait(waitable, num_returns=1, timeout=None if self.flying else START_TIMEOUT_S)
+        if not ready:
+            raise ClusterError(f"no replacement worker started within {START_TIMEOUT_S:g} s")
+        if rest:  # and every other message already in: one group, one fsync of the store
+            ready += ray.wait(rest, num_returns=len(rest), timeout=0)[0]
+        for item in ready:
+            if item in self.starting:
+                self._started(self.starting.pop(item), item)
+            else:
+                self._take(item)
+
+    def _take(self, item) -> None:
+        b = self.flying[item]
+        try:
+            group = ray.get(next(item))
+        except StopIteration:
+            del self.flying[item]
+            if b.pending:  # a batch that ended without all its trials: not the driver's way
+                raise ClusterError(f"worker {b.w} ended a batch with trials {sorted(b.pending)} not done") from None
+            return
+        except RayTaskError as e:
+            raise _cause(e) from None
+        except _LOST:
+            del self.flying[item]
+            self._lost(b)
+            return
+        for res in group:
+            if res.trial in self.done or res.trial not in b.pending:
+                self.stats["repeats_ignored"] += 1
+                continue
+            del b.pending[res.trial]
+            self.done.add(res.trial)
+            self.out.append(res)
+
+    def _submit(self) -> None:
         """Give every live, started worker batches up to :data:`_IN_FLIGHT`,
         one at a time round the workers (the first batches go one to each)."""
-        load = collections.Counter(b.w for b in flying.values())
+        pool = self.pool
+        load = collections.Counter(b.w for b in self.flying.values())
         for level in range(_IN_FLIGHT):
-            for w, actor in enumerate(self._actors):
-                if todo and self._live[w] and self._info[w] is not None and load[w] <= level:
-                    chunk = todo.popleft()
-                    gen = actor.run.options(num_returns="streaming").remote(args[0], chunk, *args[1:])
-                    flying[gen] = _Batch(w, chunk)
+            for w, actor in enumerate(pool._actors):
+                if self.todo and pool._usable(w) and load[w] <= level:
+                    chunk = self.todo.popleft()
+                    call = actor.run.options(num_returns="streaming").remote(self.args[0], chunk, *self.args[1:])
+                    self.flying[call] = _Batch(w, chunk)
                     load[w] += 1
 
-    def _lost(self, b: _Batch, todo: collections.deque, attempts, stats: dict, starting: dict) -> None:
+    def _lost(self, b: _Batch) -> None:
         """Worker ``b.w`` died: its batch's unfinished trials go back to the
         front of the queue, and (once per worker) a replacement starts."""
+        pool = self.pool
         again = list(b.pending.values())
         for s in again:
-            attempts[s.trial] += 1
-            if attempts[s.trial] >= self.max_attempts:
-                raise ClusterError(f"trial {s.trial}: its worker died {attempts[s.trial]} times; giving up "
+            self.attempts[s.trial] += 1
+            if self.attempts[s.trial] >= pool.max_attempts:
+                raise ClusterError(f"trial {s.trial}: its worker died {self.attempts[s.trial]} times; giving up "
                                    "(the finished trials are stored; run without --cluster to see the error)")
         if again:
-            todo.appendleft(again)
-            stats["sent_again"].extend(s.trial for s in again)
-        if self._live[b.w]:
-            self._live[b.w] = False
-            stats["workers_lost"] += 1
-            try:
-                ray.kill(self._actors[b.w])
-            except Exception:  # noqa: BLE001 -- already gone
-                pass
-            w = self._start()
-            starting[self._actors[w].info.remote()] = w
+            self.todo.appendleft(again)
+            self.stats["sent_again"].extend(s.trial for s in again)
+        if pool._live[b.w]:
+            self.stats["workers_lost"] += 1
+            w, ref = pool._replace(b.w)
+            self.starting[ref] = w
 
     def _started(self, w: int, ref) -> None:
         try:
-            self._check_info(w, ray.get(ref))
+            self.pool._check_info(w, ray.get(ref))
         except _LOST:
-            self._live[w] = False  # the replacement could not start either; the others carry on
+            self.pool._live[w] = False  # the replacement could not start either; the others carry on
         except RayTaskError as e:
             raise _cause(e) from None

@@ -41,6 +41,8 @@ def local_ray():
     """One local Ray instance for the file (its workers inherit this
     process's environment: the test run's XLA flags and compilation cache)."""
     ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])  # GateRig, in the workers
+    # Ray's memory monitor kills workers when the machine (any process on it) is near full: not here
+    os.environ.setdefault("RAY_memory_monitor_refresh_ms", "0")
     with warnings.catch_warnings():  # Ray starts its services with a fork that execs at once
         warnings.filterwarnings("ignore", "os.fork", RuntimeWarning)
         ray.init(num_cpus=2, include_dashboard=False, logging_level="ERROR", log_to_driver=False,
