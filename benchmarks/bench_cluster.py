@@ -24,6 +24,7 @@ machine's load average before and after.
     python benchmarks/bench_cluster.py                       # 800 trials, workers 1 and 2, 3 repeats
     python benchmarks/bench_cluster.py --trials 25 --repeats 2  # 200 trials
     python benchmarks/bench_cluster.py --workers 1 2 4 8 --local
+    python benchmarks/bench_cluster.py --driver 1000 4 --workers 2 8 --out out/bench/cluster-driver.json
 """
 
 from __future__ import annotations
@@ -35,6 +36,7 @@ import json
 import os
 import platform
 import statistics
+import tempfile
 import threading
 import time
 import warnings
@@ -138,6 +140,56 @@ def _cpu(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
+def driver_rate(groups: int, size: int, workers: int = 2) -> dict:
+    """What this process can take: ``workers`` stand-in actors stream
+    ``groups`` lists of ``size`` trial results each as fast as they can; this
+    process takes every message that is in (as ``RayRigs`` does) and stores
+    them with one ``TrialStore.extend`` (one fsync) per round.  Ray and the
+    store's costs, without trials to run."""
+    import ray
+
+    from jaxrecog.results import TrialResult, TrialStore
+
+    one = TrialResult(trial=0, object=3, pose=1, predicted_object=3, predicted_pose=1, exit_prob=0.97, steps=3,
+                      stopped=True, invalid_steps=0, occluded_fraction=((0.2, 0.1),) * 3,
+                      configurations=((1, 2), (3, 4), (5, 6)))
+
+    @ray.remote
+    class Sender:
+        def send(self, start: int, n: int, k: int):
+            for i in range(n):
+                yield [dataclasses.replace(one, trial=start + i * k + j) for j in range(k)]
+
+    senders = [Sender.remote() for _ in range(workers)]
+    out = {}
+    for label, n in (("warm-up", 50), ("timed", groups)):
+        with tempfile.TemporaryDirectory() as tmp:
+            store = TrialStore(Path(tmp) / "trials.jsonl")
+            calls = [s.send.options(num_returns="streaming").remote(w * n * size, n, size)
+                     for w, s in enumerate(senders)]
+            t0, messages, rounds, trials = time.perf_counter(), 0, 0, 0
+            while calls:
+                ready, rest = ray.wait(calls, num_returns=1)
+                if rest:
+                    ready += ray.wait(rest, num_returns=len(rest), timeout=0)[0]
+                got = []
+                for c in ready:
+                    try:
+                        got += ray.get(next(c))
+                        messages += 1
+                    except StopIteration:
+                        calls.remove(c)
+                store.extend(got)
+                rounds += 1
+                trials += len(got)
+            dt = time.perf_counter() - t0
+        out = {"messages": messages, "trials": trials, "fsyncs": rounds, "seconds": dt,
+               "messages_per_s": messages / dt, "trials_per_s": trials / dt, "group": size, "workers": workers}
+    for a in senders:
+        ray.kill(a)
+    return out
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", default="out/bench/cluster.json")
@@ -152,6 +204,9 @@ def main(argv=None) -> int:
                     help="trials per Ray call (default: RayRigs's, about four batches a worker)")
     ap.add_argument("--cpus", type=int, default=None, help="CPUs of the local Ray instance (default: all)")
     ap.add_argument("--local", action="store_true", help="also the campaign in this process, without Ray")
+    ap.add_argument("--driver", type=int, nargs=2, metavar=("GROUPS", "SIZE"),
+                    help="only measure what this process can take: GROUPS messages of SIZE results from each of "
+                         "the --workers stand-in workers (driver_rate)")
     ap.add_argument("--one-xla-thread", action="store_true",
                     help="XLA's CPU backend on one thread in the workers (XLA_FLAGS for the Ray instance)")
     args = ap.parse_args(argv)
@@ -168,6 +223,14 @@ def main(argv=None) -> int:
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", "os.fork", RuntimeWarning)
         ray.init(num_cpus=args.cpus, include_dashboard=False, logging_level="ERROR", log_to_driver=False)
+    if args.driver:
+        out = {"driver_rate": [driver_rate(args.driver[0], args.driver[1], w) for w in args.workers],
+               "load_average_before": load0, "load_average_after": os.getloadavg(), "ray": ray.__version__}
+        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.out).write_text(json.dumps(out, indent=1) + "\n")
+        print(json.dumps(out, indent=1))
+        ray.shutdown()
+        return 0
     case = CASES["iii"]
     settings = case_settings(case, Settings(workdir=Path(args.workdir), trials_per_object=args.trials,
                                             batch=args.batch))

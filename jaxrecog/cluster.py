@@ -31,6 +31,7 @@ are imported only when a cluster is used.
 
 from __future__ import annotations
 
+import os
 import re
 import socket
 import sys
@@ -40,13 +41,17 @@ from typing import Any
 
 from .problems import one_line
 
-__all__ = ["ClusterError", "RAY_INSTALL", "CONNECT_TIMEOUT_S", "check_cluster", "connect", "import_ray",
+__all__ = ["ClusterError", "RAY_INSTALL", "PROBE_TIMEOUT_S", "CONNECT_TIMEOUT_S", "check_cluster", "connect", "import_ray",
            "version_problems", "ray_error_line"]
 
 #: What to install for ``--cluster`` (the ``cluster`` extra of pyproject.toml).
 RAY_INSTALL = "pip install 'jaxrecog[cluster]'"
-#: Seconds :func:`connect` waits for a cluster before it gives up.
-CONNECT_TIMEOUT_S = 10.0
+#: Seconds :func:`connect` waits for the head node's port to take a connection:
+#: a cluster that is not there is one line within this (plus Python's start-up).
+PROBE_TIMEOUT_S = 5.0
+#: Seconds :func:`connect` then waits for Ray to join: a Ray Client server
+#: starts a process per client (measured ~10-20 s on a loaded 2-core machine).
+CONNECT_TIMEOUT_S = 120.0
 
 
 class ClusterError(RuntimeError):
@@ -109,7 +114,12 @@ def ray_error_line(err: BaseException, spec: str) -> str:
         return (f"Ray version mismatch with {spec}: the cluster runs Ray {cr} (Python {cp}), this process "
                 f"Ray {hr} (Python {hp}); install the cluster's versions here")
     first = next((ln.strip() for ln in text.splitlines() if ln.strip()), type(err).__name__)
-    return f"cannot use the Ray cluster {spec}: {one_line(first, 200)}"
+    hint = ""
+    if "client connection timeout" in text and os.environ.get("RAY_AUTH_MODE") != "token":
+        # a Ray Client server that wants a token times out without saying so
+        hint = (" (does the cluster use Ray's token authentication? then set RAY_AUTH_MODE=token and put its "
+                "token, `ray get-auth-token` on the head node, in ~/.ray/auth_token)")
+    return f"cannot use the Ray cluster {spec}: {one_line(first, 200)}{hint}"
 
 
 def import_ray():
@@ -128,21 +138,26 @@ def connect(spec: str, *, timeout: float = CONNECT_TIMEOUT_S, num_cpus: int | No
     A process already connected (``ray.is_initialized()``: a script's or a
     test's own ``ray.init``) keeps its connection.  ``ray`` starts a local
     instance (``num_cpus``: its CPUs, default all) without the dashboard;
-    ``ray://HOST:PORT`` first checks that something answers there, then joins.
-    Errors are one-line, a :class:`ClusterError`, within ``timeout`` seconds
-    (the connection attempt runs in a helper thread, abandoned on time-out)."""
+    ``ray://HOST:PORT`` first checks that the port takes a connection (within
+    :data:`PROBE_TIMEOUT_S`: a cluster that is not there fails at once), then
+    joins.  Errors are one line, a :class:`ClusterError`; joining gives up
+    after ``timeout`` seconds (the attempt runs in a helper thread,
+    abandoned then; a local instance starts in this thread)."""
     spec = check_cluster(spec)
     if spec is None:
         raise ValueError("connect() needs a cluster: 'ray' or 'ray://HOST:PORT'")
     ray = import_ray()
     address = None if spec == "ray" else spec
     if address is not None:
-        _probe(*_host_port(spec), timeout=min(timeout, 5.0))
+        _probe(*_host_port(spec), timeout=min(timeout, PROBE_TIMEOUT_S))
     if ray.is_initialized():
         return ray
     kw: dict[str, Any] = dict(logging_level="ERROR", log_to_driver=False)
     if address is None:
-        kw.update(include_dashboard=False, num_cpus=num_cpus)
+        # "local": a new instance, not the last `ray start` of this machine (its
+        # address file outlives a head stopped by a signal); RAY_ADDRESS, given on purpose, is joined
+        address = os.environ.get("RAY_ADDRESS") or "local"
+        kw.update(include_dashboard=False, num_cpus=None if address != "local" else num_cpus)
     outcome: list = []
 
     def attempt():
@@ -154,12 +169,23 @@ def connect(spec: str, *, timeout: float = CONNECT_TIMEOUT_S, num_cpus: int | No
         except BaseException as e:  # noqa: BLE001 -- reported by the caller's thread
             outcome.append(e)
 
-    worker = threading.Thread(target=attempt, daemon=True, name="jaxrecog-ray-connect")
-    worker.start()
-    worker.join(timeout)
+    if address == "local":
+        # here, not in a helper thread: Ray's services get a signal to die
+        # when the *thread* that started them ends (prctl PDEATHSIG); nothing to wait for either
+        attempt()
+    else:
+        worker = threading.Thread(target=attempt, daemon=True, name="jaxrecog-ray-connect")
+        worker.start()
+        worker.join(timeout)
     if not outcome:
-        raise ClusterError(f"no Ray cluster answered at {spec} within {timeout:g} s (a Ray Client server listens "
-                           "on the head node's port 10001 by default)")
+        if spec != "ray":
+            why = (f"{spec} took the connection but no Ray cluster answered within {timeout:g} s (is it a Ray "
+                   "Client server? the head node's listens on port 10001 by default)")
+        elif address != "local":
+            why = f"no Ray cluster answered at RAY_ADDRESS={address} within {timeout:g} s"
+        else:
+            why = f"the local Ray instance did not start within {timeout:g} s"
+        raise ClusterError(why)
     if outcome[0] is not None:
         raise ClusterError(ray_error_line(outcome[0], spec)) from None
     return ray

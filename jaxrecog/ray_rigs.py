@@ -126,6 +126,11 @@ class _Worker:
                 if isinstance(item, _End):
                     return
 
+    def run_all(self, *args) -> list[TrialResult]:
+        """:meth:`run`'s results in one answer, at the batch's end (Ray
+        Client, ``ray://``, has no streaming calls)."""
+        return [r for group in self.run(*args) for r in group]
+
     def close(self) -> None:
         if self._pool is not None:
             self._pool.close()
@@ -388,6 +393,10 @@ class _Run:
         self.attempts: collections.Counter = collections.Counter()
         self.stats = {"workers_lost": 0, "sent_again": [], "repeats_ignored": 0}
         self.out: list[TrialResult] = []
+        from ray.util.client import ray as client
+
+        # through Ray Client (ray://) a batch's results come back at its end, not trial by trial
+        self.streaming = not client.is_connected()
 
     def step(self) -> None:
         self._submit()
@@ -409,7 +418,9 @@ class _Run:
     def _take(self, item) -> None:
         b = self.flying[item]
         try:
-            group = ray.get(next(item))
+            group = ray.get(next(item) if self.streaming else item)
+            if not self.streaming:
+                del self.flying[item]
         except StopIteration:
             del self.flying[item]
             if b.pending:  # a batch that ended without all its trials: not the driver's way
@@ -428,6 +439,8 @@ class _Run:
             del b.pending[res.trial]
             self.done.add(res.trial)
             self.out.append(res)
+        if not self.streaming and b.pending:
+            raise ClusterError(f"worker {b.w} ended a batch with trials {sorted(b.pending)} not done")
 
     def _submit(self) -> None:
         """Give every live, started worker batches up to :data:`_IN_FLIGHT`,
@@ -438,7 +451,10 @@ class _Run:
             for w, actor in enumerate(pool._actors):
                 if self.todo and pool._usable(w) and load[w] <= level:
                     chunk = self.todo.popleft()
-                    call = actor.run.options(num_returns="streaming").remote(self.args[0], chunk, *self.args[1:])
+                    if self.streaming:
+                        call = actor.run.options(num_returns="streaming").remote(self.args[0], chunk, *self.args[1:])
+                    else:
+                        call = actor.run_all.remote(self.args[0], chunk, *self.args[1:])
                     self.flying[call] = _Batch(w, chunk)
                     load[w] += 1
 

@@ -14,7 +14,6 @@ import signal
 import sys
 import threading
 import time
-import warnings
 from pathlib import Path
 
 import jax.random as jr
@@ -38,15 +37,14 @@ ROOT = Path(__file__).resolve().parent.parent
 
 @pytest.fixture(scope="module")
 def local_ray():
-    """One local Ray instance for the file (its workers inherit this
-    process's environment: the test run's XLA flags and compilation cache)."""
+    """One local Ray instance for the file, started as ``--cluster ray``
+    starts one (its workers inherit this process's environment: the test
+    run's XLA flags and compilation cache)."""
     ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])  # GateRig, in the workers
     # Ray's memory monitor kills workers when the machine (any process on it) is near full: not here
     os.environ.setdefault("RAY_memory_monitor_refresh_ms", "0")
-    with warnings.catch_warnings():  # Ray starts its services with a fork that execs at once
-        warnings.filterwarnings("ignore", "os.fork", RuntimeWarning)
-        ray.init(num_cpus=2, include_dashboard=False, logging_level="ERROR", log_to_driver=False,
-                 object_store_memory=200 * 2**20)
+    assert not ray.is_initialized()
+    connect("ray", num_cpus=2)  # --cluster ray's own start: no dashboard, Ray's logs kept out of the output
     yield ray
     ray.shutdown()
 
