@@ -45,7 +45,7 @@ from pathlib import Path
 import jax.random as jr
 
 from jaxrecog.campaign import run_campaign
-from jaxrecog.experiments import CASES, Settings, capture_pool, case_model, case_settings, case_trials, make_recognizer, \
+from jaxrecog.campaigns import CASES, Settings, campaign_recognizer, capture_pool, case_model, case_settings, case_trials, \
     make_rig, prepare
 from jaxrecog.motion import rig_travel_times
 from jaxrecog.recipes import DEFAULT_RECIPE, RECIPES
@@ -236,7 +236,7 @@ def main(argv=None) -> int:
                                             batch=args.batch))
     model = case_model(prepare(settings, databases=(case.database,)), case)
     probe = make_rig(settings, case.cameras, seed=settings.seed)
-    rec = make_recognizer(model, args.planner, settings, rig_travel_times(probe))
+    rec = campaign_recognizer(model, args.planner, settings, rig_travel_times(probe))
     specs = case_trials(case, settings, probe, model.n_objects, model.n_poses)
     # the warm-up: other trials (a later seed's), so the timed campaign starts from nothing
     warm = case_trials(case, Settings(workdir=settings.workdir, trials_per_object=1, seed=settings.seed + 99),

@@ -26,9 +26,10 @@ from jaxrecog import Recognizer, plan_trials  # noqa: E402
 from jaxrecog import cli  # noqa: E402
 from jaxrecog.campaign import run_campaign  # noqa: E402
 from jaxrecog.cluster import ClusterError, check_cluster, connect, ray_error_line, version_problems  # noqa: E402
-from jaxrecog.experiments import Settings, capture_pool, occluder_factory, rig_pool  # noqa: E402
+from jaxrecog.campaigns import Settings, capture_pool, rig_pool  # noqa: E402
 from jaxrecog.hardware import Noise  # noqa: E402
-from jaxrecog.hardware.rig_pool import LocalRigs  # noqa: E402
+from jaxrecog.hardware.rigs.rig_pool import LocalRigs  # noqa: E402
+from jaxrecog.scene import occluder_factory  # noqa: E402
 from jaxrecog.planners import RandomPlanner  # noqa: E402
 from jaxrecog.results import TrialStore  # noqa: E402
 
@@ -111,7 +112,7 @@ class GateRig:
     and waits there to be killed."""
 
     def __init__(self, folder):
-        from jaxrecog.experiments import make_rig
+        from jaxrecog.campaigns import make_rig
 
         self.rig, self.folder, self.fresh = make_rig(STRIDED), Path(folder), False
 
@@ -183,7 +184,7 @@ def test_a_campaign_on_ray_is_the_local_campaign(ray_pool, recognizer, tmp_path)
     assert len(lines) == 6 and set(store.load()) == {s.trial for s in specs}
     again = run_campaign(recognizer, pool, specs, key=key, batch=2, seed=5, store=store)  # resumed: nothing to run
     assert _signature(again) == _signature(here) and store.path.read_text().splitlines() == lines
-    from jaxrecog.hardware.rig_pool import CaptureJob, SceneSpec
+    from jaxrecog.hardware.rigs.rig_pool import CaptureJob, SceneSpec
 
     jobs = [CaptureJob(0, SceneSpec(3, 1, specs[0].occluders), (5, 0, 0), (2, 0)),
             CaptureJob(1, SceneSpec(4, 2, None, 6.0), (5, 1, 0), (1, 0))]
@@ -241,10 +242,10 @@ def test_rendering_on_ray_writes_the_same_files(local_ray, tmp_path):
     """Both render paths, with random splits (test boards, noise, calib
     perturbations) whose draws run through the whole database in order."""
     from jaxrecog.ray_render import render_database_on, render_turntable_on
-    from jaxrecog.experiments import rig_table
+    from jaxrecog.campaigns import rig_table
     from jaxrecog.hardware import SyntheticRig, default_objects, render_database
-    from jaxrecog.hardware.random_objects import random_objects
-    from jaxrecog.hardware.turntable import render_turntable
+    from jaxrecog.hardware.render.random_objects import random_objects
+    from jaxrecog.hardware.render.turntable import render_turntable
 
     def files(folder):
         return {p.relative_to(folder): p.read_bytes() for p in folder.rglob("*") if p.is_file()}
