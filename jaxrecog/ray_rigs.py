@@ -41,7 +41,7 @@ from ray.exceptions import (ActorDiedError, ActorUnavailableError, GetTimeoutErr
                             RayTaskError, WorkerCrashedError)
 
 from .driver import TrialSpec, run_trials  # noqa: E402
-from .hardware.rigs.rig import Capture, CaptureJob, Rig, RigError  # noqa: E402
+from .hardware.rigs.rig import Capture, CaptureJob, Rig, RigError, WorkerPool  # noqa: E402
 from .results import TrialResult  # noqa: E402
 
 __all__ = ["RayRigs", "START_TIMEOUT_S"]
@@ -176,7 +176,7 @@ class _Batch:
         self.pending = {s.trial: s for s in specs}
 
 
-class RayRigs:
+class RayRigs(WorkerPool):
     """``n_rigs`` rigs in each of ``workers`` Ray actors.
 
     Args:
@@ -286,14 +286,6 @@ class RayRigs:
     def image_shape(self) -> tuple[int, int]:
         return tuple(self._ready()[1])
 
-    @property
-    def closed(self) -> bool:
-        return not self._finalizer.alive
-
-    def _check_open(self) -> None:
-        if self.closed:
-            raise RigError("the rig pool is closed")
-
     def worker_pids(self) -> list[int]:
         """The process ids of the live workers (after first use)."""
         return [i["pid"] for i, live in zip(self._info, self._live) if live and i is not None]
@@ -321,16 +313,6 @@ class RayRigs:
             self.close()
             raise RigError(f"rig worker {w} on the cluster is gone ({type(e).__name__})") from None
         return out
-
-    def close(self) -> None:
-        """Stop the workers (idempotent)."""
-        self._finalizer()
-
-    def __enter__(self) -> "RayRigs":
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
 
     # -- whole trials
     def run_trials(self, recognizer, specs: Iterable[TrialSpec], *, key, batch: int = 16, seed: int = 0,

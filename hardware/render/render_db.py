@@ -26,7 +26,7 @@ from ..geometry.positions import CameraTable
 from .scene import ObjectSpec
 from .synthetic import Noise, Perturb, SyntheticRig
 
-__all__ = ["MANIFEST_COLUMNS", "render_database", "alternating_offsets", "contact_sheet", "jitter_offsets", "lookalike_distances"]
+__all__ = ["MANIFEST_COLUMNS", "render_database", "alternating_offsets", "image_sink", "contact_sheet", "jitter_offsets", "lookalike_distances"]
 
 MANIFEST_COLUMNS = COLUMNS  # the format lives in jaxrecog.dbformat
 
@@ -107,12 +107,7 @@ def render_database(
                 for s in splits:
                     (out / s / f"c{i}" / f"v{v:02d}").mkdir(parents=True, exist_ok=True)
 
-        def emit(rel: str, img: np.ndarray, *row) -> None:
-            if blocks is None:
-                write_image(out / rel, img)
-            else:
-                blocks.write((rel, *row), img)
-            rows.append((rel, *row))
+        emit = image_sink(out, rows, blocks)
 
         def views(split, m, p, per_view, render, index=None):
             """Write ``per_view`` images ``render(camera, position, j)`` of
@@ -164,6 +159,21 @@ def render_database(
         if own:
             rig.close()
     return None if blocks is not None else write_manifest(out, rows)
+
+
+def image_sink(out: Path, rows: list, blocks=None) -> Callable[..., None]:
+    """``emit(rel_path, image, camera, position, object, pose, split)``: the
+    image to ``out / rel_path`` (or to ``blocks.write(row, image)``: a Ray
+    task's share, :mod:`jaxrecog.ray_render`) and its manifest row to ``rows``."""
+
+    def emit(rel: str, img: np.ndarray, *row) -> None:
+        if blocks is None:
+            write_image(out / rel, img)
+        else:
+            blocks.write((rel, *row), img)
+        rows.append((rel, *row))
+
+    return emit
 
 
 def jitter_offsets(n: int, max_deg: float) -> tuple[float, ...]:

@@ -44,12 +44,12 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from ...dbformat import write_image, write_manifest
+from ...dbformat import write_manifest
 from ..geometry.kinematics import Workspace
 from .occluders import OCCLUDER_OFFSET, OCCLUDER_SIZE, random_occluders
 from ..geometry.positions import CameraTable, View
 from .random_objects import RESTING_ROTATIONS, rested
-from .render_db import alternating_offsets
+from .render_db import alternating_offsets, image_sink
 from .scene import Intrinsics, ObjectSpec
 from .synthetic import Noise, Perturb, SyntheticRig
 
@@ -174,12 +174,7 @@ def render_turntable(
     rows: list[tuple] = []
     test_rng = np.random.default_rng([seed, 0x7E57])
     calib_rng = np.random.default_rng([seed, 0xCA1])
-    def emit(rel: str, img: np.ndarray, *row) -> None:
-        if blocks is None:
-            write_image(out / rel, img)
-        else:
-            blocks.write((rel, *row), img)
-        rows.append((rel, *row))
+    emit = image_sink(out, rows, blocks)
 
     try:
         for s in angles if blocks is None else ():
