@@ -190,7 +190,8 @@ def driver_rate(groups: int, size: int, workers: int = 2) -> dict:
     return out
 
 
-def main(argv=None) -> int:
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of this benchmark (the docs tests parse the docs' commands with it)."""
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", default="out/bench/cluster.json")
     ap.add_argument("--workdir", default="out/thesis", help="where the trained models are (or are made)")
@@ -209,7 +210,11 @@ def main(argv=None) -> int:
                          "the --workers stand-in workers (driver_rate)")
     ap.add_argument("--one-xla-thread", action="store_true",
                     help="XLA's CPU backend on one thread in the workers (XLA_FLAGS for the Ray instance)")
-    args = ap.parse_args(argv)
+    return ap
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
 
     import ray
 

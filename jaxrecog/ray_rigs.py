@@ -9,7 +9,9 @@ trials itself (:meth:`RayRigs.run_trials`; :func:`jaxrecog.campaign.run_campaign
 hands them over when a pool can): the trials go out in batches of
 ``trials_per_task``, one actor call each, that runs the ordinary trial driver
 (:func:`jaxrecog.driver.run_trials`) beside that actor's rigs and streams
-every finished :class:`~jaxrecog.results.TrialResult` back as it finishes.
+the finished trials (:class:`~jaxrecog.results.TrialResult`) back as they finish
+(all that are ready at once in one message; through Ray Client, which has no
+streaming calls, at the batch's end).
 The recognizer is put into the object store once per campaign; each actor
 reads it once.
 
@@ -130,10 +132,6 @@ class _Worker:
         """:meth:`run`'s results in one answer, at the batch's end (Ray
         Client, ``ray://``, has no streaming calls)."""
         return [r for group in self.run(*args) for r in group]
-
-    def close(self) -> None:
-        if self._pool is not None:
-            self._pool.close()
 
 
 _REMOTE: list = []

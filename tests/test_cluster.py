@@ -272,19 +272,3 @@ def test_rendering_on_ray_writes_the_same_files(local_ray, tmp_path):
     c, d = files(tmp_path / "c"), files(tmp_path / "d")
     assert len(c) == 1 + 2 * 3 * 4 and c == d
 
-
-def test_the_commands_of_the_docs_are_the_clis(capsys):
-    """Each ``jaxrecog`` command of docs/cluster.md's code blocks parses (an
-    experiment's resolves: ``--print-config``, which runs nothing)."""
-    from jaxrecog.cli import build_parser
-
-    doc = (ROOT / "docs" / "cluster.md").read_text()
-    lines = [ln.split()[1:] for ln in doc.splitlines() if ln.startswith("    ") and ln.split()[:1] == ["jaxrecog"]]
-    assert len(lines) == 3
-    for argv in lines:
-        if argv[0] == "experiment":
-            capsys.readouterr()
-            assert cli.main([*argv, "--print-config"]) == 0, capsys.readouterr().err
-            assert f"cluster = \"{argv[argv.index('--cluster') + 1]}\"\n" in capsys.readouterr().out
-        else:
-            assert build_parser().parse_args(argv).cluster == "ray://HEAD:10001"
