@@ -93,7 +93,8 @@ def run_campaign(
             before every capture, so a trial's images do not depend on the
             batch it ran in.
         store: where finished trials are appended (and read back on resume).
-        progress: called with the number of trials finished at each finish.
+        progress: called with the number of trials finished at each finish
+            (one, or on a cluster the several that came back together).
         trace: keep per-step object probabilities in each result.
         devices: shard the lockstep batch over this many devices
             (:func:`jaxrecog.driver.trial_mesh`; the results are the same as on one).
@@ -110,13 +111,17 @@ def run_campaign(
             del done[t]
     todo = [s for s in specs if s.trial not in done]
 
-    def finished(res: TrialResult) -> None:
-        done[res.trial] = res
+    def finished(results: Sequence[TrialResult]) -> None:
+        for res in results:
+            done[res.trial] = res
         if store is not None:
-            store.append(res)
+            store.extend(results)  # one fsync for the group
         if progress is not None:
-            progress(1)
+            progress(len(results))
 
-    run_trials(recognizer, rig, todo, key=key, batch=batch, seed=seed, trace=trace, on_result=finished,
-               devices=devices)
+    kw = dict(key=key, batch=batch, seed=seed, trace=trace, devices=devices)
+    if hasattr(rig, "run_trials"):  # a pool that runs whole trials itself (a cluster: jaxrecog.ray_rigs)
+        rig.run_trials(recognizer, todo, on_results=finished, **kw)  # results in groups, as they come
+    else:
+        run_trials(recognizer, rig, todo, on_result=lambda res: finished([res]), **kw)
     return [done[k] for k in sorted(done) if k in by_id]

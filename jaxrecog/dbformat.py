@@ -61,6 +61,7 @@ __all__ = [
     "shared_files",
     "write_folder",
     "write_image",
+    "write_manifest",
 ]
 
 COLUMNS = ("path", "camera", "position", "object", "pose", "split")
@@ -341,6 +342,18 @@ def manifest_text(rows: Sequence[Sequence]) -> str:
     for p, *idx, s in rows:
         w.writerow([p, *(int(x) for x in idx), s])
     return buf.getvalue()
+
+
+def write_manifest(folder, rows: Sequence[Sequence]):
+    """Write ``folder/manifest.csv`` for ``rows`` (each ``(path, camera,
+    position, object, pose, split)``), sorted by split (in :data:`SPLITS`
+    order), camera, position, object, pose and path: the order of the
+    rendered databases, whatever order their images were made in.  Returns
+    the manifest's path."""
+    ordered = sorted(rows, key=lambda r: (SPLITS.index(r[5]), r[1], r[2], r[3], r[4], r[0]))
+    manifest = Path(folder) / "manifest.csv"
+    manifest.write_text(manifest_text(ordered))
+    return manifest
 
 
 def parse_manifest(raw: bytes, where: str) -> tuple[list[tuple[int, ManifestRow]], list[str]]:

@@ -46,6 +46,7 @@ import jax.random as jr
 from jaxrecog import campaigns as ex
 from jaxrecog.scene import occluder_factory
 from jaxrecog.campaign import plan_trials, run_campaign
+from jaxrecog.cluster import ClusterError, connect
 from jaxrecog.metrics import expected_calibration_error
 from jaxrecog.plots import save_png
 from jaxrecog.results import summarize
@@ -93,6 +94,29 @@ def first_view_fraction(result) -> float:
     return 100.0 * sum(f) / len(f) if f else 0.0
 
 
+def _rows(axis: str, x, base: dict, res, n_objects: int, dt: float, say) -> tuple[list[dict], dict | None]:
+    """One point's rows (off-grid: one; occlusion: one per bin, and the count
+    above the last bin), said as they are made."""
+    if axis == "off_grid":
+        row = {**base, "angle": x, **_point(res, n_objects)}
+        say(f"off-grid {x:g} deg, {base['database']}, {base['cameras']}, {base['planner']}: rate {row['rate']:.1f} %, "
+            f"views {row['views']:.2f}, confident errors {row['confident_errors']:.1f} % ({dt:.0f} s)")
+        return [row], None
+    fr = [first_view_fraction(r) for r in res]
+    made = []
+    for lo, hi in OCCLUSION_BINS:
+        last = hi == OCCLUSION_BINS[-1][1]
+        inside = [r for r, f in zip(res, fr) if lo <= f < hi or (last and f == hi)]
+        xs = [f for f in fr if lo <= f < hi or (last and f == hi)]
+        made.append({**base, "bin": [lo, hi], "mean_fraction": sum(xs) / len(xs) if xs else math.nan,
+                     **_point(inside, n_objects)})
+    above = sum(f > OCCLUSION_BINS[-1][1] for f in fr)
+    overall = summarize(res, n_objects)[-1]
+    say(f"occlusion, {base['database']}, {base['cameras']}, {base['planner']}: {len(res)} trials ({above} above "
+        f"{OCCLUSION_BINS[-1][1]:g} %), overall rate {overall.rate:.1f} % ({dt:.0f} s)")
+    return made, {**base, "trials": above}
+
+
 def sweep(settings: ex.Settings, *, angles=ANGLES, planners=PLANNERS, databases=DATABASES,
           axes=("occlusion", "off_grid"), progress=None) -> dict:
     prepared = ex.prepare(settings, databases=tuple(databases))
@@ -100,63 +124,52 @@ def sweep(settings: ex.Settings, *, angles=ANGLES, planners=PLANNERS, databases=
     rows = {"occlusion": [], "off_grid": []}
     timing = {}
     for cam_label, cams in CAMERAS.items():
-        recognizers = {}
         models = {}
         for db in databases:
             case = ex.Case(f"sweep-{db}", "", db, False, cams, tuple(planners))
             models[db] = ex.case_model(prepared, case)
         model0 = models[databases[0]]
-        points = []  # (axis, x, specs, settings)
+        probe = ex.make_rig(settings, cams, seed=settings.seed)  # the table, the boards' geometry, travel times
+        points = []  # (axis, x, specs, settings of the captures)
         if "occlusion" in axes:
-            rigs0 = ex.rig_pool(settings, cams, seed=settings.seed)
-            specs = plan_trials(model0.n_objects, model0.n_poses, rigs0[0].positions, settings.trials_per_object,
+            specs = plan_trials(model0.n_objects, model0.n_poses, probe.positions, settings.trials_per_object,
                                 seed=settings.seed,
-                                occluders=occluder_factory(rigs0[0], SWEEP_OCCLUDER_SIZE, SWEEP_OCCLUDER_OFFSET))
-            points.append(("occlusion", None, specs, settings, rigs0))
+                                occluders=occluder_factory(probe, SWEEP_OCCLUDER_SIZE, SWEEP_OCCLUDER_OFFSET))
+            points.append(("occlusion", None, specs, settings))
         if "off_grid" in axes:
             for a in angles:
                 yaw, eye, light = off_grid_amounts(a)
                 s = dataclasses.replace(settings, off_grid_deg=yaw, off_grid_eye=eye, off_grid_light=light)
-                rigs = ex.rig_pool(s, cams, seed=settings.seed)
-                specs = plan_trials(model0.n_objects, model0.n_poses, rigs[0].positions, settings.trials_per_object,
+                specs = plan_trials(model0.n_objects, model0.n_poses, probe.positions, settings.trials_per_object,
                                     seed=settings.seed, yaw_deg=yaw)
-                points.append(("off_grid", float(a), specs, s, rigs))
-        for db in databases:
-            model = models[db]
-            from jaxrecog.motion import rig_travel_times
+                points.append(("off_grid", float(a), specs, s))
+        from jaxrecog.motion import rig_travel_times
 
-            travel = rig_travel_times(points[0][4][0])
+        travel = rig_travel_times(probe)
+        probe.close()
+        recognizers = {(db, planner): ex.campaign_recognizer(models[db], planner, settings, travel)
+                       for db in databases for planner in planners}
+        done = {}
+        # one point's rigs at a time (in worker processes or on a cluster: its workers), every
+        # model and planner on them; the rows below keep the order model, planner, point
+        for axis, x, specs, s in points:
+            with ex.capture_pool(s, cams, seed=settings.seed) as rigs:
+                for db in databases:
+                    for planner in planners:
+                        t0 = time.perf_counter()
+                        res = run_campaign(recognizers[(db, planner)], rigs, specs, key=jr.PRNGKey(settings.seed + 1),
+                                           batch=settings.batch, seed=settings.seed, devices=settings.devices)
+                        dt = time.perf_counter() - t0
+                        base = {"database": db, "cameras": cam_label, "planner": planner}
+                        done[(axis, x, db, planner)] = (dt, *_rows(axis, x, base, res, models[db].n_objects, dt, say))
+        for db in databases:
             for planner in planners:
-                rec = recognizers[(db, planner)] = ex.campaign_recognizer(model, planner, settings, travel)
-                for axis, x, specs, s, rigs in points:
-                    t0 = time.perf_counter()
-                    res = run_campaign(rec, rigs, specs, key=jr.PRNGKey(settings.seed + 1), batch=settings.batch,
-                                       seed=settings.seed, devices=settings.devices)
-                    dt = time.perf_counter() - t0
+                for axis, x, *_ in points:
+                    dt, made, above = done[(axis, x, db, planner)]
                     timing[f"{axis} {x} {db} {cam_label} {planner}"] = dt
-                    base = {"database": db, "cameras": cam_label, "planner": planner}
-                    if axis == "off_grid":
-                        row = {**base, "angle": x, **_point(res, model.n_objects)}
-                        rows["off_grid"].append(row)
-                        say(f"off-grid {x:g} deg, {db}, {cam_label}, {planner}: rate {row['rate']:.1f} %, "
-                            f"views {row['views']:.2f}, confident errors {row['confident_errors']:.1f} % ({dt:.0f} s)")
-                    else:
-                        fr = [first_view_fraction(r) for r in res]
-                        for lo, hi in OCCLUSION_BINS:
-                            last = hi == OCCLUSION_BINS[-1][1]
-                            inside = [r for r, f in zip(res, fr) if lo <= f < hi or (last and f == hi)]
-                            xs = [f for f in fr if lo <= f < hi or (last and f == hi)]
-                            row = {**base, "bin": [lo, hi], "mean_fraction": sum(xs) / len(xs) if xs else math.nan,
-                                   **_point(inside, model.n_objects)}
-                            rows["occlusion"].append(row)
-                        above = sum(f > OCCLUSION_BINS[-1][1] for f in fr)
-                        overall = summarize(res, model.n_objects)[-1]
-                        say(f"occlusion, {db}, {cam_label}, {planner}: {len(res)} trials ({above} above "
-                            f"{OCCLUSION_BINS[-1][1]:g} %), overall rate {overall.rate:.1f} % ({dt:.0f} s)")
-                        rows.setdefault("occlusion_above_last_bin", []).append({**base, "trials": above})
-        for *_, rigs in points:
-            for r in rigs:
-                r.close()
+                    rows[axis] += made
+                    if above is not None:
+                        rows.setdefault("occlusion_above_last_bin", []).append(above)
     return {
         "positions": list(ex.rig_table(settings).positions),
         "planners": list(planners),
@@ -247,6 +260,10 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--axes", default="occlusion,off_grid", help="occlusion, off_grid or both (comma-separated)")
     ap.add_argument("--batch", type=int, default=16)
     ap.add_argument("--devices", type=int, default=1)
+    ap.add_argument("--render-workers", type=int, default=0,
+                    help="render in N worker processes (with --cluster: N Ray workers, 0 = one per CPU)")
+    ap.add_argument("--cluster", help="render and run on Ray: 'ray' (a local instance) or 'ray://HOST:PORT' "
+                                      "(docs/cluster.md)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--quick", action="store_true", help="stride 8, small models, 1 trial per object, angles 0 and 20 (CI)")
     ap.add_argument("--quiet", action="store_true")
@@ -268,12 +285,15 @@ def main(argv=None) -> int:
             if not 0 <= a < math.inf:
                 raise ValueError(f"--angles must be finite and >= 0, got {a}")
         settings = ex.Settings(workdir=args.workdir or args.out / "work", batch=args.batch, seed=args.seed,
-                               devices=args.devices, **values)
+                               devices=args.devices, render_workers=args.render_workers, cluster=args.cluster,
+                               **values)
+        if settings.cluster:  # a cluster that is not there: said before anything renders
+            connect(settings.cluster)
         t0 = time.perf_counter()
         summary = sweep(settings, angles=angles, planners=tuple(args.planners.split(",")), axes=axes,
                         progress=None if args.quiet else (lambda m: print(m, flush=True)))
         summary["total_seconds"] = time.perf_counter() - t0
-    except ValueError as e:
+    except (ValueError, ClusterError) as e:
         print(f"difficulty_sweep: error: {e}", file=sys.stderr)
         return 2
     args.out.mkdir(parents=True, exist_ok=True)

@@ -1,6 +1,7 @@
 """``campaigns.Settings`` is a recipe and the run's options (issue 29), while
 every setting keeps its flat name: the configuration dialect, ``--print-config``,
-the reports' JSON and the run ids read the same 36 names as before."""
+the reports' JSON and the run ids read the same 36 names as before, and
+``cluster`` (issue 30: where a campaign runs) after ``render_workers``."""
 
 from __future__ import annotations
 
@@ -11,12 +12,12 @@ import pytest
 from jaxrecog.campaigns import Settings
 from jaxrecog.recipes import ROBUST, THESIS
 
-#: the flat names, in the order main's flat Settings declared them (the dialect's order)
+#: the flat names, in the order main's flat Settings declared them (the dialect's order), and ``cluster``
 MAIN_FIELDS = (
     "workdir", "trials_per_object", "seed", "samples", "min_per_stratum", "batch", "n_components",
     "samples_per_image", "p_threshold", "max_steps", "capture_noise", "transition", "stride", "min_views",
     "exclude_visited_positions", "adaptive_scale", "shared_view", "motion_cost", "devices", "render_workers",
-    "off_grid_deg", "off_grid_eye", "off_grid_light", "likelihood", "likelihood_options", "max_rotation",
+    "cluster", "off_grid_deg", "off_grid_eye", "off_grid_light", "likelihood", "likelihood_options", "max_rotation",
     "max_scale", "blur_sigma", "gain_amplitude", "gain_cells", "occluder_gray", "max_shift", "view_jitter",
     "view_jitter_deg", "interpolate", "interpolation",
 )

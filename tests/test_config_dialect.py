@@ -106,3 +106,15 @@ def test_the_docs_snippet_is_an_experiment_file(tmp_path, capsys):
     for line in ("trials_per_object = 10", "p_threshold = 0.9", "exclude_visited_positions = true",
                  "n_components = 12", 'planners = ["mi-class-pairwise", "random"]'):
         assert line + "\n" in text
+
+
+def test_cluster_is_a_setting_like_the_others(tmp_path, capsys):
+    """``cluster`` (option and field of the same name) in an experiment file,
+    overridden by ``--cluster``; a bad one is one line naming the field."""
+    f = tmp_path / "c.toml"
+    f.write_text('case = "i"\ncluster = "ray://head:10001"\n')
+    assert 'cluster = "ray://head:10001"\n' in _print_config(capsys, f)
+    assert 'cluster = "ray"\n' in _print_config(capsys, f, "--cluster", "ray")
+    f.write_text('case = "i"\n[settings]\ncluster = "spark"\n')
+    assert "cluster must be 'ray' (a local Ray instance) or 'ray://HOST:PORT'" in _error(
+        capsys, "experiment", f, "--print-config")

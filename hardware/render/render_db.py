@@ -20,13 +20,13 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from ...dbformat import COLUMNS, SPLITS, manifest_text, write_image
+from ...dbformat import COLUMNS, write_image, write_manifest
 from .occluders import random_occluders
 from ..geometry.positions import CameraTable
 from .scene import ObjectSpec
 from .synthetic import Noise, Perturb, SyntheticRig
 
-__all__ = ["MANIFEST_COLUMNS", "render_database", "alternating_offsets", "contact_sheet", "jitter_offsets", "lookalike_distances"]
+__all__ = ["MANIFEST_COLUMNS", "render_database", "alternating_offsets", "image_sink", "contact_sheet", "jitter_offsets", "lookalike_distances"]
 
 MANIFEST_COLUMNS = COLUMNS  # the format lives in jaxrecog.dbformat
 
@@ -49,7 +49,8 @@ def render_database(
     train: bool = True,
     jitter_per_view: int = 0,
     jitter_yaw_deg: float = 10.0,
-) -> Path:
+    blocks=None,
+) -> Path | None:
     """Render every (camera, position, object, pose) and write the database.
 
     Args:
@@ -75,6 +76,12 @@ def render_database(
             alternating signs (N = 4, 10°: +5, -5, +10, -10).  These are the
             neighbouring views of a turn-table the training grid leaves out.
         jitter_yaw_deg: the largest of those turns (> 0).
+        blocks: render only some (object, pose) blocks, elsewhere (a Ray
+            task, :mod:`jaxrecog.ray_render`): at the start of each block,
+            ``blocks.start(object, pose, rig, generators)`` says whether to
+            render it (it may set the random generators' states first); every
+            image goes to ``blocks.write(manifest_row, image)`` instead of a
+            file, and no folder or manifest is written (returns ``None``).
 
     Returns:
         The path of ``manifest.csv``.  Train images: ``n_objects * poses`` per
@@ -95,10 +102,13 @@ def render_database(
         calib_rng = np.random.default_rng([seed, 0xCA1])
         splits = [s for s, n in (("train", train), ("test", test_per_view), ("calib", calib_per_view),
                                  ("jitter", jitter_per_view)) if n]
-        for i, n_pos in enumerate(rig.positions):
+        for i, n_pos in enumerate(rig.positions if blocks is None else ()):
             for v in range(n_pos):
                 for s in splits:
                     (out / s / f"c{i}" / f"v{v:02d}").mkdir(parents=True, exist_ok=True)
+
+        emit = image_sink(out, rows, blocks)
+
         def views(split, m, p, per_view, render, index=None):
             """Write ``per_view`` images ``render(camera, position, j)`` of
             every view of object ``m`` in pose ``p`` as ``split`` (file
@@ -107,20 +117,19 @@ def render_database(
                 for v in range(n_pos):
                     for j in range(per_view):
                         rel = f"{split}/c{i}/v{v:02d}/m{m}_p{p}_{j if index is None else index}.png"
-                        write_image(out / rel, render(i, v, j))
-                        rows.append((rel, i, v, m, p, split))
+                        emit(rel, render(i, v, j), i, v, m, p, split)
                 if progress is not None:
                     progress(n_pos * per_view)
 
         for m in range(rig.n_objects):
             for p in range(rig.n_poses):
+                if blocks is not None and not blocks.start(m, p, rig, (rng, calib_rng, rig._rng)):
+                    continue
                 rig.reset(m, p)
                 for i, n_pos in enumerate(rig.positions if train else ()):
                     for v in range(n_pos):
                         img, _ = rig.render_clean(i, v)
-                        rel = f"train/c{i}/v{v:02d}/m{m}_p{p}.png"
-                        write_image(out / rel, img)
-                        rows.append((rel, i, v, m, p, "train"))
+                        emit(f"train/c{i}/v{v:02d}/m{m}_p{p}.png", img, i, v, m, p, "train")
                     if progress is not None:
                         progress(n_pos)
                 if test_per_view:
@@ -149,10 +158,22 @@ def render_database(
     finally:
         if own:
             rig.close()
-    rows.sort(key=lambda r: (SPLITS.index(r[5]), r[1], r[2], r[3], r[4], r[0]))
-    manifest = out / "manifest.csv"
-    manifest.write_text(manifest_text(rows))
-    return manifest
+    return None if blocks is not None else write_manifest(out, rows)
+
+
+def image_sink(out: Path, rows: list, blocks=None) -> Callable[..., None]:
+    """``emit(rel_path, image, camera, position, object, pose, split)``: the
+    image to ``out / rel_path`` (or to ``blocks.write(row, image)``: a Ray
+    task's share, :mod:`jaxrecog.ray_render`) and its manifest row to ``rows``."""
+
+    def emit(rel: str, img: np.ndarray, *row) -> None:
+        if blocks is None:
+            write_image(out / rel, img)
+        else:
+            blocks.write((rel, *row), img)
+        rows.append((rel, *row))
+
+    return emit
 
 
 def jitter_offsets(n: int, max_deg: float) -> tuple[float, ...]:

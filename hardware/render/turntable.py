@@ -44,12 +44,12 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from ...dbformat import SPLITS, manifest_text, write_image
+from ...dbformat import write_manifest
 from ..geometry.kinematics import Workspace
 from .occluders import OCCLUDER_OFFSET, OCCLUDER_SIZE, random_occluders
 from ..geometry.positions import CameraTable, View
 from .random_objects import RESTING_ROTATIONS, rested
-from .render_db import alternating_offsets
+from .render_db import alternating_offsets, image_sink
 from .scene import Intrinsics, ObjectSpec
 from .synthetic import Noise, Perturb, SyntheticRig
 
@@ -143,10 +143,13 @@ def render_turntable(
     intrinsics: Intrinsics = Intrinsics(),
     seed: int = 0,
     progress: Callable[[int], object] | None = None,
-) -> Path:
+    blocks=None,
+) -> Path | None:
     """Render the turntable database (module doc) into ``out_dir`` and return
     the path of its ``manifest.csv``.  Positions per camera:
-    ``round(360 / step_deg)`` (``step_deg`` must divide 360)."""
+    ``round(360 / step_deg)`` (``step_deg`` must divide 360).  ``blocks``:
+    only some (object, pose) blocks, written nowhere, as
+    :func:`~.render_db.render_database`'s (a Ray task's share)."""
     n_pos = round(360.0 / float(step_deg))
     if n_pos < 1 or not math.isclose(n_pos * float(step_deg), 360.0):
         raise ValueError(f"step_deg must divide 360, got {step_deg}")
@@ -171,26 +174,26 @@ def render_turntable(
     rows: list[tuple] = []
     test_rng = np.random.default_rng([seed, 0x7E57])
     calib_rng = np.random.default_rng([seed, 0xCA1])
+    emit = image_sink(out, rows, blocks)
+
     try:
-        for s in angles:
+        for s in angles if blocks is None else ():
             for i in range(n_cam):
                 for v in range(n_pos):
                     (out / s / f"c{i}" / f"v{v:02d}").mkdir(parents=True, exist_ok=True)
         for m in range(len(objects)):
             for p in range(int(poses)):
+                if blocks is not None and not blocks.start(m, p, rig, (test_rng, calib_rng, rig._rng)):
+                    continue
                 scene_obj = m * int(poses) + p
                 rig.reset(scene_obj, 0)
                 for i in range(n_cam):
                     for v in range(n_pos):
                         img, _ = rig.render_clean(i, at["train"](v, 0))
-                        rel = f"train/c{i}/v{v:02d}/m{m}_p{p}.png"
-                        write_image(out / rel, img)
-                        rows.append((rel, i, v, m, p, "train"))
+                        emit(f"train/c{i}/v{v:02d}/m{m}_p{p}.png", img, i, v, m, p, "train")
                         for j in range(jitter_per_view):
                             img, _ = rig.render_clean(i, at["jitter"](v, j))
-                            rel = f"jitter/c{i}/v{v:02d}/m{m}_p{p}_{j}.png"
-                            write_image(out / rel, img)
-                            rows.append((rel, i, v, m, p, "jitter"))
+                            emit(f"jitter/c{i}/v{v:02d}/m{m}_p{p}_{j}.png", img, i, v, m, p, "jitter")
                         if progress is not None:
                             progress(1 + jitter_per_view)
                 for i in range(n_cam):
@@ -202,21 +205,14 @@ def render_turntable(
                                 rig.reset(scene_obj, 0, random_occluders(test_rng, one, radius=rig.radius,
                                                                           size=OCCLUDER_SIZE, offset=OCCLUDER_OFFSET))
                             img, _ = rig.render_perturbed(i, at["test"](v, j), perturb, test_rng)
-                            rel = f"test/c{i}/v{v:02d}/m{m}_p{p}_{j}.png"
-                            write_image(out / rel, img)
-                            rows.append((rel, i, v, m, p, "test"))
+                            emit(f"test/c{i}/v{v:02d}/m{m}_p{p}_{j}.png", img, i, v, m, p, "test")
                         if occluders and test_per_view:
                             rig.reset(scene_obj, 0)
                         for j in range(calib_per_view):
                             img, _ = rig.render_perturbed(i, at["calib"](v, j), perturb, calib_rng)
-                            rel = f"calib/c{i}/v{v:02d}/m{m}_p{p}_{j}.png"
-                            write_image(out / rel, img)
-                            rows.append((rel, i, v, m, p, "calib"))
+                            emit(f"calib/c{i}/v{v:02d}/m{m}_p{p}_{j}.png", img, i, v, m, p, "calib")
                         if progress is not None:
                             progress(test_per_view + calib_per_view)
     finally:
         rig.close()
-    rows.sort(key=lambda r: (SPLITS.index(r[5]), r[1], r[2], r[3], r[4], r[0]))
-    manifest = out / "manifest.csv"
-    manifest.write_text(manifest_text(rows))
-    return manifest
+    return None if blocks is not None else write_manifest(out, rows)

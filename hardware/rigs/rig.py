@@ -24,8 +24,8 @@ import numpy as np
 
 from ...kernels.config_grid import ConfigGrid
 
-__all__ = ["Capture", "CaptureJob", "Rig", "RigError", "RigPool", "SceneSpec", "SeededCaptures", "config_from_index",
-           "index_from_config"]
+__all__ = ["Capture", "CaptureJob", "Rig", "RigError", "RigPool", "SceneSpec", "SeededCaptures", "WorkerPool",
+           "config_from_index", "index_from_config"]
 
 
 class RigError(RuntimeError):
@@ -197,3 +197,31 @@ class RigPool(Protocol):
         ...
 
     def close(self) -> None: ...
+
+
+class WorkerPool:
+    """What the rig pools that own workers share (worker processes,
+    :class:`~jaxrecog.hardware.rigs.rig_pool.ProcessRigs`; Ray actors,
+    :class:`jaxrecog.ray_rigs.RayRigs`): ``self._finalizer`` (a
+    ``weakref.finalize``) stops the workers, at ``close()`` or when the pool
+    is collected; a closed pool refuses work; a pool is a context manager."""
+
+    _finalizer: Any
+
+    @property
+    def closed(self) -> bool:
+        return not self._finalizer.alive
+
+    def _check_open(self) -> None:
+        if self.closed:
+            raise RigError("the rig pool is closed")
+
+    def close(self) -> None:
+        """Stop the workers (idempotent)."""
+        self._finalizer()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

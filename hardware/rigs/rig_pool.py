@@ -26,7 +26,7 @@ import weakref
 from multiprocessing.reduction import ForkingPickler
 from typing import Callable, Sequence
 
-from .rig import Capture, CaptureJob, Rig, RigError, RigPool, SceneSpec  # the pool's interface (re-exported)
+from .rig import Capture, CaptureJob, Rig, RigError, RigPool, SceneSpec, WorkerPool  # the pool's interface (re-exported)
 
 __all__ = ["SceneSpec", "CaptureJob", "RigPool", "LocalRigs", "ProcessRigs", "as_rig_pool"]
 
@@ -172,7 +172,7 @@ def _shutdown(conns, procs, timeout: float = 5.0) -> None:
             p.join(timeout=1.0)
 
 
-class ProcessRigs:
+class ProcessRigs(WorkerPool):
     """``n_rigs`` rigs spread over ``workers`` processes (rig ``r`` lives in
     worker ``r % workers``); a batch's jobs run in parallel across workers.
 
@@ -232,14 +232,6 @@ class ProcessRigs:
     @property
     def image_shape(self) -> tuple[int, int]:
         return self._ready()[1]
-
-    @property
-    def closed(self) -> bool:
-        return not self._finalizer.alive
-
-    def _check_open(self) -> None:
-        if self.closed:
-            raise RigError("the rig pool is closed")
 
     def _ready(self) -> tuple:
         # the workers start in the background (spawn + imports, ~2 s); the
@@ -315,12 +307,6 @@ class ProcessRigs:
             for p in self._procs:
                 p.terminate()
         self._finalizer()
-
-    def __enter__(self) -> "ProcessRigs":
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
 
 
 def _raise_reported(w: int, payload) -> None:

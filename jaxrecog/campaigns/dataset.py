@@ -7,6 +7,7 @@ replays, with as many cameras and positions as the model has.
 
 from __future__ import annotations
 
+import functools
 from typing import Callable, Sequence
 
 import numpy as np
@@ -86,6 +87,12 @@ def run_dataset(
     db = load_database(folder)
     _check_database_fits(db, model, folder, model_path)
     rig = DatasetRig(db, seed=settings.seed)
+    pool = rig
+    if settings.cluster:
+        from ..ray_rigs import RayRigs
+
+        pool = RayRigs(functools.partial(DatasetRig, db, seed=settings.seed), max(1, settings.batch),
+                       settings.render_workers, cluster=settings.cluster)
     planners = tuple(planners or dataset_planners(model_path))
     case = Case("dataset", f"Image database {folder} ({model.n_objects} objects x {model.n_poses} poses, "
                            f"positions {tuple(int(p) for p in model.positions)}), model {model_path}",
@@ -93,6 +100,10 @@ def run_dataset(
     specs = plan_trials(model.n_objects, model.n_poses, rig.positions, settings.trials_per_object, seed=settings.seed)
     rid = run_id(settings, model_path)
     db_id = db.manifest_sha256[:10]
-    return compare_planners(case, model, rig, specs, settings, planners,
-                            lambda planner: f"dataset-{planner}-{rid}-{db_id}", progress=progress,
-                            on_result=on_result, probe=rig)
+    try:
+        return compare_planners(case, model, pool, specs, settings, planners,
+                                lambda planner: f"dataset-{planner}-{rid}-{db_id}", progress=progress,
+                                on_result=on_result, probe=rig)
+    finally:
+        if pool is not rig:
+            pool.close()

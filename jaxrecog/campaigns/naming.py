@@ -33,7 +33,7 @@ TRAINING_FIELDS = ("likelihood", "likelihood_options", *AUGMENT_FIELDS, "view_ji
                    "interpolate", "interpolation")
 #: Settings fields that never change a campaign's results (where files go, how
 #: the work is spread): not in the run id
-RUN_ID_IGNORED = ("workdir", "batch", "devices", "render_workers")
+RUN_ID_IGNORED = ("workdir", "batch", "devices", "render_workers", "cluster")
 #: fields added after the run id existed: left out while off (falsy), so the
 #: digests of earlier runs stay valid
 _LATER_RUN_FIELDS = ("exclude_visited_positions", "shared_view", "motion_cost", "off_grid_deg", "off_grid_eye",

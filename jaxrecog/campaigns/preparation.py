@@ -14,7 +14,7 @@ from ..database import load_database
 from ..modelfile import ModelFileError, load_model_meta, save_model
 from ..train import train_model
 from .naming import database_dir, model_path, params_match, training_params
-from .rigs import rig_table
+from .rigs import renderer, rig_table
 from .settings import Settings
 
 __all__ = ["Prepared", "prepare", "progress_bar", "cached_model_is_fresh", "train_for"]
@@ -78,8 +78,8 @@ def prepare(settings: Settings, *, progress: bool = False, databases: Sequence[s
         table = rig_table(settings)
         n_images = sum(table.positions) * 8 * 4 * (1 + jitter)
         with progress_bar(n_images, "render database", progress) as bar:
-            render_database(db_dir, table, progress=bar.update, jitter_per_view=jitter,
-                            jitter_yaw_deg=settings.view_jitter_deg)
+            render = renderer(settings, render_database, "render_database_on")
+            render(db_dir, table, progress=bar.update, jitter_per_view=jitter, jitter_yaw_deg=settings.view_jitter_deg)
     loaded = []  # the database, read once and only when needed
 
     def db():

@@ -1,7 +1,8 @@
 """The campaigns' synthetic rigs: the thesis table thinned by
 ``Settings.stride``, one rig with the settings' capture noise and off-grid
 amounts, a pool of identical rigs for the lockstep slots, and that pool in
-this process or spread over worker processes.
+this process, spread over worker processes or on a Ray cluster (as are the
+renders of a campaign's database: :func:`renderer`).
 """
 
 from __future__ import annotations
@@ -11,7 +12,7 @@ import functools
 from .cases import off_grid
 from .settings import Settings
 
-__all__ = ["rig_table", "make_rig", "rig_pool", "capture_pool"]
+__all__ = ["rig_table", "make_rig", "rig_pool", "capture_pool", "renderer"]
 
 
 def rig_table(settings: Settings):
@@ -57,10 +58,25 @@ def capture_pool(settings: Settings, cameras: tuple[int, ...] | None = None, *, 
     """:func:`rig_pool`'s rigs as a :class:`~jaxrecog.hardware.rigs.rig_pool.RigPool`
     for the trial driver: in this process (``settings.render_workers == 0``)
     or spread over that many worker processes, which render side by side
-    (the results are the same).  Close it when done (it is a context manager)."""
+    (the results are the same), or in Ray actors (``settings.cluster``).
+    Close it when done (it is a context manager)."""
     from ..hardware.rigs.rig_pool import LocalRigs, ProcessRigs
 
+    factory = functools.partial(make_rig, settings, cameras, seed=seed, clean_counts={})
+    if settings.cluster:
+        from ..ray_rigs import RayRigs
+
+        return RayRigs(factory, max(1, settings.batch), settings.render_workers, cluster=settings.cluster)
     if settings.render_workers:
-        factory = functools.partial(make_rig, settings, cameras, seed=seed, clean_counts={})
         return ProcessRigs(factory, max(1, settings.batch), settings.render_workers)
     return LocalRigs(rig_pool(settings, cameras, seed=seed))
+
+
+def renderer(settings: Settings, local, name: str):
+    """``local`` (a render function), or with ``settings.cluster`` its Ray
+    form, :mod:`jaxrecog.ray_render`'s ``name``, on that cluster (the same files)."""
+    if not settings.cluster:
+        return local
+    from .. import ray_render
+
+    return functools.partial(getattr(ray_render, name), settings.cluster)

@@ -94,6 +94,10 @@ def run_case(
         raise ValueError(f"unknown case {name!r}; choose one of {', '.join(CASES)}")
     case = CASES[name]
     settings = case_settings(case, settings)
+    if settings.cluster:  # a cluster that is not there: said before anything renders or trains
+        from ..cluster import connect
+
+        connect(settings.cluster)
     prepared = prepared or prepare(settings, progress=progress, databases=(case.database,))
     model = case_model(prepared, case)
     probe = make_rig(settings, case.cameras, seed=settings.seed)  # the table and geometry, here

@@ -26,6 +26,7 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 from .._fieldtypes import check_settings
+from ..cluster import check_cluster
 from ..augment import AugmentParams
 from ..kernels import likelihood_class, likelihood_names
 from ..kernels.adaptive_scale import scale_grid
@@ -66,7 +67,7 @@ FIELDS: tuple[str, ...] = (
     "workdir", "trials_per_object", "seed", "samples", "min_per_stratum", "batch", "n_components",
     "samples_per_image", "p_threshold", "max_steps", "capture_noise", "transition", "stride", "min_views",
     "exclude_visited_positions", "adaptive_scale", "shared_view", "motion_cost", "devices", "render_workers",
-    "off_grid_deg", "off_grid_eye", "off_grid_light", "likelihood", "likelihood_options", "max_rotation",
+    "cluster", "off_grid_deg", "off_grid_eye", "off_grid_light", "likelihood", "likelihood_options", "max_rotation",
     "max_scale", "blur_sigma", "gain_amplitude", "gain_cells", "occluder_gray", "max_shift", "view_jitter",
     "view_jitter_deg", "interpolate", "interpolation",
 )
@@ -133,7 +134,12 @@ class Settings:
         render_workers: render the synthetic rig's captures in this many
             worker processes (:func:`~jaxrecog.campaigns.rigs.capture_pool`); 0 = in this process (the
             default).  The results are the same; on a rendered rig the
-            captures are most of a campaign's time.
+            captures are most of a campaign's time.  With ``cluster``: the
+            number of Ray workers (0 = one per CPU of the cluster).
+        cluster: run the campaign (and render its database) on Ray:
+            ``"ray"`` (a local Ray instance) or ``"ray://HOST:PORT"`` (a
+            running cluster; :mod:`jaxrecog.cluster`, ``docs/cluster.md``);
+            ``None`` = this machine (the default).  The results are the same.
         off_grid_deg, off_grid_eye, off_grid_light: off-grid captures
             (:class:`~jaxrecog.hardware.render.synthetic.OffGrid`): the bound of each
             trial's object yaw offset (degrees), the per-capture eye offset and
@@ -190,6 +196,7 @@ class Settings:
     motion_cost: float = 0.0
     devices: int = 1
     render_workers: int = 0
+    cluster: str | None = None
     off_grid_deg: float | None = None
     off_grid_eye: float | None = None
     off_grid_light: float | None = None
@@ -268,6 +275,7 @@ def _check(flat: dict[str, Any]) -> dict[str, Any]:
     as sorted pairs, float pairs, float off-grid amounts."""
     check_settings(flat, _TYPES)  # every value's type (and plain ranges) first
     flat["workdir"] = Path(flat["workdir"])
+    flat["cluster"] = check_cluster(flat["cluster"])
     _check_training(flat)
     _check_view_jitter(flat)
     flat["motion_cost"] = check_weight(flat["motion_cost"])

@@ -13,6 +13,7 @@ from ..modelfile import save_model
 from .dataset import run_dataset
 from .naming import training_params, turntable_dir, turntable_model_path
 from .preparation import Prepared, cached_model_is_fresh, progress_bar, train_for
+from .rigs import renderer
 from .reports import CaseReport
 from .settings import Settings
 
@@ -50,10 +51,11 @@ def prepare_turntable(settings: Settings, n_objects: int = 50, cameras: int = 1,
         total = cameras * (360 // step_deg) * n_objects * poses * (1 + test_per_view + calib_per_view)
         t0 = time.perf_counter()
         with progress_bar(total, f"render {db_dir.name}", progress) as bar:
-            render_turntable(db_dir, objects, cameras=cameras, step_deg=step_deg, poses=poses,
-                             test_per_view=test_per_view, calib_per_view=calib_per_view, occluders=occluded,
-                             jitter_per_view=jitter, jitter_offset=settings.view_jitter_deg if jitter else None,
-                             seed=settings.seed, progress=bar.update)
+            render = renderer(settings, render_turntable, "render_turntable_on")
+            render(db_dir, objects, cameras=cameras, step_deg=step_deg, poses=poses,
+                   test_per_view=test_per_view, calib_per_view=calib_per_view, occluders=occluded,
+                   jitter_per_view=jitter, jitter_offset=settings.view_jitter_deg if jitter else None,
+                   seed=settings.seed, progress=bar.update)
         (db_dir / "rig.json").write_text(json.dumps(
             {"turntable": True, "objects": f"random:{n_objects}", "object_seed": object_seed, "cameras": cameras,
              "poses": poses, "step_deg": step_deg, "positions": [360 // step_deg] * cameras,

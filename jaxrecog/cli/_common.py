@@ -14,7 +14,7 @@ from ..modelfile import load_model, load_model_meta
 from ..recipes import recipe_from_meta
 
 __all__ = ["CLIError", "UsageError", "fmt_cfg", "format_table", "key", "model_doc", "model_positions", "model_report",
-           "print_table", "synthetic_rig"]
+           "print_table", "synthetic_rig", "synthetic_rig_factory"]
 
 
 class CLIError(Exception):
@@ -58,6 +58,13 @@ def _table(cameras: int, stride: int) -> CameraTable:
 
 def synthetic_rig(args, **kw) -> SyntheticRig:
     """The synthetic rig of the layout options (``--cameras/--stride/--objects/--poses``)."""
+    return synthetic_rig_factory(args, **kw)()
+
+
+def synthetic_rig_factory(args, **kw):
+    """A picklable callable that builds :func:`synthetic_rig`'s rig (for Ray tasks)."""
+    import functools
+
     if isinstance(args.objects, str):  # "random:N" (_options.object_choice)
         from ..hardware.render.random_objects import parse_objects, random_objects
 
@@ -68,7 +75,7 @@ def synthetic_rig(args, **kw) -> SyntheticRig:
         if args.objects > len(objs):
             raise UsageError(f"--objects {args.objects}: the synthetic scene has {len(objs)} objects")
         objs = objs[: args.objects]
-    return SyntheticRig(_table(args.cameras, args.stride), objects=objs, n_poses=args.poses, **kw)
+    return functools.partial(SyntheticRig, _table(args.cameras, args.stride), objects=objs, n_poses=args.poses, **kw)
 
 
 def _calibration_lines(model) -> list[str]:

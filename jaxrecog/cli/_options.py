@@ -9,7 +9,7 @@ from ..planners import DEFAULT_MIN_PER_STRATUM, planner_names
 __all__ = [
     "PLANNERS", "Formatter", "config_tuple", "int_at_least", "positive", "nonneg", "object_choice", "probability",
     "global_options", "table_options", "planner_size_options", "skip_invalid_option",
-    "motion_weight", "adaptive_scale", "choice_options", "render_workers_option", "likelihood_options", "capture_options", "view_jitter_option",
+    "motion_weight", "adaptive_scale", "choice_options", "render_workers_option", "cluster_option", "likelihood_options", "capture_options", "view_jitter_option",
     "render_jitter_options", "render_jitter_values",
     "likelihood_choice", "given_likelihood_options", "default_likelihood", "capture_params", "nu_value",
     "sigma_range", "bounded",
@@ -153,6 +153,23 @@ def render_workers_option(p: argparse.ArgumentParser, *, default: int | None) ->
                    help="render the synthetic rig's captures in N worker processes, side by side (the results "
                         "are the same; rendering is most of a campaign's time; 0 = in this process; default "
                         f"{default if default is not None else 0})")
+
+
+def cluster_spec(text: str) -> str | None:
+    """``--cluster``'s argparse type: ``ray`` or ``ray://HOST:PORT`` (:func:`jaxrecog.cluster.check_cluster`)."""
+    from ..cluster import check_cluster
+
+    try:
+        return check_cluster(text)
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
+
+
+def cluster_option(p: argparse.ArgumentParser, what: str) -> None:
+    """``--cluster SPEC`` (``experiment``, ``render``, the campaign scripts)."""
+    p.add_argument("--cluster", type=cluster_spec, metavar="SPEC", default=None,
+                   help=f"{what} on Ray: 'ray' starts a local Ray instance, 'ray://HOST:PORT' joins a running "
+                        "cluster (docs/cluster.md; needs the 'cluster' extra); the results are the same as here")
 
 
 def global_options(parser: argparse.ArgumentParser, suppress: bool) -> None:

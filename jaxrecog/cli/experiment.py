@@ -22,7 +22,7 @@ from ._json import SCHEMA_VERSION, json_option, run_reporting
 from ._options import (PLANNERS, capture_options, capture_params, choice_options, default_likelihood, gray_range,
                        model_recipe, nonneg, probability, sigma_range,
                        given_likelihood_options, likelihood_options, positive, render_jitter_options,
-                       render_jitter_values, render_workers_option)
+                       render_jitter_values, render_workers_option, cluster_option)
 from ._reports import QUICK, make_settings, trace_plot, write_report
 
 NAME = "experiment"
@@ -82,6 +82,8 @@ def add_arguments(p) -> None:
                    help="shard each lockstep batch over N devices (GPUs; the batch is rounded up to a multiple "
                         "of N; the results are the same as on one device; default 1)")
     render_workers_option(p, default=None)
+    cluster_option(p, "run the campaign (and render the case's database; --render-workers: Ray workers, 0 = "
+                      "one per CPU)")
     choice_options(p, unset=True)
     g = p.add_argument_group("training of the case's models (thesis cases; each choice has its own cached models)")
     likelihood_options(g)
@@ -250,7 +252,8 @@ def _resolve(args) -> _Resolved:
     over = {"trials_per_object": args.trials, "samples": args.samples,
             "min_per_stratum": args.min_per_stratum, "batch": args.batch, "seed": args.seed,
             "stride": args.stride, "devices": args.devices,
-            "render_workers": args.render_workers, "exclude_visited_positions": args.exclude_visited,
+            "render_workers": args.render_workers, "cluster": args.cluster,
+            "exclude_visited_positions": args.exclude_visited,
             "shared_view": args.shared_view, "motion_cost": args.motion_cost, "min_views": args.min_views,
             "p_threshold": args.threshold, "adaptive_scale": args.adaptive_scale}
     values.update({k: v for k, v in over.items() if v is not None})
@@ -276,7 +279,7 @@ def _resolve(args) -> _Resolved:
         settings = make_settings(values, args.case or "experiment")
     except ValueError as e:
         raise UsageError(str(e)) from None
-    if dataset and settings.render_workers:
+    if dataset and settings.render_workers and not settings.cluster:
         raise UsageError("--render-workers renders the synthetic rig; a replayed database is not rendered")
     if dataset and settings.motion_cost > 0:
         raise UsageError("--motion-cost needs the rig's geometry (travel times); a replayed database has none")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import json
 import time
 from pathlib import Path
@@ -9,8 +10,8 @@ from pathlib import Path
 from ..scene import CAPTURE_NOISE
 from ..hardware import Noise, render_database
 from .._progress import bar
-from ._common import UsageError, synthetic_rig
-from ._options import nonneg, positive, table_options
+from ._common import UsageError, synthetic_rig, synthetic_rig_factory
+from ._options import cluster_option, nonneg, positive, table_options
 
 NAME = "render"
 ORDER = 10
@@ -40,6 +41,7 @@ def add_arguments(p) -> None:
                    help="held-out 'calib' images per view (small object yaw, camera offset, lighting and "
                         "noise perturbations), for `train --calibrate`; default 0, with --turntable 1")
     p.add_argument("--seed", type=int, default=0, help="seed of the test and calib perturbations")
+    cluster_option(p, "render")
     g = p.add_argument_group("turntable set (--turntable)")
     g.add_argument("--turntable", action="store_true",
                    help="a turntable layout: camera(s) on a circle around the object, --step degrees apart "
@@ -69,10 +71,15 @@ def run(args) -> int:
         n_train = sum(rig.positions) * rig.n_objects * rig.n_poses
         total = n_train * (1 + test_per_view + calib_per_view)
         with bar(total, "render", "img") as b:
-            manifest = render_database(args.out, rig=rig, test_per_view=test_per_view,
-                                       test_noise=Noise(*CAPTURE_NOISE),
-                                       test_occluders=args.test_occluders, seed=args.seed,
-                                       calib_per_view=calib_per_view, progress=b.update)
+            kw = dict(test_per_view=test_per_view, test_noise=Noise(*CAPTURE_NOISE), test_occluders=args.test_occluders,
+                      seed=args.seed, calib_per_view=calib_per_view, progress=b.update)
+            if args.cluster:
+                from ..ray_render import render_database_on
+
+                factory = synthetic_rig_factory(args, seed=args.seed)
+                manifest = render_database_on(args.cluster, args.out, rig_factory=factory, **kw)
+            else:
+                manifest = render_database(args.out, rig=rig, **kw)
         layout = {"cameras": args.cameras, "stride": args.stride, "objects": args.objects,
                   "poses": args.poses, "positions": list(rig.positions)}
         if isinstance(args.objects, str):
@@ -105,6 +112,10 @@ def _turntable(args, test_per_view: int, calib_per_view: int, t0: float) -> int:
     n_pos = 360 // args.step
     per_view = 1 + args.jitter_per_view + test_per_view + calib_per_view
     total = cameras * n_pos * n * args.poses * per_view
+    if args.cluster:
+        from ..ray_render import render_turntable_on
+
+        render_turntable = functools.partial(render_turntable_on, args.cluster)
     with bar(total, "render", "img") as b:
         manifest = render_turntable(args.out, objects, cameras=cameras, step_deg=args.step, poses=args.poses,
                                     test_per_view=test_per_view, calib_per_view=calib_per_view,
