@@ -6,7 +6,8 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 OUTDIR ?= out/demo
 # test workers: one per core, at most 4 (each holds its own JAX and session
-# fixtures); `make test JOBS=0` runs the suite in this one process
+# fixtures); `make test JOBS=0` runs the suite in this one process.  Each
+# worker takes whole files, the slowest first (tests/timeline_order.py)
 JOBS   ?= $(shell n=$$(nproc 2>/dev/null || echo 2); [ $$n -gt 4 ] && n=4; echo $$n)
 
 .PHONY: demo test venv bench clean
@@ -23,7 +24,7 @@ demo: $(STAMP)
 	$(BIN)/jaxrecog demo --out $(OUTDIR)
 
 test: $(STAMP)
-	$(BIN)/python -m pytest -q -n $(JOBS) --dist loadfile $(PYTEST_ARGS)
+	$(BIN)/python -m pytest -q -n $(JOBS) --dist loadfile --no-loadscope-reorder $(PYTEST_ARGS)
 
 bench: $(STAMP)
 	$(BIN)/jaxrecog bench --out out/bench

@@ -309,6 +309,8 @@ def _timeline() -> None:
     out = Path(folder) / f"{worker}.tsv"
     out.parent.mkdir(parents=True, exist_ok=True)
     programs = open(Path(folder) / f"{worker}.programs.tsv", "a", buffering=1)
+    with open(Path(folder) / f"{worker}.events.tsv", "a") as f:
+        f.write(f"{time.time():.3f}\tconftest\n")
     current = [""]
 
     class Programs(logging.Handler):  # "Finished XLA compilation of NAME in S sec" (cache hits included)
@@ -330,7 +332,23 @@ def _timeline() -> None:
         with open(out, "a") as f:
             f.write(f"{start:.3f}\t{time.time():.3f}\t{compiled[0] - before:.3f}\t{item.nodeid}\n")
 
+    def pytest_sessionfinish(session):  # what follows the last test: fixtures' teardown, the exit
+        with open(Path(folder) / f"{worker}.events.tsv", "a") as f:
+            f.write(f"{time.time():.3f}\tsessionfinish\n")
+        atexit.register(lambda: open(Path(folder) / f"{worker}.events.tsv", "a").write(f"{time.time():.3f}\texit\n"))
+
     globals()["pytest_runtest_protocol"] = pytest_runtest_protocol
+    globals()["pytest_sessionfinish"] = pytest_sessionfinish
 
 
 _timeline()
+
+
+def pytest_collection_modifyitems(config, items):
+    """The slowest test files first (tests/timeline_order.py: the workers of
+    ``make test`` take whole files in this order)."""
+    from timeline_order import listed
+
+    rank = listed()
+    last = len(rank)
+    items.sort(key=lambda item: rank.get(item.nodeid.split("::")[0], last))  # stable: the rest keep their order
