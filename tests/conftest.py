@@ -57,6 +57,27 @@ def _share_compilations() -> None:
 
 _share_compilations()
 
+
+def _skip_jax_exit_cleanup() -> None:
+    """No ``jax._src.api.clean_up`` when a test process exits.
+
+    JAX registers it with ``atexit``: it clears every cache of compiled
+    programs one by one.  A test worker ends the run holding thousands of
+    them (each test builds its own recognizers), and the clean-up took ~7 s,
+    during which xdist's controller waits for the worker to go (measured with
+    ``JAXRECOG_TEST_TIMELINE``: the last test ended 9 s before the summary).
+    The operating system frees the memory at exit either way; the CPU backend
+    holds nothing else that must be released.  Subprocesses (the CLI under
+    test) keep JAX's behaviour."""
+    from jax._src import api
+
+    clean_up = getattr(api, "clean_up", None)
+    if clean_up is not None:
+        atexit.unregister(clean_up)
+
+
+_skip_jax_exit_cleanup()
+
 #: XLA flags of the test run.  The suite's time is compile time
 #: (tests/conftest.py::_share_compilations), and nine tenths of that is XLA's
 #: CPU backend, not JAX's tracing or lowering (measured per test with
@@ -335,10 +356,25 @@ def _timeline() -> None:
     def pytest_sessionfinish(session):  # what follows the last test: fixtures' teardown, the exit
         with open(Path(folder) / f"{worker}.events.tsv", "a") as f:
             f.write(f"{time.time():.3f}\tsessionfinish\n")
-        atexit.register(lambda: open(Path(folder) / f"{worker}.events.tsv", "a").write(f"{time.time():.3f}\texit\n"))
+        def at_exit():
+            import faulthandler
+
+            with open(Path(folder) / f"{worker}.events.tsv", "a") as f:
+                f.write(f"{time.time():.3f}\texit\n")
+            # a process still alive 2 s later: where it waits (xdist's controller waits up to 10 s for it)
+            stacks = open(Path(folder) / f"{worker}.exit-stacks.txt", "w")
+            faulthandler.dump_traceback_later(2.0, file=stacks)
+
+        atexit.register(at_exit)
+
+    def pytest_testnodedown(node, error):  # the controller: a worker is gone
+        with open(Path(folder) / f"{worker}.events.tsv", "a") as f:
+            f.write(f"{time.time():.3f}\tnodedown {node.gateway.id}\n")
 
     globals()["pytest_runtest_protocol"] = pytest_runtest_protocol
     globals()["pytest_sessionfinish"] = pytest_sessionfinish
+    if worker == "main":
+        globals()["pytest_testnodedown"] = pytest_testnodedown
 
 
 _timeline()
