@@ -158,3 +158,35 @@ def test_recognize_and_experiment_take_the_stop_rule_from_the_model(photo_db, ro
                 "--planners", "random", "--min-views", "1", "--threshold", "0.9")
     s = json.loads((out / "case_dataset.json").read_text())["settings"]
     assert (s["min_views"], s["exclude_visited_positions"], s["p_threshold"]) == (1, True, 0.9)
+
+
+def test_plan_weighs_the_images_as_recognize_does(photo_db, robust_model, tmp_path):
+    """``plan --images`` holds the belief the recognizer of ``recognize`` holds
+    after those images: the model's recipe's adaptive scale, or --adaptive-scale."""
+    import cv2
+    import jax.random as jr
+
+    from jaxrecog.recognizer_factory import make_recognizer
+
+    db = photo_db / "db"
+    rows = [r.split(",") for r in (db / "manifest.csv").read_text().splitlines()[1:]]
+    path, position = next((r[0], int(r[2])) for r in rows if r[5] == "test" and r[3] == "1")
+    img = cv2.imread(str(db / path), cv2.IMREAD_GRAYSCALE).astype(np.float32)
+    odd = np.clip(0.6 * img + 90.0, 0, 255).astype(np.uint8)  # washed out: no class explains it at scale 1
+    cv2.imwrite(str(tmp_path / "odd.png"), odd)
+    model = load_model(robust_model)
+    recipe = recipe_from_meta(load_model_meta(robust_model))
+    assert recipe.adaptive_scale > 1
+    got = {}
+    for flags, scale in (((), recipe.adaptive_scale), (("--adaptive-scale", "1"), 1.0)):
+        p = run_cli("plan", robust_model, "--planner", "random", "--images", tmp_path / "odd.png",
+                    "--at", str(position), "--json", *flags)
+        assert p.returncode == 0, p.stderr
+        doc = json.loads(p.stdout)
+        assert doc["adaptive_scale"] == scale
+        rec = make_recognizer(model, "random", recipe=recipe.replace(adaptive_scale=scale))
+        _, dec = rec.step(rec.init(config=(position,)), np.asarray(odd, np.float32)[None], jr.PRNGKey(0))
+        assert (doc["images"]["object"], doc["images"]["pose"]) == (int(dec.object), int(dec.pose))
+        np.testing.assert_allclose(doc["images"]["probability"], float(dec.probability), rtol=1e-5)
+        got[scale] = doc["images"]["probability"]
+    assert got[recipe.adaptive_scale] < got[1.0]  # weakened evidence: a less certain belief

@@ -126,6 +126,8 @@ def _schemas() -> dict[str, dict[str, Key]]:
         "samples": Key("integer", "--samples"),
         "min_per_stratum": Key("integer", "--min-per-stratum"),
         "seed": Key("integer", "--seed"),
+        "adaptive_scale": Key("number", "--adaptive-scale (default the model's recipe's): how the --images "
+                                        "were weighed (1 = off)"),
         "positions": Key("array", "positions per camera", items="integer"),
         "belief": Key("string", '"uniform" or "images" (the belief after --images at --at)'),
         "images": _obj("the --images and the belief after them; null for the uniform belief", {

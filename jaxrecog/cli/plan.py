@@ -14,7 +14,8 @@ from ..recognizer_factory import make_recognizer
 from ._common import UsageError, fmt_cfg, format_table, key, model_positions
 from ._images import read_gray, usable
 from ._json import SCHEMA_VERSION, json_option, run_reporting
-from ._options import PLANNERS, config_tuple, model_recipe, planner_size_options, positive, skip_invalid_option
+from ._options import (PLANNERS, adaptive_scale, config_tuple, model_recipe, planner_size_options, positive,
+                       skip_invalid_option)
 
 NAME = "plan"
 ORDER = 40
@@ -32,6 +33,10 @@ def add_arguments(p) -> None:
                         "(default: score the uniform belief)")
     p.add_argument("--at", type=config_tuple, metavar="V1,V2",
                    help="configuration the --images were taken at (one position per camera)")
+    p.add_argument("--adaptive-scale", type=adaptive_scale, metavar="S", default=None,
+                   help="the evidence of --images as recognize weighs it: a capture that no class explains is "
+                        "weakened by a variance factor up to S (default: the model's recipe's: robust 32, "
+                        "thesis 1 = off)")
     planner_size_options(p)
     skip_invalid_option(p)
     p.add_argument("--top", type=positive, default=10, help="how many configurations to list")
@@ -58,8 +63,11 @@ def _ranking(scores, positions, top: int) -> list[dict]:
 
 
 def _report(args) -> tuple[dict, str]:
+    recipe = model_recipe(args.model)   # the planner and the evidence: the model's recipe unless an option gives them
     if args.planner is None:
-        args.planner = model_recipe(args.model).planner
+        args.planner = recipe.planner
+    if args.adaptive_scale is None:
+        args.adaptive_scale = recipe.adaptive_scale
     model = load_model(args.model)
     positions = model_positions(model)
     imgs = None
@@ -75,8 +83,10 @@ def _report(args) -> tuple[dict, str]:
     elif args.at is not None:
         raise UsageError("--at is only used with --images")
     k_plan, k_score = jr.split(key(args.seed))
-    # the recognizer's defaults (the thesis's stop rule and evidence), as plan has always scored
-    rec = make_recognizer(model, args.planner, key=k_plan, samples=args.samples, min_per_stratum=args.min_per_stratum)
+    # the recognizer `recognize` builds from this model (its recipe's evidence and stop rule), so the belief
+    # after --images is the one its first step would hold; the scores are the planner's, before any exclusion
+    rec = make_recognizer(model, args.planner, recipe=recipe.replace(adaptive_scale=args.adaptive_scale), key=k_plan,
+                          samples=args.samples, min_per_stratum=args.min_per_stratum)
     planner = rec.planner
     images = None
     if imgs is not None:
@@ -97,6 +107,7 @@ def _report(args) -> tuple[dict, str]:
                                       label=f"{args.planner} score (higher = better)")
     doc = {"command": NAME, "schema_version": SCHEMA_VERSION, "model": str(args.model), "planner": args.planner,
            "samples": args.samples, "min_per_stratum": args.min_per_stratum, "seed": args.seed,
+           "adaptive_scale": float(args.adaptive_scale),
            "positions": list(positions), "belief": "uniform" if images is None else "images", "images": images,
            "configurations": int(np.asarray(scores).size), "best": ranking[0], "ranking": ranking,
            "written": [str(p) for p in written]}
