@@ -3,6 +3,8 @@ features, pure under jit and vmap, auto-reset, and its feature banks."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import jax.random as jr
@@ -25,12 +27,29 @@ def small():
     return db, train_model(db, kind="DB2", n_components=3, samples_per_image=10)
 
 
-def test_the_functional_belief_is_the_recognizers_on_the_same_features(small):
+def _washed_out(db):
+    """``db`` with its test images washed out and noisy: captures no class
+    explains at the model's own spread (the adaptive scale's case)."""
+    rng = np.random.default_rng(3)
+    test = db.split == "test"
+    images = db.images.astype(np.float32)
+    images[test] = 0.5 * images[test] + 90.0 + rng.normal(0.0, 12.0, images[test].shape)
+    return dataclasses.replace(db, images=np.clip(images, 0, 255).astype(np.uint8))
+
+
+@pytest.mark.parametrize("adaptive_scale", [1.0, 8.0])
+def test_the_functional_belief_is_the_recognizers_on_the_same_features(small, adaptive_scale):
     db, model = small
+    if adaptive_scale > 1:
+        db = _washed_out(db)
     bank = bank_from_database(model, db)
     assert bank.samples == 1 and bank.features[0].shape == (3, 6, 1, 3)
-    env = FunctionalEnv(model, bank, p_threshold=1.0, max_steps=5)
-    rec = Recognizer(model, make_planner("mi", model, key=jr.PRNGKey(0), samples=64), p_threshold=1.0, max_steps=5)
+    env = FunctionalEnv(model, bank, p_threshold=1.0, max_steps=5, adaptive_scale=adaptive_scale)
+    if adaptive_scale > 1:  # the captures are unexplained: the scaled evidence is not the plain one
+        plain = FunctionalEnv(model, bank, p_threshold=1.0, max_steps=5)
+        assert not np.allclose(env.tables[0], plain.tables[0], rtol=1e-3)
+    rec = Recognizer(model, make_planner("mi", model, key=jr.PRNGKey(0), samples=64), p_threshold=1.0, max_steps=5,
+                     adaptive_scale=adaptive_scale)
     rig = DatasetRig(db)
     for obj, pose, start in [(0, 1, (0, 2)), (2, 0, (1, 1)), (1, 1, (2, 0))]:
         target = obj * 2 + pose
@@ -48,7 +67,7 @@ def test_the_functional_belief_is_the_recognizers_on_the_same_features(small):
                 state, {"action": dec.next_index, "prediction": jnp.zeros(6)}, jr.PRNGKey(10 + n))
             assert not bool(done) and int(obs["views"]) == n + 2
         # the belief is not trivially uniform: the recognizer learned something
-        assert float(jnp.max(dec.trace.class_probs)) > 0.5
+        assert float(jnp.max(dec.trace.class_probs)) > (0.5 if adaptive_scale == 1 else 1 / 6)
 
 
 def test_step_reward_loss_and_auto_reset(small):
@@ -109,3 +128,5 @@ def test_bank_checks(small):
     wrong = type(bank)(tuple(f[:2] for f in bank.features))
     with pytest.raises(ValueError, match="do not fit"):
         FunctionalEnv(model, wrong)
+    with pytest.raises(ValueError, match="adaptive_scale must be a finite number >= 1"):
+        FunctionalEnv(model, bank, adaptive_scale=0.5)

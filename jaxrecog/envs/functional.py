@@ -135,19 +135,27 @@ def bank_from_rig(model, rig, samples: int, *, occluders=None, seed: int = 0) ->
     return _bank(model, cells, "the rig's captures")
 
 
-def _loglik_tables(model, bank: FeatureBank) -> tuple[Float[Array, "_V C S C _L"], ...]:
+def _loglik_tables(model, bank: FeatureBank, adaptive_scale: float = 1.0) -> tuple[Float[Array, "_V C S C _L"], ...]:
     """log p(g | c', k', v) of every bank entry g (camera i, position v, class
     c, sample s) under every class c' and level k' (eq. 4.17-4.22), computed
     once from the model, so a step is a gather and the Bayes update (the
-    thesis's offline-table trick, here for the observations)."""
+    thesis's offline-table trick, here for the observations).
+
+    With ``adaptive_scale > 1`` each entry's evidence is the recognizer's
+    adaptive one, ``log p*(g | c', k', v)`` at the entry's own profile scale
+    s*(g, v) (:mod:`jaxrecog.kernels.adaptive_scale`): s* depends on the
+    capture and the model only, never on the belief, so it is tabled too."""
     from ..recognizer import restrict_cameras
 
+    scales = K.adaptive_scale.scale_grid(adaptive_scale)
     out = []
     for i, f in enumerate(bank.features):
         one = restrict_cameras(model, (i,))
 
         def at(v, g, one=one):
-            return E.log_likelihoods(one, v[None], (g,))[0]
+            if len(scales) == 1:
+                return E.log_likelihoods(one, v[None], (g,))[0]
+            return K.adaptive_scale.adaptive_camera_log_likelihoods((g,), v[None], one.likelihoods, scales)[0][0]
 
         per_sample = jax.vmap(jax.vmap(jax.vmap(at, (None, 0)), (None, 0)), (0, 0))  # over v; c; s
         out.append(jax.jit(per_sample)(jnp.arange(f.shape[0]), f))
@@ -181,6 +189,13 @@ class FunctionalEnv(eqx.Module):
         p_threshold, max_steps: declare at P_th; truncate after ``max_steps``.
         transition, rho: the level transition (``"uniform"`` or ``"sticky"``).
         step_cost: ``base_reward = -step_cost``.
+        adaptive_scale: the recognizer's evidence of a capture no class
+            explains (``Recognizer.adaptive_scale``; 1 = off, the thesis's
+            plain Bayes update).  Pass the recipe's (the ``robust`` recipe:
+            32; ``env.unwrapped.adaptive_scale`` of an
+            :class:`~jaxrecog.envs.ActiveRecognitionEnv`) for the belief its
+            recognizer holds.  The episode rule (declare at ``p_threshold``)
+            has no ``min_views``: the agent decides when to declare.
     """
 
     model: object
@@ -191,17 +206,21 @@ class FunctionalEnv(eqx.Module):
     transition: str = eqx.field(static=True)
     rho: float = eqx.field(static=True)
     step_cost: float = eqx.field(static=True)
+    adaptive_scale: float = eqx.field(static=True)
 
     def __init__(self, model, bank: FeatureBank, *, p_threshold: float = 0.95, max_steps: int = 7,
-                 transition: str = "uniform", rho: float = 0.9, step_cost: float = 0.0):
+                 transition: str = "uniform", rho: float = 0.9, step_cost: float = 0.0,
+                 adaptive_scale: float = 1.0):
         pos = tuple(int(f.shape[0]) for f in bank.features)
         if pos != tuple(model.positions) or any(int(f.shape[1]) != model.n_classes for f in bank.features):
             raise ValueError(f"feature bank [V, C, S, K] shapes {[tuple(f.shape) for f in bank.features]} do not fit "
                              f"the model's positions {tuple(model.positions)} and {model.n_classes} classes")
         if transition not in ("uniform", "sticky"):
             raise ValueError(f"transition must be 'uniform' or 'sticky', got {transition!r}")
+        K.adaptive_scale.scale_grid(adaptive_scale)  # a finite number >= 1, or a clear error
         self.model, self.bank = model, bank
-        self.tables = _loglik_tables(model, bank)
+        self.adaptive_scale = float(adaptive_scale)
+        self.tables = _loglik_tables(model, bank, self.adaptive_scale)
         self.p_threshold, self.max_steps = float(p_threshold), int(max_steps)
         self.transition, self.rho, self.step_cost = transition, float(rho), float(step_cost)
 
