@@ -302,3 +302,40 @@ def test_campaign_steps_skip_the_planner_on_stopping_steps_and_give_the_same_tri
     assert all(r.object_probs for r in traced)  # (what a trace adds; nothing else may differ)
     untraced = [dataclasses.replace(r, object_probs=()) for r in traced]
     assert sorted(results, key=lambda r: r.trial) == sorted(untraced, key=lambda r: r.trial)
+
+
+def test_a_campaign_step_crosses_between_configuration_and_flat_index_twice(monkeypatch):
+    """Issue 29's target: in one campaign step the configuration crosses
+    between its tuple and its flat index at most twice (docs/architecture.md,
+    "The data path of one campaign step"): inside the compiled step, the
+    current configuration's index (the visited set) and the chosen index's
+    configuration; the host passes configurations as they are."""
+    from builders import make_database
+
+    from jaxrecog import train_model
+    from jaxrecog.driver import batched_step
+    from jaxrecog.hardware import DatasetRig
+    from jaxrecog.kernels.config_grid import ConfigGrid
+
+    db = make_database(positions=(3, 2), n_objects=2, n_poses=2, image_shape=(16, 20), n_test=1)
+    model = train_model(db, kind="DB1", n_components=2, samples_per_image=4)
+    rec = Recognizer(model, RandomPlanner(6), p_threshold=0.999, max_steps=4)
+    calls = []
+    for name in ("index", "configuration"):
+        def counted(self, x, *args, _orig=getattr(ConfigGrid, name), _name=name, **kw):
+            calls.append((_name, any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves(x))))
+            return _orig(self, x, *args, **kw)
+
+        monkeypatch.setattr(ConfigGrid, name, counted)
+    # one step program, traced once: the crossings every step executes
+    states = jax.tree.map(lambda x: jnp.stack([x] * 2), rec.init(config=(0, 0)))
+    args = (states, jnp.ones(2, bool), jnp.zeros((2, 2), jnp.int32), jnp.zeros((2, 2, 16, 20), jnp.uint8),
+            jr.PRNGKey(0), jnp.arange(2), jnp.zeros(2, jnp.int32))
+    jax.make_jaxpr(batched_step(rec))(*args)
+    assert calls == [("index", True), ("configuration", True)]
+    # a campaign of such steps: the host never converts
+    calls.clear()
+    specs = [TrialSpec(t, t % 2, t % 2, (t % 3, t % 2)) for t in range(6)]
+    results = run_trials(rec, DatasetRig(db), specs, key=jr.PRNGKey(1), batch=2)
+    assert len(results) == 6 and sum(r.steps for r in results) > 6
+    assert [c for c in calls if not c[1]] == []
