@@ -46,6 +46,7 @@ from jaxtyping import Array, Float, PRNGKeyArray
 
 from . import kernels as K
 from .kernels import tempered_mi as _tempered_mi
+from .table_cache import divergence_tables
 
 __all__ = [
     "Planner",
@@ -196,7 +197,7 @@ class PairwiseMIPlanner(Planner):
             raise ValueError(f"levels must be 'belief' or 'uniform', got {levels!r}")
         if target not in ("state", "class"):
             raise ValueError(f"target must be 'state' or 'class', got {target!r}")
-        tables = K.pairwise_tables(model.likelihoods, kind=divergence)
+        tables = divergence_tables(model.likelihoods, divergence)
         return cls(_n_configs(model), tables, target, levels)
 
     def scores(self, prior, key):
@@ -329,7 +330,7 @@ class LookaheadMIPlanner(Planner):
             raise ValueError(f"top_k = {top_k}: a lookahead over more first configurations than exist "
                              f"(A = {n}); need 1 <= top_k <= A")
         tables = _tables(model, key, samples, "full", min_per_stratum)._replace(ld_max=None, ld_exp=None)
-        pairwise = K.pairwise_tables(model.likelihoods, kind=divergence)
+        pairwise = divergence_tables(model.likelihoods, divergence)
         return cls(n, tables, pairwise, target, int(top_k), int(outcomes), transition, float(rho), batch_size)
 
     def with_transition(self, kind, rho):

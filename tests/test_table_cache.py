@@ -1,0 +1,59 @@
+"""The divergence tables of the pairwise planners, built once per model in a
+process (jaxrecog.table_cache): a hit for the same likelihoods by content
+(another load of the same file), a miss for another divergence or another
+model, the same values as a fresh build, nothing cached under a trace."""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxrecog import kernels as K
+from jaxrecog import table_cache
+from jaxrecog.modelfile import load_model, save_model
+from jaxrecog.planners import make_planner
+
+
+@pytest.fixture
+def model_file(moving_model, tmp_path):
+    table_cache.clear()
+    yield save_model(tmp_path / "m.npz", moving_model[1])
+    table_cache.clear()
+
+
+def test_a_second_load_of_the_same_model_hits(model_file):
+    first = make_planner("mi-class-pairwise", load_model(model_file), key=jax.random.PRNGKey(0))
+    second = make_planner("mi-class-pairwise-stable", load_model(model_file), key=jax.random.PRNGKey(0))
+    assert second.tables is first.tables
+    fresh = K.pairwise_tables(load_model(model_file).likelihoods)
+    for a, b in zip(jax.tree.leaves(first.tables), jax.tree.leaves(fresh)):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_another_divergence_or_model_misses(model_file):
+    model = load_model(model_file)
+    bhat = table_cache.divergence_tables(model.likelihoods)
+    kl = table_cache.divergence_tables(model.likelihoods, "kl")
+    assert kl is not bhat and table_cache.divergence_tables(model.likelihoods) is bhat
+    lik = model.likelihoods[0]
+    moved = eqx.tree_at(lambda x: x.mu, lik, lik.mu + 1.0)  # another model: other contents, same shapes
+    other = table_cache.divergence_tables((moved,) + tuple(model.likelihoods[1:]))
+    assert other is not bhat
+    # KEEP = 2: the least recently used (kl) went, bhattacharyya (used again above) stayed
+    assert table_cache.divergence_tables(model.likelihoods) is bhat
+    assert table_cache.divergence_tables(model.likelihoods, "kl") is not kl
+
+
+def test_nothing_is_cached_under_a_trace(model_file):
+    model = load_model(model_file)
+
+    @jax.jit
+    def first_entry(likelihoods):
+        return table_cache.divergence_tables(likelihoods).log_w[0][0, 0, 0, 0, 0]
+
+    value = first_entry(tuple(model.likelihoods))
+    assert table_cache._cache == {}
+    assert jnp.isfinite(value)
