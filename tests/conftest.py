@@ -12,6 +12,7 @@ import contextlib
 import itertools
 import os
 import shutil
+import sys
 import tempfile
 from pathlib import Path
 
@@ -58,17 +59,22 @@ def _share_compilations() -> None:
 _share_compilations()
 
 
-def _skip_jax_exit_cleanup() -> None:
-    """No ``jax._src.api.clean_up`` when a test process exits.
+def _quick_exit() -> None:
+    """A test process exits without tearing its JAX state down.
 
-    JAX registers it with ``atexit``: it clears every cache of compiled
-    programs one by one.  A test worker ends the run holding thousands of
-    them (each test builds its own recognizers), and the clean-up took ~7 s,
-    during which xdist's controller waits for the worker to go (measured with
-    ``JAXRECOG_TEST_TIMELINE``: the last test ended 9 s before the summary).
-    The operating system frees the memory at exit either way; the CPU backend
-    holds nothing else that must be released.  Subprocesses (the CLI under
-    test) keep JAX's behaviour."""
+    A test worker ends the run holding thousands of compiled programs (each
+    test builds its own recognizers).  Tearing them down took 8-10 s at exit
+    (JAX's ``atexit`` ``clean_up`` clearing its caches one by one, then the
+    interpreter's finalisation in C), while xdist's controller waited for the
+    worker to go: measured with ``JAXRECOG_TEST_TIMELINE`` (its stacks of a
+    worker still alive 2 s after its exit handlers: in ``clear_all_caches``,
+    then in no Python frame), the last worker's end to the summary took 10 s.
+    The operating system frees the memory either way.  So: no ``clean_up``
+    in any test process, and an xdist worker, whose results have all gone to
+    the controller by the time the interpreter exits, leaves with
+    ``os._exit`` once its output is flushed (registered at the end of the
+    session, so this handler runs before the others).  Subprocesses (the CLI
+    under test) keep JAX's behaviour."""
     from jax._src import api
 
     clean_up = getattr(api, "clean_up", None)
@@ -76,7 +82,25 @@ def _skip_jax_exit_cleanup() -> None:
         atexit.unregister(clean_up)
 
 
-_skip_jax_exit_cleanup()
+_quick_exit()
+
+
+#: more to do at the end of the session (the timeline's records); their exit
+#: handlers are registered after ``leave``, so they run before it
+_AT_SESSION_FINISH = []
+
+
+def pytest_sessionfinish(session, exitstatus):
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        def leave():
+            for stream in (sys.stdout, sys.stderr):
+                with contextlib.suppress(Exception):
+                    stream.flush()
+            os._exit(0)
+
+        atexit.register(leave)
+    for finish in _AT_SESSION_FINISH:
+        finish()
 
 #: XLA flags of the test run.  The suite's time is compile time
 #: (tests/conftest.py::_share_compilations), and nine tenths of that is XLA's
@@ -353,7 +377,7 @@ def _timeline() -> None:
         with open(out, "a") as f:
             f.write(f"{start:.3f}\t{time.time():.3f}\t{compiled[0] - before:.3f}\t{item.nodeid}\n")
 
-    def pytest_sessionfinish(session):  # what follows the last test: fixtures' teardown, the exit
+    def session_finish():  # what follows the last test: fixtures' teardown, the exit
         with open(Path(folder) / f"{worker}.events.tsv", "a") as f:
             f.write(f"{time.time():.3f}\tsessionfinish\n")
         def at_exit():
@@ -372,7 +396,7 @@ def _timeline() -> None:
             f.write(f"{time.time():.3f}\tnodedown {node.gateway.id}\n")
 
     globals()["pytest_runtest_protocol"] = pytest_runtest_protocol
-    globals()["pytest_sessionfinish"] = pytest_sessionfinish
+    _AT_SESSION_FINISH.append(session_finish)
     if worker == "main":
         globals()["pytest_testnodedown"] = pytest_testnodedown
 
