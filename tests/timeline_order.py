@@ -39,7 +39,7 @@ def file_seconds(folder: Path) -> dict[str, float]:
     ``<worker>.tsv`` files of ``JAXRECOG_TEST_TIMELINE``."""
     seconds: dict[str, float] = defaultdict(float)
     for tsv in Path(folder).glob("*.tsv"):
-        if tsv.name.endswith(".programs.tsv"):
+        if "." in tsv.stem:  # <worker>.programs.tsv, <worker>.events.tsv
             continue
         for line in tsv.read_text().splitlines():
             start, stop, _, nodeid = line.split("\t", 3)
