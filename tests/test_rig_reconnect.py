@@ -85,7 +85,7 @@ def test_unit_not_back_in_time_fails_the_move_with_one_rig_error_and_the_rig_rec
         with pytest.raises(RigError, match=r"^pan-tilt unit of camera 1: lost its device and it did not come back "
                                            r"within reconnect_s = 0.3 s"):
             rig.move((5, 5))
-        assert time.monotonic() - t0 < 0.3 + 1.0
+        assert time.monotonic() - t0 < 0.3 + 2.5  # gives up after about reconnect_s, not a hang (slack for a loaded box)
         assert not rig.in_position and not rig.reconnects
         sim.replug(new_path=True)
         rig.move((5, 5))  # the next move finds it
