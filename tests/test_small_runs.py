@@ -96,3 +96,28 @@ def test_reproduce_thesis_script_on_a_strided_table(tmp_path, strided_workdir):
     assert len(list((work / "trials").glob("case-i-*.jsonl"))) == 4
     q = run_script("reproduce_thesis", "--case", "iv")
     assert q.returncode == 2 and "'iv'" in q.stderr and "Traceback" not in q.stderr
+
+
+def test_reproduce_thesis_takes_a_recipe():
+    """``--recipe`` (default thesis: the settings the script always built);
+    ``robust`` brings its training and stop rule, and --likelihood overrides
+    only the family."""
+    from clirun import script
+
+    from jaxrecog.kernels import DEFAULT_LIKELIHOOD
+    from jaxrecog.recipes import ROBUST
+
+    mod = script("reproduce_thesis")
+    parse = mod.build_parser().parse_args
+    thesis = mod._settings(parse(["--workdir", "w"]))
+    assert thesis.flat() == Settings(workdir="w", likelihood=DEFAULT_LIKELIHOOD, likelihood_options={}).flat()
+    assert thesis.recipe.name == "thesis"
+    robust = mod._settings(parse(["--workdir", "w", "--recipe", "robust"]))
+    assert robust.recipe.name == "robust" and robust.likelihood == ROBUST.likelihood
+    assert (robust.p_threshold, robust.min_views, robust.adaptive_scale) == (0.99, 2, 32.0)
+    diag = mod._settings(parse(["--workdir", "w", "--recipe", "robust", "--likelihood", "view-mixture"]))
+    assert diag.likelihood == "view-mixture" and diag.min_views == 2
+    with pytest.raises(ValueError, match="interpolated views are mixture components"):  # a part that contradicts
+        mod._settings(parse(["--workdir", "w", "--recipe", "robust", "--likelihood", "gaussian-diag"]))
+    with pytest.raises(SystemExit):
+        parse(["--recipe", "fast"])
