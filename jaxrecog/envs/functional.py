@@ -135,26 +135,25 @@ def bank_from_rig(model, rig, samples: int, *, occluders=None, seed: int = 0) ->
     return _bank(model, cells, "the rig's captures")
 
 
-def _loglik_tables(model, bank: FeatureBank, adaptive_scale: float = 1.0) -> tuple[Float[Array, "_V C S C _L"], ...]:
+def _loglik_tables(model, bank: FeatureBank, scales: tuple[float, ...] = (1.0,)) -> tuple[Float[Array, "_V C S C _L"], ...]:
     """log p(g | c', k', v) of every bank entry g (camera i, position v, class
     c, sample s) under every class c' and level k' (eq. 4.17-4.22), computed
     once from the model, so a step is a gather and the Bayes update (the
     thesis's offline-table trick, here for the observations).
 
-    With ``adaptive_scale > 1`` each entry's evidence is the recognizer's
-    adaptive one, ``log p*(g | c', k', v)`` at the entry's own profile scale
-    s*(g, v) (:mod:`jaxrecog.kernels.adaptive_scale`): s* depends on the
-    capture and the model only, never on the belief, so it is tabled too."""
+    ``scales`` (:func:`~jaxrecog.kernels.adaptive_scale.scale_grid`): with
+    more than ``(1,)`` each entry's evidence is the recognizer's adaptive one,
+    ``log p*(g | c', k', v)`` at the entry's own profile scale s*(g, v)
+    (:mod:`jaxrecog.kernels.adaptive_scale`; ``(1,)`` is the plain density):
+    s* depends on the capture and the model only, never on the belief, so it
+    is tabled too."""
     from ..recognizer import restrict_cameras
 
-    scales = K.adaptive_scale.scale_grid(adaptive_scale)
     out = []
     for i, f in enumerate(bank.features):
         one = restrict_cameras(model, (i,))
 
         def at(v, g, one=one):
-            if len(scales) == 1:
-                return E.log_likelihoods(one, v[None], (g,))[0]
             return K.adaptive_scale.adaptive_camera_log_likelihoods((g,), v[None], one.likelihoods, scales)[0][0]
 
         per_sample = jax.vmap(jax.vmap(jax.vmap(at, (None, 0)), (None, 0)), (0, 0))  # over v; c; s
@@ -217,10 +216,10 @@ class FunctionalEnv(eqx.Module):
                              f"the model's positions {tuple(model.positions)} and {model.n_classes} classes")
         if transition not in ("uniform", "sticky"):
             raise ValueError(f"transition must be 'uniform' or 'sticky', got {transition!r}")
-        K.adaptive_scale.scale_grid(adaptive_scale)  # a finite number >= 1, or a clear error
+        scales = K.adaptive_scale.scale_grid(adaptive_scale)  # a finite number >= 1, or a clear error
         self.model, self.bank = model, bank
         self.adaptive_scale = float(adaptive_scale)
-        self.tables = _loglik_tables(model, bank, self.adaptive_scale)
+        self.tables = _loglik_tables(model, bank, scales)
         self.p_threshold, self.max_steps = float(p_threshold), int(max_steps)
         self.transition, self.rho, self.step_cost = transition, float(rho), float(step_cost)
 
