@@ -58,6 +58,15 @@ configurations at thesis size) are computed online, each a grid of L_i rows
 for its camera (~7x less work than the whole grid).  Same formula, equal to
 rounding.
 
+Few classes: a class c whose weight P(c) is flushed to 0 (below the
+strata's weight floor, e.g. every class but a look-alike pair after a view or
+two) adds exactly 0 to the sum over the strata, though it still counts in
+every mixture over c'.  When at most ``_FEW_CLASSES`` classes have weight,
+the grid product and its log are made for those outer classes alone (the
+live ones first, in ascending order, so the sum is the same, term by term),
+under ``lax.cond``: at thesis size (C = 32) the planner's step 0.79 -> 0.64 ms
+on the 2-core CPU.
+
 No underflow fallback is needed: D(s, s) = 0 gives W_i[c, k, c] >= log P_i(k|c)
 and W_i <= 0, so E_i[c, x_i, c] >= P_i(k_i|c) and the shifted sum of stratum s
 is >= P(s); strata with a weight factor below exp(floor) are dropped (weight 0;
@@ -111,6 +120,10 @@ _GRID_LETTERS = "pqrstuvwxy"
 #: grids of at most this many entries (C x X_0 x X_1 ...) are reduced over
 #: the classes in one fusion instead of a loop over c (see :func:`_information`)
 _SMALL_GRID = 1 << 16
+
+#: at most this many classes of nonzero weight: the grid is made for them alone
+#: (module docstring, "Few classes")
+_FEW_CLASSES = 8
 
 
 class PairwiseTables(NamedTuple):
@@ -263,34 +276,53 @@ def _information(es, ms, selfs, log_pc, wks, weight_floor, patch=None):
     wg[0] = wg[0] * pc[:, None]
     letters = _GRID_LETTERS[:n]
     spec = ",".join(f"c{l}z" for l in letters) + f"->c{letters}"
-    z = jnp.einsum(spec, *es)  # [C, X_0, ..., X_{n-1}]
-    if patch is not None:
-        big, start, rows = patch
-        ops = list(es)
-        ops[big] = rows
-        starts = [jnp.zeros((), jnp.int32)] * (n + 1)
-        starts[1 + big] = start
-        z = jax.lax.dynamic_update_slice(z, jnp.einsum(spec, *ops), starts)
     tiny = float(jnp.finfo(dtype).tiny)
 
-    def body(c, acc):
-        # one fusion per class: its slice of the grid, log, weights, accumulate
-        # (only rows of weight 0 can be below tiny, module docstring)
-        logz = jnp.log(jnp.maximum(jax.lax.dynamic_index_in_dim(z, c, 0, keepdims=False), tiny))
-        for i, w in enumerate(wg):
-            wc = jax.lax.dynamic_index_in_dim(w, c, 0, keepdims=False)
-            logz = logz * row_grid.expand(wc, i)
-        return acc + logz
+    def grid_sum(es_o, wg_o, patch_o):
+        """sum over the outer classes given (the leading axis of ``es_o``,
+        ``wg_o`` and the patch's rows) of their weighted log grid ``[X_0, ...]``."""
+        z = jnp.einsum(spec, *es_o)  # [C_o, X_0, ..., X_{n-1}]
+        if patch_o is not None:
+            big, start, rows = patch_o
+            ops = list(es_o)
+            ops[big] = rows
+            starts = [jnp.zeros((), jnp.int32)] * (n + 1)
+            starts[1 + big] = start
+            z = jax.lax.dynamic_update_slice(z, jnp.einsum(spec, *ops), starts)
+        n_o = z.shape[0]
 
-    if n_c * math.prod(xs) <= _SMALL_GRID:
-        # a small grid (a slab of the uniform-class path): one fusion over all
-        # classes (the loop's per-iteration cost would dominate)
-        logz = jnp.log(jnp.maximum(z, tiny))
-        for i, w in enumerate(wg):
-            logz = logz * row_grid.expand(w, i)
-        acc = jnp.sum(logz, axis=0)
+        def body(c, acc):
+            # one fusion per class: its slice of the grid, log, weights, accumulate
+            # (only rows of weight 0 can be below tiny, module docstring)
+            logz = jnp.log(jnp.maximum(jax.lax.dynamic_index_in_dim(z, c, 0, keepdims=False), tiny))
+            for i, w in enumerate(wg_o):
+                wc = jax.lax.dynamic_index_in_dim(w, c, 0, keepdims=False)
+                logz = logz * row_grid.expand(wc, i)
+            return acc + logz
+
+        if n_o * math.prod(xs) <= _SMALL_GRID:
+            # a small grid (a slab of the uniform-class path): one fusion over all
+            # classes (the loop's per-iteration cost would dominate)
+            logz = jnp.log(jnp.maximum(z, tiny))
+            for i, w in enumerate(wg_o):
+                logz = logz * row_grid.expand(w, i)
+            return jnp.sum(logz, axis=0)
+        return jax.lax.fori_loop(0, n_o, body, jnp.zeros(xs, dtype))
+
+    if n_c > _FEW_CLASSES and n_c * math.prod(xs) > _SMALL_GRID:
+        # a class of weight 0 (P(c) flushed) adds exactly 0 to the sum: when at
+        # most _FEW_CLASSES are left (a belief after a view or two), the grid is
+        # made for them alone, in the same order (module docstring, "Few classes")
+        live = pc > 0
+
+        def few(_):
+            keep = jnp.argsort(~live, stable=True)[:_FEW_CLASSES]  # the live classes first, ascending
+            patch_o = None if patch is None else (patch[0], patch[1], patch[2][keep])
+            return grid_sum([e[keep] for e in es], [w[keep] for w in wg], patch_o)
+
+        acc = jax.lax.cond(jnp.sum(live) <= _FEW_CLASSES, few, lambda _: grid_sum(es, wg, patch), None)
     else:
-        acc = jax.lax.fori_loop(0, n_c, body, jnp.zeros(xs, dtype))
+        acc = grid_sum(es, wg, patch)
     split = sum(((v, l) for v, l in zip(positions, n_levels)), ())
     e_logp = jnp.sum(acc.reshape(split), axis=tuple(range(1, 2 * n, 2)))  # [V_0, ..., V_{n-1}]
     # sum_s P(s) sum_i M_i[c, x_i]: small contractions, one per camera

@@ -325,3 +325,60 @@ def test_zero_recompiles_after_warm_up(rng):
             for target in ("state", "class"):
                 jax.block_until_ready(fn(t, belief(), target))
     assert sum(later.values()) == 0, dict(later)
+
+
+def _few_class_beliefs(rng, n_c, levels, positions, live):
+    """Transition-form predicted priors with ``live`` classes of weight and the
+    others at log P ~ -300 (x64: below the stratum weight floor, so their
+    strata add exactly 0), and the live classes."""
+    out = []
+    for _, _, b in _transition_beliefs(rng, n_c, levels, positions)[::3]:
+        log_pc = np.asarray(b.log_pc).copy()
+        alive = np.sort(rng.permutation(n_c)[:live])
+        dead = np.setdiff1d(np.arange(n_c), alive)
+        log_pc[dead] = -300.0 - rng.random(len(dead))
+        log_pc[alive] -= np.log(np.sum(np.exp(log_pc[alive])))
+        out.append((b._replace(log_pc=jnp.asarray(log_pc)), alive))
+    return out
+
+
+@pytest.mark.parametrize("target", ["state", "class"])
+def test_few_live_classes_make_the_grid_alone(rng, x64, monkeypatch, target):
+    """A belief with at most ``_FEW_CLASSES`` classes of nonzero weight makes
+    the grid for those classes alone (the others add exactly 0): the values of
+    the whole grid's computation and of brute force, on the fast and the
+    general path; a belief with more live classes takes the whole grid.  The
+    dead classes' own rows are then never read (NaN there changes nothing)."""
+    n_c, levels, positions, dims = 6, (2, 3), (3, 2), (2, 2)
+    mus, vars = random_model(rng, n_c, levels, positions, dims, spread=1.5)
+    t = PT(gaussians(mus, vars), kind="bhattacharyya")
+    cases = [c for live in (1, 2, 3) for c in _few_class_beliefs(rng, n_c, levels, positions, live)]
+
+    def run(few, tables=t):
+        monkeypatch.setattr(pairwise_mi, "_FEW_CLASSES", few)
+        monkeypatch.setattr(pairwise_mi, "_SMALL_GRID", 0)  # the loop over classes, as at thesis size
+        f = jax.jit(K.pairwise_mutual_information, static_argnames=("target", "levels", "fast"))
+        return [[np.asarray(f(tables, b, target, fast=fast)) for fast in (True, False)] for b, _ in cases]
+
+    whole, few = run(n_c), run(2)
+    for (b, alive), w, f in zip(cases, whole, few):
+        np.testing.assert_allclose(f, w, rtol=1e-12, atol=1e-12)
+        mi = f[0]
+        for a, cfg in enumerate(np.ndindex(*positions)):
+            sub = tuple(m[v:v + 1] for m, v in zip(mus, cfg))
+            ref = pairwise_mi_ref(sub, tuple(c[v:v + 1] for c, v in zip(_covs(vars), cfg)),
+                                  np.asarray(K.log_joint(b.at(cfg))), "bhattacharyya", target)
+            np.testing.assert_allclose(mi[a], ref[0], rtol=1e-10, atol=1e-12)
+    # the dead classes' own rows (outer c) made NaN: unread where two classes live, read (-inf) where three live
+    probe = []
+    for b, alive in cases:
+        dead = np.setdiff1d(np.arange(n_c), alive)
+        poisoned = t._replace(u_exp=tuple(e.at[dead].set(jnp.nan) for e in t.u_exp))
+        monkeypatch.setattr(pairwise_mi, "_FEW_CLASSES", 2)
+        f = jax.jit(K.pairwise_mutual_information, static_argnames=("target", "levels", "fast"))
+        probe.append((len(alive), np.asarray(f(poisoned, b, target))))
+    for (live, mi), (b, _), w in zip(probe, cases, whole):
+        if live == 2:
+            np.testing.assert_allclose(mi, w[0], rtol=1e-12, atol=1e-12)
+        elif live == 3:  # the whole grid reads them (only the current positions' rows are made afresh)
+            assert np.sum(np.isneginf(mi)) >= mi.size - 1
