@@ -66,7 +66,8 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from jaxtyping import ArrayLike, Bool, Int, PRNGKeyArray, Shaped
 
 from .hardware.rigs.rig import Capture, CaptureJob, Rig, RigPool, SceneSpec  # the rig interface: all the driver needs
-from .recognizer import Decision, Recognizer, RecognizerState, StaticParts
+from .features import host_features_batch
+from .recognizer import Decision, Recognizer, RecognizerState, StaticParts, host_planes_of
 from .results import TrialResult
 
 __all__ = ["TrialSpec", "StepRecord", "run_trials", "batched_step", "trial_mesh", "TRIALS_AXIS"]
@@ -219,6 +220,7 @@ def batched_step(recognizer: Recognizer, *, vectorize: bool = False, trace: bool
     # the model and planner tables once)
     params, static = eqx.partition(recognizer, eqx.is_array)
     static = StaticParts(static)
+    planes = host_planes_of(recognizer.model)
     if mesh is not None:
         params = jax.device_put(params, NamedSharding(mesh, PartitionSpec()))
 
@@ -228,6 +230,8 @@ def batched_step(recognizer: Recognizer, *, vectorize: bool = False, trace: bool
             n = len(mesh.devices.flat)
             if len(fresh) % n:
                 raise ValueError(f"batch {len(fresh)} is not a multiple of the mesh's {n} devices")
+        images = _host_projected(planes, recognizer.model.image_shape, states, fresh, configs, images)
+        if mesh is not None:
             sh = NamedSharding(mesh, PartitionSpec(TRIALS_AXIS))
             states, fresh, configs, images, trials, steps = jax.device_put(
                 (states, fresh, configs, images, trials, steps), sh)
@@ -235,6 +239,23 @@ def batched_step(recognizer: Recognizer, *, vectorize: bool = False, trace: bool
                              vectorize=vectorize, trace=trace, mesh=mesh)
 
     return step
+
+
+def _host_projected(planes, image_shape, states: RecognizerState, fresh, configs, images):
+    """The slots' images projected on the host where the model's planes are
+    there (:func:`~jaxrecog.features.host_features_batch`, as a single
+    :meth:`Recognizer.step` does: the same features, the same decisions),
+    else the images: a continuing slot's images were taken at its state's
+    configuration, a fresh slot's at ``configs``.  Inputs whose shapes do not
+    agree go to the program as they are (it raises)."""
+    if planes is None or isinstance(states.config, jax.core.Tracer):
+        return images
+    fresh, configs, current = np.asarray(fresh), np.asarray(configs), np.asarray(states.config)
+    if not (fresh.ndim == 1 and configs.shape == current.shape and len(fresh) == len(configs)):
+        return images
+    at = np.where(fresh[:, None], configs, current)
+    feats = host_features_batch(planes, at, images, image_shape)
+    return images if feats is None else feats
 
 
 def _initial_states(recognizer: Recognizer, batch: int) -> RecognizerState:

@@ -4,7 +4,9 @@
 shapes and no Python branching on data:
 
 1. features per camera at its current position, g_i = V_iᵀ(y_i/‖y_i‖ − x̄_i)
-   (eq. 4.1-4.11);
+   (eq. 4.1-4.11) — on the host with NumPy when the step is called with
+   concrete arrays on the CPU (:func:`~jaxrecog.features.host_features`),
+   inside the program when traced;
 2. Bayes update of the factorised belief with log p(g_i | c, k_i, v_i)
    (eq. 3.1, 4.17-4.19) — an unusable image (zero energy, NaN) leaves the
    belief unchanged and sets ``Decision.valid = False``;
@@ -35,13 +37,13 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int, PRNGKeyArray, Real
 
 from . import kernels as K
-from .features import project_at
+from .features import HostFeatures, host_features, host_planes, project_at
 from .kernels.config_grid import ConfigGrid
 from .motion import MotionCost
 from .planners import Planner
 
 __all__ = ["Recognizer", "RecognizerState", "Decision", "StepTrace", "excluded_by_positions", "restrict_cameras", "image_features",
-           "check_min_views", "initial_belief", "update_from_images", "view_marginal"]
+           "check_min_views", "host_planes_of", "initial_belief", "update_from_features", "update_from_images", "view_marginal"]
 
 
 class RecognizerState(NamedTuple):
@@ -172,6 +174,17 @@ def update_from_images(model, prior: K.Belief, config: Int[ArrayLike, " n"], ima
     whether some capture was explained (always true without the adaptive scale).
     """
     gs, usable = image_features(model, config, jnp.asarray(images))
+    return update_from_features(model, prior, config, gs, usable, shared_view=shared_view,
+                                adaptive_scale=adaptive_scale)
+
+
+def update_from_features(model, prior: K.Belief, config: Int[ArrayLike, " n"], gs: Sequence[Float[ArrayLike, " _K"]],
+                         usable: Bool[ArrayLike, ""], *, shared_view: bool = False, adaptive_scale: float = 1.0
+                         ) -> tuple[K.Belief, tuple[Float[Array, " _K"], ...], Bool[Array, ""], Bool[Array, ""]]:
+    """:func:`update_from_images` from the image set's features ``gs`` (one
+    ``[K_i]`` per camera) and their validity ``usable``, as
+    :func:`image_features` or :func:`~jaxrecog.features.host_features` give them."""
+    gs = tuple(jnp.asarray(g) for g in gs)
     explained = jnp.ones((), bool)
     if shared_view:
         logliks = K.shared_latent.component_log_likelihoods(gs, config, model.likelihoods)
@@ -318,7 +331,7 @@ class Recognizer(eqx.Module):
         return RecognizerState(prior, config, jnp.zeros((), jnp.int32), jnp.zeros((self.n_configs,), bool),
                                tuple(jnp.zeros((v,), bool) for v in positions), jnp.zeros((), jnp.int32))
 
-    def step(self, state: RecognizerState, images: Real[ArrayLike, "n H W"], key: PRNGKeyArray, *,
+    def step(self, state: RecognizerState, images: Real[ArrayLike, "n H W"] | HostFeatures, key: PRNGKeyArray, *,
              trace: bool = False, plan_on_stop: bool = True) -> tuple[RecognizerState, Decision]:
         """One image set in, the belief updated, the next configuration out.
 
@@ -337,9 +350,22 @@ class Recognizer(eqx.Module):
         a plain ``jax.jit`` over the recognizer's arrays, split from its static
         part once per recognizer (:func:`_split`), so a call costs one dispatch
         and returns before the device is done (``eqx.filter_jit`` re-split the
-        recognizer and waited for the result at every call)."""
-        params, static = _split(self)
-        return _jit_step(params, static, state, images, key, bool(trace), bool(plan_on_stop))
+        recognizer and waited for the result at every call).
+
+        Called with concrete arrays on the CPU, the images are projected on the
+        host (:func:`~jaxrecog.features.host_features`: XLA's CPU projection
+        is half of a single-trial step) and the program starts from their
+        features; traced (inside a transform: the campaigns' batched step) or
+        on another device, the program projects them itself.  The two agree to
+        float32 rounding.  ``images`` may also be the
+        :class:`~jaxrecog.features.HostFeatures` of the image set (the
+        campaigns' driver projects its slots so)."""
+        params, static, planes = _split(self)
+        feats = None
+        if planes is not None and not isinstance(images, HostFeatures):
+            feats = host_features(planes, state.config, images, self.model.image_shape)
+        return _jit_step(params, static, state, images if feats is None else feats, key, bool(trace),
+                         bool(plan_on_stop))
 
     def _step(self, state: RecognizerState, images, key, trace: bool, plan_on_stop: bool
               ) -> tuple[RecognizerState, Decision]:
@@ -348,8 +374,13 @@ class Recognizer(eqx.Module):
         positions = self.positions
         # the state's own belief (over (c, m, k) with shared_view), and its
         # marginal over (c, k), which everything after the update reads
-        state_posterior, _, ok, explained = update_from_images(
-            model, state.prior, state.config, images, shared_view=self.shared_view, adaptive_scale=self.adaptive_scale)
+        if isinstance(images, HostFeatures):  # projected on the host (:meth:`step`)
+            gs, usable = images
+        else:
+            gs, usable = image_features(model, state.config, jnp.asarray(images))
+        state_posterior, _, ok, explained = update_from_features(
+            model, state.prior, state.config, gs, usable, shared_view=self.shared_view,
+            adaptive_scale=self.adaptive_scale)
         posterior = self.belief(state_posterior)
 
         pc = jnp.minimum(K.class_marginal(posterior), 1.0)   # exp of a float32 log-probability may round above 1
@@ -444,24 +475,36 @@ class StaticParts:
                 and all(a is b or bool(a == b) for a, b in zip(self._leaves, other._leaves)))
 
 
-#: id(recognizer) -> (weak reference, arrays, static part): the split of a
-#: recognizer, made once (~80 us a split on the 2-core CPU, against a ~1 ms step)
+#: id(recognizer) -> (weak reference, arrays, static part, host planes): the
+#: split of a recognizer, made once (~80 us a split on the 2-core CPU, against
+#: a ~1 ms step)
 _SPLITS: dict[int, tuple] = {}
 
 
-def _split(rec: Recognizer) -> tuple[object, StaticParts]:
-    """``(arrays, static part)`` of a recognizer, cached per live object
-    (modules are immutable); not cached while its leaves are tracers (a
+def host_planes_of(model) -> tuple[tuple[np.ndarray, np.ndarray], ...] | None:
+    """Per camera its :func:`~jaxrecog.features.host_planes` where the
+    model's bases live on the CPU, else ``None``."""
+    arrays = [a for cam in model.cameras for a in (cam.mean_image, cam.basis)]
+    if not all(isinstance(a, jax.Array) and all(d.platform == "cpu" for d in a.devices()) for a in arrays):
+        return None
+    return tuple(host_planes(cam) for cam in model.cameras)
+
+
+def _split(rec: Recognizer) -> tuple[object, StaticParts, tuple | None]:
+    """``(arrays, static part, host planes)`` of a recognizer, cached per live
+    object (modules are immutable); not cached while its leaves are tracers (a
     recognizer rebuilt inside a transform, e.g. the driver's batched step)."""
     hit = _SPLITS.get(id(rec))
     if hit is not None and hit[0]() is rec:
-        return hit[1], hit[2]
+        return hit[1], hit[2], hit[3]
     params, static = eqx.partition(rec, eqx.is_array)
     static = StaticParts(static)
-    if not any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(params)):
-        key = id(rec)
-        _SPLITS[key] = (weakref.ref(rec, lambda _, key=key: _SPLITS.pop(key, None)), params, static)
-    return params, static
+    if any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(params)):
+        return params, static, None
+    planes = host_planes_of(rec.model)
+    key = id(rec)
+    _SPLITS[key] = (weakref.ref(rec, lambda _, key=key: _SPLITS.pop(key, None)), params, static, planes)
+    return params, static, planes
 
 
 def _step_program(params, static: StaticParts, state: RecognizerState, images, key, trace: bool, plan_on_stop: bool):

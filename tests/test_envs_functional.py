@@ -59,7 +59,8 @@ def test_the_functional_belief_is_the_recognizers_on_the_same_features(small, ad
         for n in range(4):
             rig.move(tuple(int(v) for v in rstate.config))
             rstate, dec = rec.step(rstate, rig.capture().images, jr.PRNGKey(n), trace=True)
-            np.testing.assert_allclose(obs["belief"], dec.trace.class_probs, rtol=1e-5, atol=1e-7)
+            # the bank's features and the step's host projection agree to float32 rounding
+            np.testing.assert_allclose(obs["belief"], dec.trace.class_probs, rtol=1e-4, atol=1e-6)
             for lp_env, lp_rec in zip(state.belief.log_pk, dec.trace.posterior.log_pk):
                 np.testing.assert_allclose(jnp.exp(lp_env), jnp.exp(lp_rec), rtol=1e-4, atol=1e-6)
             # follow the recognizer's choice; a prediction that never declares

@@ -130,3 +130,58 @@ def test_batched_marks_overflow_and_negative_invalid(setup):
                                     jnp.asarray(batch.reshape(5, -1)))
     assert vb.tolist() == [True, False, False, True, True]
     assert np.all(np.isfinite(np.asarray(gb))) and np.all(np.asarray(gb[1:3]) == 0)
+
+
+def _image_sets(db):
+    """Image sets of the two cameras (positions 1 and 2), good and bad, in
+    each dtype a camera or a file gives."""
+    i0 = int(db.rows("test")[0])
+    good = np.stack([db.images[i0], db.images[int(db.rows("test")[-1])]])
+    odd = good.astype(np.float32)
+    black, const, nan, neg, big, inf = (odd.copy() for _ in range(6))
+    black[1] = 0
+    const[0] = 7
+    nan[1, 3, 4] = np.nan
+    neg[0, 0, 0] = -1
+    big[0] *= np.float32(1e30)  # its energy overflows float32 without the peak scaling
+    inf[1, 2, 2] = np.inf
+    return {"uint8": good, "float32": odd, "float64": good.astype(np.float64), "uint16": good.astype(np.uint16) * 200,
+            "black": black, "constant": const, "nan": nan, "negative": neg, "huge": big, "inf": inf}
+
+
+def test_host_features_equal_the_compiled_projection(setup):
+    """The single-trial step's host projection (NumPy) gives what project_at
+    gives inside a program: the same validity, the same g to float32 rounding,
+    g = 0 for an unusable image set."""
+    from jaxrecog.features import host_features, host_planes, project_at
+
+    db, m = setup
+    planes = [host_planes(c) for c in m.cameras]
+    config = np.array([1, 2])
+    compiled = jax.jit(lambda imgs, cfg: [project_at(c, cfg[i], imgs[i]) for i, c in enumerate(m.cameras)])
+    for name, imgs in _image_sets(db).items():
+        got = host_features(planes, config, imgs, m.image_shape)
+        want = compiled(jnp.asarray(imgs), jnp.asarray(config))
+        assert bool(got.ok) == all(bool(ok) for _, ok in want), name
+        assert bool(got.ok) == (name in ("uint8", "float32", "float64", "uint16", "huge")), name
+        for g, (w, ok) in zip(got.gs, want):
+            assert g.dtype == np.float32 and np.all(np.isfinite(g))
+            if bool(got.ok):
+                np.testing.assert_allclose(g, np.asarray(w), rtol=1e-4, atol=2e-6, err_msg=name)
+            elif not bool(ok):
+                assert not np.any(g), name
+
+
+def test_host_features_leave_traced_or_odd_input_to_the_program(setup):
+    from jaxrecog.features import host_features, host_planes
+
+    db, m = setup
+    planes = [host_planes(c) for c in m.cameras]
+    imgs = _image_sets(db)["uint8"]
+    assert host_features(planes, np.array([0, 0]), imgs, m.image_shape) is not None
+    assert host_features(planes, np.array([0, 0]), imgs[:1], m.image_shape) is None        # one camera short
+    assert host_features(planes, np.array([0, 0]), imgs[:, :-1], m.image_shape) is None    # wrong size
+    assert host_features(planes, np.array([0, 0]), imgs > 9, m.image_shape) is None        # not a gray image
+    seen = []
+    jax.jit(lambda i: seen.append(host_features(planes, np.array([0, 0]), i, m.image_shape)) or i)(imgs)
+    assert seen == [None]

@@ -324,3 +324,33 @@ def test_excluded_by_positions_lapses_per_camera():
     seen = (jnp.array([True, False, False]), jnp.array([True, True]))  # camera 1 used both its positions
     ex = np.asarray(excluded_by_positions(seen, (3, 2))).reshape(3, 2)
     np.testing.assert_array_equal(ex, [[True, True], [False, False], [False, False]])
+
+
+def test_host_projection_step_equals_the_traced_step(getkey):
+    """Called with concrete arrays on the CPU the step projects on the host;
+    traced (as in the campaigns' batched step) it projects inside the program:
+    the same decisions and, to float32 rounding, the same beliefs, over a
+    closed loop with an unusable image set in it; a model whose bases are not
+    on the CPU as JAX arrays is projected in the program."""
+    from jaxrecog import recognizer as R
+
+    model = random_model((4, 3))
+    rec = Recognizer(model, make_planner("mi-class-pairwise", model, key=getkey()), max_steps=7, p_threshold=0.999)
+    assert R._split(rec)[2] is not None
+    traced = jax.jit(lambda s, i, k: rec.step(s, i, k, trace=True))
+    a = b = rec.init(config=(1, 2))
+    for t in range(4):
+        images = np.asarray(jr.randint(getkey(), (2, 6, 8), 0, 255)).astype(np.uint8)
+        if t == 2:
+            images[1] = 0  # black: the belief stays, valid is False on both paths
+        k = getkey()
+        a, da = rec.step(a, images, k, trace=True)
+        b, db = traced(b, images, k)
+        for f in ("object", "pose", "stop", "next_index", "valid"):
+            assert int(getattr(da, f)) == int(getattr(db, f)), (t, f)
+        assert bool(da.valid) == (t != 2)
+        np.testing.assert_allclose(np.asarray(da.trace.class_probs), np.asarray(db.trace.class_probs), rtol=1e-4, atol=1e-6)
+        np.testing.assert_allclose(np.asarray(da.trace.scores), np.asarray(db.trace.scores), rtol=1e-4, atol=1e-5)
+        a, b = a, b._replace(prior=a.prior)  # the same prior on: rounding does not accumulate into a choice
+    off_cpu = eqx.tree_at(lambda m: m.cameras[0].basis, model, np.asarray(model.cameras[0].basis))
+    assert R.host_planes_of(off_cpu) is None
