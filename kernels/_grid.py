@@ -51,6 +51,15 @@ def shifted_exp(x):
     return m, flushed_exp(x - m[..., None], math.log(float(jnp.finfo(x.dtype).tiny)))
 
 
+#: Classes per chunk of the strata (:func:`live_chunks`): the Monte Carlo
+#: kernels sum over the strata of the classes of nonzero weight alone, this
+#: many at a time (a class whose weight is flushed to 0 adds exactly 0 to that
+#: sum; it stays in every mixture over c'); the pairwise MI loops over them
+#: one by one where at most this many have weight.  A belief after a view or
+#: two has a few such classes.
+FEW_CLASSES = 8
+
+
 def weights(log_p, n_factors: int = 1):
     """``exp(log_p)`` with values that a product of ``n_factors`` such weights
     could take below the smallest normal float flushed to exactly 0.
@@ -198,7 +207,30 @@ def own_class(t, class_axis: int, other_class_axis: int):
     return jnp.moveaxis(jnp.diagonal(t, axis1=class_axis, axis2=other_class_axis), -1, class_axis)
 
 
-def mixture_information(ts, selfs, log_pc, log_pk):
+def live_chunks(log_pc, n_factors: int, body, init, size: int = FEW_CLASSES):
+    """``init + sum_k body(keep_k, valid_k)`` over chunks of ``size`` class
+    indices, the classes of nonzero weight (:func:`weights` with
+    ``n_factors``) first: ``keep_k`` ``[size]`` indices, ``valid_k`` whether
+    each is one of them (padding and dead classes are not).  A loop of
+    ceil(live / size) steps: a belief after a view or two runs one.  ``body``
+    must give 0 for the invalid entries (weight them by 0)."""
+    n_c = log_pc.shape[0]
+    m = int(size)
+    live = weights(log_pc, n_factors) > 0
+    n_live = jnp.sum(live)
+    order = jnp.argsort(~live, stable=True)  # the live classes first, ascending
+    chunks = -(-n_c // m)
+    order = jnp.concatenate([order, jnp.zeros(chunks * m - n_c, order.dtype)])
+    valid = jnp.arange(chunks * m) < n_live
+
+    def step(k, acc):
+        keep = jax.lax.dynamic_slice_in_dim(order, k * m, m)
+        return acc + body(keep, jax.lax.dynamic_slice_in_dim(valid, k * m, m))
+
+    return jax.lax.fori_loop(0, (n_live + m - 1) // m, step, init)
+
+
+def mixture_information(ts, selfs, log_pc, log_pk, outer=None):
     """Per-replicate information ``[J, A]`` on the (v_0, v_1, ...) grid, the part
     the Monte Carlo MI and the pairwise-distance MI share:
 
@@ -214,6 +246,11 @@ def mixture_information(ts, selfs, log_pc, log_pk):
         log_pk: per camera ``[V_i, C, L_i]`` log P_i(k|c) per position
             (factors below the smallest normal float are flushed to 0,
             :func:`weights`).
+        outer: ``(keep [M], valid [M])``: the strata's classes c are those
+            of ``keep`` where ``valid`` (``ts`` and ``selfs`` hold the rows of
+            ``keep`` on the c axis, in its order; the mixture over c' keeps
+            every class; :func:`live_chunks`).  The others and a class of
+            weight 0 add 0, whatever their rows hold.  ``None``: every class.
 
     Returns:
         ``[J, A]``, A = prod_i V_i row-major; the mean over J is the estimate.
@@ -221,17 +258,25 @@ def mixture_information(ts, selfs, log_pc, log_pk):
     n = len(ts)
     positions = tuple(t.shape[0] for t in ts)
     grid = ConfigGrid(positions)
-    n_c, j = ts[0].shape[1], ts[0].shape[3]
+    n_o, j = ts[0].shape[1], ts[0].shape[3]
+    n_c = log_pc.shape[0]
     dtype = ts[0].dtype
     # E_s log sum_c' ...: mixture over c' on the (v_0, v_1, ...) grid.
     grid_tabs = [position_rows(t, front=(1, 3)) for t in ts]  # [C, J, X_i, C']
-    extra = jnp.broadcast_to(log_pc[None, None, :], (n_c, j, n_c))
+    extra = jnp.broadcast_to(log_pc[None, None, :], (n_o, j, n_c))
     logp, _, _ = grid_mixture(grid_tabs, extra)  # [C, J, X_0, ..., X_{n-1}]
     pc = weights(log_pc, n + 1)
     pk = [weights(lp, n + 1) for lp in log_pk]  # [V_i, C, L_i]
+    if outer is not None:
+        keep, valid = outer
+        pc, pk = jnp.where(valid, pc[keep], 0.0), [p[:, keep] for p in pk]
+        live = pc > 0
+        logp = jnp.where(live.reshape((n_o,) + (1,) * (logp.ndim - 1)), logp, 0.0)
+        if selfs is not None:
+            selfs = [jnp.where(live[None, :, None, None], s, 0.0) for s in selfs]
     letters = _GRID_LETTERS[:n]
     caps = letters.upper()
-    shaped = logp.reshape((n_c, j) + sum(((v, t.shape[2]) for v, t in zip(positions, ts)), ()))
+    shaped = logp.reshape((n_o, j) + sum(((v, t.shape[2]) for v, t in zip(positions, ts)), ()))
     grid_in = "cj" + "".join(a + b for a, b in zip(letters, caps))
     spec = "c," + grid_in + "," + ",".join(f"{a}c{b}" for a, b in zip(letters, caps)) + "->j" + letters
     e_logp = jnp.einsum(spec, pc, shaped, *pk)  # [J, V_0, ..., V_{n-1}]
@@ -243,6 +288,6 @@ def mixture_information(ts, selfs, log_pc, log_pk):
     return grid.flatten(e_self - e_logp)
 
 
-__all__ = ["check_options", "floor_log_probs", "flushed_exp", "grid_mixture", "level_tables", "lse", "mixture_information",
+__all__ = ["FEW_CLASSES", "live_chunks", "check_options", "floor_log_probs", "flushed_exp", "grid_mixture", "level_tables", "lse", "mixture_information",
            "own_class", "shifted_exp", "weights"]
 

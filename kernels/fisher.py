@@ -46,12 +46,16 @@ import jax.random as jr
 from jax.scipy.linalg import solve_triangular
 from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray
 
-from ._grid import floor_log_probs, grid_mixture, lse, weights
+from ._grid import FEW_CLASSES, floor_log_probs, grid_mixture, live_chunks, lse, weights
 from .belief import PredictedBelief, check_predicted
 from .config_grid import position_rows
 from .mutual_information import MITables
 
 DEFAULT_SIGMA_S = 0.4
+
+#: at most this many classes of nonzero weight: the strata are theirs alone
+#: (:func:`fisher_from_draws`, :data:`._grid.FEW_CLASSES`)
+_FEW_CLASSES = FEW_CLASSES
 
 
 class FisherDraws(NamedTuple):
@@ -153,50 +157,73 @@ def fisher_from_draws(tables: MITables, belief: PredictedBelief, draws: FisherDr
     cls = jnp.arange(n_c)
     obj = (cls // n_poses).astype(dtype)
     pose = (cls % n_poses).astype(dtype)
-    s_obj = obj[:, None] + sigma_s * draws.eps_obj  # [C, J]
-    s_pose = pose[:, None] + sigma_s * draws.eps_pose
-    extra = (
-        log_pc[None, None, :]
-        - 0.5 * (s_obj[:, :, None] - obj[None, None, :]) ** 2 / s2
-        - 0.5 * (s_pose[:, :, None] - pose[None, None, :]) ** 2 / s2
-    )  # [C, J, C']
 
-    tabs_g, tabs_0, b_g, b_0 = [], [], [], []
-    for i, ld in enumerate(tables.ld):
-        n_l = ld.shape[2]
-        lev = jnp.arange(n_l, dtype=dtype)
-        s_occ = lev[None, :, None] + sigma_s * draws.eps_occ[i]  # [C, L, J]
-        q = -0.5 * (s_occ[..., None] - lev[None, None, None, :]) ** 2 / s2  # [C, L, J, L']
-        lp = log_pk[i]  # [V, C', L']
-        x0 = lp[:, None, None, None] + q[None, :, :, :, None, :]  # [V, C, L, J, C', L']
-        x = x0 + ld
-        la = lse(x, axis=-1)
-        levb = lev.reshape((1,) * 5 + (n_l,))
-        ba = jnp.sum(jnp.exp(x - la[..., None]) * levb, axis=-1)
-        la0 = lse(x0, axis=-1)
-        ba0 = jnp.sum(jnp.exp(x0 - la0[..., None]) * levb, axis=-1)
-        for acc, t in zip((tabs_g, b_g, tabs_0, b_0), (la, ba, la0, ba0)):
-            acc.append(position_rows(t, front=(1, 3)))  # [C, J, X_i, ...]: the rows of the grid product
+    def contributions(outer):
+        """The score outer products summed over the strata of the classes
+        ``outer = (keep, valid)`` (``None``: every class; the mixtures over c'
+        keep every class; :func:`._grid.live_chunks`)."""
+        keep = None if outer is None else outer[0]
+        rows = (lambda x, axis=0: x) if keep is None else (lambda x, axis=0: jnp.take(x, keep, axis=axis))
+        o_s, p_s = rows(obj), rows(pose)
+        s_obj = o_s[:, None] + sigma_s * rows(draws.eps_obj)  # [C, J]
+        s_pose = p_s[:, None] + sigma_s * rows(draws.eps_pose)
+        extra = (
+            log_pc[None, None, :]
+            - 0.5 * (s_obj[:, :, None] - obj[None, None, :]) ** 2 / s2
+            - 0.5 * (s_pose[:, :, None] - pose[None, None, :]) ** 2 / s2
+        )  # [C, J, C']
 
-    fo = obj[None, None, None, :]
-    fp = pose[None, None, None, :]
-    _, means_g, _ = grid_mixture(tabs_g, extra, [(0, fo), (0, fp)] + [(i, b) for i, b in enumerate(b_g)])
-    _, means_0, _ = grid_mixture(tabs_0, extra, [(0, fo), (0, fp)] + [(i, b) for i, b in enumerate(b_0)])
-    delta = jnp.stack([mg - m0 for mg, m0 in zip(means_g, means_0)], axis=-1) / s2  # [C, J, X.., D]
+        tabs_g, tabs_0, b_g, b_0 = [], [], [], []
+        for i, ld in enumerate(tables.ld):
+            ld = rows(ld, axis=1)
+            n_l = ld.shape[2]
+            lev = jnp.arange(n_l, dtype=dtype)
+            s_occ = lev[None, :, None] + sigma_s * rows(draws.eps_occ[i])  # [C, L, J]
+            q = -0.5 * (s_occ[..., None] - lev[None, None, None, :]) ** 2 / s2  # [C, L, J, L']
+            lp = log_pk[i]  # [V, C', L']
+            x0 = lp[:, None, None, None] + q[None, :, :, :, None, :]  # [V, C, L, J, C', L']
+            x = x0 + ld
+            la = lse(x, axis=-1)
+            levb = lev.reshape((1,) * 5 + (n_l,))
+            ba = jnp.sum(jnp.exp(x - la[..., None]) * levb, axis=-1)
+            la0 = lse(x0, axis=-1)
+            ba0 = jnp.sum(jnp.exp(x0 - la0[..., None]) * levb, axis=-1)
+            for acc, t in zip((tabs_g, b_g, tabs_0, b_0), (la, ba, la0, ba0)):
+                acc.append(position_rows(t, front=(1, 3)))  # [C, J, X_i, ...]: the rows of the grid product
 
-    pc = weights(log_pc, n + 1)
-    pk = [weights(lp, n + 1) for lp in log_pk]
-    letters = "pqrstuvwxy"[:n]
-    caps = "PQRSTUVWXY"[:n]
-    shaped = delta.reshape((n_c, j) + sum(((v, t.shape[2]) for v, t in zip(positions, tables.ld)), ()) + (n + 2,))
-    grid_w = "c" + "".join(a + b for a, b in zip(letters, caps))
-    grid_in = "cj" + grid_w[1:]
-    # the stratum weights P(c) prod_i P_i[v_i](k_i | c) on the grid first, then one
-    # contraction with the score outer products (all five operands in one einsum
-    # were contracted in a slower order: 0.8x the time at J = 1 and 4, thesis size)
-    w = jnp.einsum("c," + ",".join(f"{a}c{b}" for a, b in zip(letters, caps)) + "->" + grid_w, pc, *pk)
-    spec = f"{grid_w},{grid_in}d,{grid_in}e->" + ("j" if with_stderr else "") + letters + "de"
-    fis = jnp.einsum(spec, w, shaped, shaped)
+        fo = obj[None, None, None, :]
+        fp = pose[None, None, None, :]
+        _, means_g, _ = grid_mixture(tabs_g, extra, [(0, fo), (0, fp)] + [(i, b) for i, b in enumerate(b_g)])
+        _, means_0, _ = grid_mixture(tabs_0, extra, [(0, fo), (0, fp)] + [(i, b) for i, b in enumerate(b_0)])
+        delta = jnp.stack([mg - m0 for mg, m0 in zip(means_g, means_0)], axis=-1) / s2  # [C, J, X.., D]
+
+        pc = rows(weights(log_pc, n + 1))
+        if outer is not None:
+            pc = jnp.where(outer[1], pc, 0.0)
+        pk = [rows(weights(lp, n + 1), axis=1) for lp in log_pk]
+        n_o = pc.shape[0]
+        if keep is not None:  # a padded class of weight 0 adds 0, whatever its rows hold
+            delta = jnp.where((pc > 0).reshape((n_o,) + (1,) * (delta.ndim - 1)), delta, 0.0)
+        letters = "pqrstuvwxy"[:n]
+        caps = "PQRSTUVWXY"[:n]
+        shaped = delta.reshape((n_o, j) + sum(((v, t.shape[2]) for v, t in zip(positions, tables.ld)), ()) + (n + 2,))
+        grid_w = "c" + "".join(a + b for a, b in zip(letters, caps))
+        grid_in = "cj" + grid_w[1:]
+        # the stratum weights P(c) prod_i P_i[v_i](k_i | c) on the grid first, then one
+        # contraction with the score outer products (all five operands in one einsum
+        # were contracted in a slower order: 0.8x the time at J = 1 and 4, thesis size)
+        w = jnp.einsum("c," + ",".join(f"{a}c{b}" for a, b in zip(letters, caps)) + "->" + grid_w, pc, *pk)
+        spec = f"{grid_w},{grid_in}d,{grid_in}e->" + ("j" if with_stderr else "") + letters + "de"
+        return jnp.einsum(spec, w, shaped, shaped)
+
+    if n_c > _FEW_CLASSES:
+        # the strata of the classes of nonzero weight alone, _FEW_CLASSES at a
+        # time (as the MI's, :mod:`.mutual_information`, "Few classes")
+        shape = ((j,) if with_stderr else ()) + positions + (n + 2, n + 2)
+        fis = live_chunks(log_pc, n + 1, lambda keep, valid: contributions((keep, valid)), jnp.zeros(shape, dtype),
+                          size=_FEW_CLASSES)
+    else:
+        fis = contributions(None)
     if not with_stderr:
         fis = (fis / j).reshape((-1, n + 2, n + 2))
         return 0.5 * (fis + jnp.swapaxes(fis, -1, -2))

@@ -44,6 +44,14 @@ keeps its position it ignores that camera's kept level rows and is an
 approximation.  The exact value for every configuration is ``levels="belief"``
 with the predicted prior of :func:`jaxrecog.kernels.transition_per_position`.
 
+Few classes: a class whose weight P(c) is flushed to 0 (below
+``tiny ** (1 / (n + 1))``, :func:`._grid.weights`) adds nothing to the sum
+over the strata, though it stays in every mixture over c'.  With more than
+``_FEW_CLASSES`` classes the strata are summed over the classes of nonzero
+weight alone, ``_FEW_CLASSES`` at a time (:func:`._grid.live_chunks`; their
+rows of the tables gathered): the same value to rounding, and after a view or
+two (a few live classes) one chunk, a quarter of the work at C = 32.
+
 Samples per configuration: C * prod_i L_i * J (see :func:`samples_per_configuration`).
 """
 
@@ -59,7 +67,8 @@ import jax.numpy as jnp
 import jax.random as jr
 from jaxtyping import Array, Float, PRNGKeyArray
 
-from ._grid import check_options, floor_log_probs, level_tables, lse, mixture_information, own_class, shifted_exp
+from ._grid import (FEW_CLASSES, check_options, floor_log_probs, level_tables, lse, mixture_information, own_class,
+                    live_chunks, shifted_exp, weights)
 from .belief import PredictedBelief, check_predicted
 from .likelihood import Likelihood, as_likelihoods
 
@@ -165,6 +174,19 @@ def _mi_tables(liks: tuple[Likelihood, ...], key: PRNGKeyArray, j: int, store: s
     )
 
 
+#: at most this many classes of nonzero weight: the strata are theirs alone
+#: (:func:`mutual_information`; module docstring, "Few classes")
+_FEW_CLASSES = FEW_CLASSES
+
+
+def _outer_rows(tables: MITables, keep) -> MITables:
+    """The tables of the strata of classes ``keep`` (the samples' class axis;
+    the components' c' axes whole) for :func:`belief_level_tables`."""
+    return tables._replace(ld=tuple(t[:, keep] for t in tables.ld),
+                           ld_max=None if tables.ld_max is None else tuple(t[:, keep] for t in tables.ld_max),
+                           ld_exp=None if tables.ld_exp is None else tuple(t[:, :, :, keep] for t in tables.ld_exp))
+
+
 def belief_level_tables(tables: MITables, log_pk):
     """T_i = logsumexp_k' (LD_i + log P_i(k'|c')) per camera, ``[V_i, C, L_i, J, C]``
     (:func:`._grid.level_tables` on the sample tables: a batched product with
@@ -229,16 +251,36 @@ def _mutual_information(tables: MITables, belief: PredictedBelief, target: str, 
             jnp.full((v, n_c, t.shape[2]), -math.log(t.shape[2]), dtype)
             for v, t in zip(positions, tables.ld_self)
         ]
-        ts = list(tables.t_uniform)
     else:
         if tables.ld is None:
             raise ValueError("mutual_information: levels='belief' needs tables built with store='full' or 'both'")
         log_pk = [lp.astype(dtype) for lp in belief.log_pk]
-        ts = belief_level_tables(tables, log_pk)
 
-    # E_s E_g [log p(g|s,a) - log p(g|a)] per replicate, on the (v_0, v_1, ...) grid
-    selfs = list(tables.ld_self) if target == "state" else [own_class(t, 1, 4) for t in ts]
-    reps = mixture_information(ts, selfs, log_pc, log_pk)  # [J, A]
+    def information(outer):
+        """E_s E_g [log p(g|s,a) - log p(g|a)] per replicate ``[J, A]`` on the
+        (v_0, v_1, ...) grid, the strata's classes ``outer`` (``None``: all;
+        :func:`._grid.mixture_information`)."""
+        keep = None if outer is None else outer[0]
+        if levels == "uniform":
+            ts = [t if keep is None else t[:, keep] for t in tables.t_uniform]
+        else:
+            ts = belief_level_tables(tables if keep is None else _outer_rows(tables, keep), log_pk)
+        if target == "state":
+            selfs = [t if keep is None else t[:, keep] for t in tables.ld_self]
+        elif keep is None:
+            selfs = [own_class(t, 1, 4) for t in ts]
+        else:  # row m is class keep[m]: its own entry is c' = keep[m]
+            selfs = [jnp.take_along_axis(t, keep[None, :, None, None, None], axis=4)[..., 0] for t in ts]
+        return mixture_information(ts, selfs, log_pc, log_pk, outer=outer)
+
+    if n_c > _FEW_CLASSES:
+        # the strata of the classes of nonzero weight alone, _FEW_CLASSES at a
+        # time (module docstring, "Few classes")
+        zero = jnp.zeros((j, math.prod(positions)), dtype)
+        reps = live_chunks(log_pc, len(positions) + 1, lambda keep, valid: information((keep, valid)), zero,
+                           size=_FEW_CLASSES)
+    else:
+        reps = information(None)
     mi = jnp.mean(reps, axis=0)
     if not with_stderr:
         return mi

@@ -172,3 +172,44 @@ def test_bad_arguments(rng, getkey):
     only = K.mi_tables(gaussians(mus, vars), key=getkey(), samples_per_stratum=1, store="uniform")
     with pytest.raises(ValueError, match="store"):
         K.fisher_information(only, b, key=getkey(), n_objects=2, n_poses=2)
+
+
+def test_few_live_classes_make_the_strata_alone(rng, getkey, x64, monkeypatch):
+    """With more than ``_FEW_CLASSES`` classes the score outer products are
+    summed over the strata of the classes of nonzero weight alone, that many
+    at a time (one chunk for 1 or 2 live classes, two for 3): the whole
+    computation's values and the NumPy reference's; the dead classes' own
+    sample rows never reach a value (NaN there changes nothing)."""
+    import importlib
+
+    import jax
+
+    fisher = importlib.import_module("jaxrecog.kernels.fisher")
+    m, n, levels, positions, dims = 3, 2, (2, 3), (3, 2), (2, 1)
+    mus, vars = random_model(rng, m * n, levels, positions, dims)
+    tables = MI_TABLES(gaussians(mus, vars), key=getkey(), samples_per_stratum=2)
+    draws = K.fisher_draws(getkey(), tables)
+    b0 = as_jax_belief(random_belief(rng, m * n, levels))
+    cases = []
+    for live in (1, 2, 3):
+        alive = np.sort(rng.permutation(m * n)[:live])
+        log_pc = np.full(m * n, -300.0)  # x64: below the weights' floor tiny^(1/3)
+        log_pc[alive] = np.log(rng.dirichlet(np.ones(live)))
+        cases.append((everywhere(b0._replace(log_pc=jnp.asarray(log_pc)), positions), alive))
+
+    def compiled(few):
+        """Traced afresh (a new function) with ``_FEW_CLASSES = few``; compiles at its first call (here)."""
+        monkeypatch.setattr(fisher, "_FEW_CLASSES", few)
+        f = jax.jit(lambda t, b: fisher.fisher_from_draws(t, b, draws, m, n, 0.4))
+        f(tables, cases[0][0])
+        return f
+
+    whole, few = compiled(m * n), compiled(2)
+    for b, alive in cases:
+        want = np.asarray(whole(tables, b))
+        np.testing.assert_allclose(np.asarray(few(tables, b)), want, rtol=1e-10, atol=1e-12)
+        ref, _ = fisher_information_ref(mus, vars, tables.z, draws, np.asarray(K.log_joint(b.at((0, 0)))), n, 0.4)
+        np.testing.assert_allclose(want, ref, rtol=1e-9, atol=1e-10)
+        dead = jnp.asarray(np.setdiff1d(np.arange(m * n), alive))
+        poisoned = tables._replace(ld=tuple(t.at[:, dead].set(jnp.nan) for t in tables.ld))
+        np.testing.assert_allclose(np.asarray(few(poisoned, b)), want, rtol=1e-10, atol=1e-12)

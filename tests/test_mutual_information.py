@@ -1,6 +1,9 @@
 """Mutual Information kernel: NumPy reference on the same samples, quadrature on
 tiny models, bounds, and ranking (eq. 5.3-5.13)."""
 
+import importlib
+
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -306,3 +309,47 @@ def test_belief_levels_fallback_when_shifted_sum_underflows(rng, getkey, target)
     assert np.all(np.isfinite(a))
     ref, _ = mutual_information_ref(mus, vars, tables.z, np.asarray(K.log_joint(b), float), target)
     np.testing.assert_allclose(a, ref, rtol=2e-4, atol=2e-4)
+
+
+@pytest.mark.parametrize("target", ["state", "class"])
+def test_few_live_classes_make_the_strata_alone(rng, getkey, x64, monkeypatch, target):
+    """With more than ``_FEW_CLASSES`` classes the strata are summed over the
+    classes of nonzero weight alone, that many at a time (the others add
+    exactly 0; the mixtures keep every class): one chunk (1 or 2 live classes)
+    or two (3), the whole computation's values and the brute-force
+    reference's, for both level modes.  The dead classes' own sample rows
+    never reach a value (NaN there changes nothing)."""
+    mi_mod = importlib.import_module("jaxrecog.kernels.mutual_information")  # the module, not the function
+    n_c, levels, positions, dims = 6, (2, 3), (3, 2), (2, 2)
+    mus, vars = random_model(rng, n_c, levels, positions, dims)
+    tables = MI_TABLES(gaussians(mus, vars), key=getkey(), samples_per_stratum=3)
+    cases = []
+    for live in (1, 2, 3):
+        b = random_belief(rng, n_c, levels)
+        alive = np.sort(rng.permutation(n_c)[:live])
+        log_pc = np.full(n_c, -300.0)  # x64: below the weights' floor tiny^(1/3) ~ e^-236
+        log_pc[alive] = np.log(rng.dirichlet(np.ones(live)))
+        cases.append((K.PredictedBelief(jnp.asarray(log_pc), everywhere(b, positions).log_pk), alive))
+    body = mi_mod._mutual_information.__wrapped__
+
+    def compiled(few):
+        """The kernel traced afresh (a new function) with ``_FEW_CLASSES = few``,
+        both level modes; each compiles once, at its first call (here)."""
+        monkeypatch.setattr(mi_mod, "_FEW_CLASSES", few)
+        f = jax.jit(lambda t, b: [body(t, b, target, lv, False) for lv in ("belief", "uniform")])
+        f(tables, cases[0][0])
+        return f
+
+    whole, few = compiled(n_c), compiled(2)  # n_c: not above it, the whole computation
+    for b, alive in cases:
+        want = np.asarray(whole(tables, b))
+        np.testing.assert_allclose(np.asarray(few(tables, b)), want, rtol=1e-11, atol=1e-12)
+        ref, _ = mutual_information_ref(mus, vars, tables.z, np.asarray(K.log_joint(b.at((0, 0)))), target)
+        np.testing.assert_allclose(want[0], ref, rtol=1e-9, atol=1e-10)
+        dead = jnp.asarray(np.setdiff1d(np.arange(n_c), alive))
+        poisoned = tables._replace(ld=tuple(t.at[:, dead].set(jnp.nan) for t in tables.ld),
+                                   ld_self=tuple(t.at[:, dead].set(jnp.nan) for t in tables.ld_self),
+                                   ld_max=tuple(t.at[:, dead].set(jnp.nan) for t in tables.ld_max),
+                                   ld_exp=tuple(t.at[:, :, :, dead].set(jnp.nan) for t in tables.ld_exp),
+                                   t_uniform=tuple(t.at[:, dead].set(jnp.nan) for t in tables.t_uniform))
+        np.testing.assert_allclose(np.asarray(few(poisoned, b)), want, rtol=1e-11, atol=1e-12)

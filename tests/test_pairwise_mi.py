@@ -348,37 +348,34 @@ def test_few_live_classes_make_the_grid_alone(rng, x64, monkeypatch, target):
     the grid for those classes alone (the others add exactly 0): the values of
     the whole grid's computation and of brute force, on the fast and the
     general path; a belief with more live classes takes the whole grid.  The
-    dead classes' own rows are then never read (NaN there changes nothing)."""
+    dead classes' own rows are then never read (NaN there changes nothing)
+    where one or two classes live, and are read (-inf) where three do."""
     n_c, levels, positions, dims = 6, (2, 3), (3, 2), (2, 2)
     mus, vars = random_model(rng, n_c, levels, positions, dims, spread=1.5)
     t = PT(gaussians(mus, vars), kind="bhattacharyya")
-    cases = [c for live in (1, 2, 3) for c in _few_class_beliefs(rng, n_c, levels, positions, live)]
+    cases = [_few_class_beliefs(rng, n_c, levels, positions, live)[1] for live in (1, 2, 3)]
 
-    def run(few, tables=t):
+    def compiled(few):
+        """Traced afresh (a new function) with ``_FEW_CLASSES = few``, the fast
+        and the general path; compiles at its first call (here)."""
         monkeypatch.setattr(pairwise_mi, "_FEW_CLASSES", few)
         monkeypatch.setattr(pairwise_mi, "_SMALL_GRID", 0)  # the loop over classes, as at thesis size
-        f = jax.jit(K.pairwise_mutual_information, static_argnames=("target", "levels", "fast"))
-        return [[np.asarray(f(tables, b, target, fast=fast)) for fast in (True, False)] for b, _ in cases]
+        f = jax.jit(lambda tab, b: [K.pairwise_mutual_information(tab, b, target, fast=fast) for fast in (True, False)])
+        f(t, cases[0][0])
+        return f
 
-    whole, few = run(n_c), run(2)
-    for (b, alive), w, f in zip(cases, whole, few):
-        np.testing.assert_allclose(f, w, rtol=1e-12, atol=1e-12)
-        mi = f[0]
+    whole, few = compiled(n_c), compiled(2)
+    for b, alive in cases:
+        want = np.asarray(whole(t, b))
+        np.testing.assert_allclose(np.asarray(few(t, b)), want, rtol=1e-12, atol=1e-12)
         for a, cfg in enumerate(np.ndindex(*positions)):
             sub = tuple(m[v:v + 1] for m, v in zip(mus, cfg))
             ref = pairwise_mi_ref(sub, tuple(c[v:v + 1] for c, v in zip(_covs(vars), cfg)),
                                   np.asarray(K.log_joint(b.at(cfg))), "bhattacharyya", target)
-            np.testing.assert_allclose(mi[a], ref[0], rtol=1e-10, atol=1e-12)
-    # the dead classes' own rows (outer c) made NaN: unread where two classes live, read (-inf) where three live
-    probe = []
-    for b, alive in cases:
+            np.testing.assert_allclose(want[0][a], ref[0], rtol=1e-10, atol=1e-12)
         dead = np.setdiff1d(np.arange(n_c), alive)
-        poisoned = t._replace(u_exp=tuple(e.at[dead].set(jnp.nan) for e in t.u_exp))
-        monkeypatch.setattr(pairwise_mi, "_FEW_CLASSES", 2)
-        f = jax.jit(K.pairwise_mutual_information, static_argnames=("target", "levels", "fast"))
-        probe.append((len(alive), np.asarray(f(poisoned, b, target))))
-    for (live, mi), (b, _), w in zip(probe, cases, whole):
-        if live == 2:
-            np.testing.assert_allclose(mi, w[0], rtol=1e-12, atol=1e-12)
-        elif live == 3:  # the whole grid reads them (only the current positions' rows are made afresh)
-            assert np.sum(np.isneginf(mi)) >= mi.size - 1
+        got = np.asarray(few(t._replace(u_exp=tuple(e.at[dead].set(jnp.nan) for e in t.u_exp)), b)[0])
+        if len(alive) <= 2:
+            np.testing.assert_allclose(got, want[0], rtol=1e-12, atol=1e-12)
+        else:  # the whole grid reads them (only the current positions' rows are made afresh)
+            assert np.sum(np.isneginf(got)) >= got.size - 1
