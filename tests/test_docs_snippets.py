@@ -7,7 +7,7 @@ The checks (``check_of``; the blocks each one takes today in brackets):
 
 - ``commands`` (here): every command of a ``sh`` block or of an indented
   block of commands [README ``make``, install, tutorial steps 5-6;
-  docs/results.md (13 fenced, 2 indented), docs/envs.md (2),
+  docs/results.md (14 fenced, 2 indented), docs/envs.md (2),
   docs/campaigns.md (3 indented), docs/cluster.md (3 indented)] parses against the real argument parser of its program --
   ``jaxrecog`` (:func:`jaxrecog.cli.build_parser`), a script's
   ``build_parser()``, ``make -n TARGET`` and the ``jaxrecog`` lines it
@@ -51,7 +51,7 @@ The checks (``check_of``; the blocks each one takes today in brackets):
 - ``math``: a ```math block is a formula (LaTeX), not code: nothing runs
   [docs/campaigns.md (3), docs/results.md (1)].
 
-64 blocks today: 10 cli-reference, 26 commands, 6 envs-example, 4
+65 blocks today: 10 cli-reference, 27 commands, 6 envs-example, 4
 tutorial-run, 3 tutorial-output, 1 manifest-example, 4 math, 1 ppo-output,
 3 protocol-dump, 1 python, 1 schema, 3 toml-rig, 1 toml-experiment.
 """
