@@ -54,10 +54,11 @@ def shifted_exp(x):
 #: Classes per chunk of the strata (:func:`live_chunks`): the Monte Carlo
 #: kernels sum over the strata of the classes of nonzero weight alone, this
 #: many at a time (a class whose weight is flushed to 0 adds exactly 0 to that
-#: sum; it stays in every mixture over c'); the pairwise MI loops over them
-#: one by one where at most this many have weight.  A belief after a view or
-#: two has a few such classes.
-FEW_CLASSES = 8
+#: sum; it stays in every mixture over c').  A belief after a view or two has
+#: a few such classes.  Case (iii)'s campaigns (800 trials; mi / mi-class /
+#: crlb, s) took 18 / 14 / 32 with chunks of 4, 22 / 17 / 44 with 8, 29 / 20 /
+#: 65 with 16 and 23 / 17 / 29 with 2.
+FEW_CLASSES = 4
 
 
 def weights(log_p, n_factors: int = 1):

@@ -50,7 +50,7 @@ over the strata, though it stays in every mixture over c'.  With more than
 ``_FEW_CLASSES`` classes the strata are summed over the classes of nonzero
 weight alone, ``_FEW_CLASSES`` at a time (:func:`._grid.live_chunks`; their
 rows of the tables gathered): the same value to rounding, and after a view or
-two (a few live classes) one chunk, a quarter of the work at C = 32.
+two (a few live classes) one chunk, an eighth of the strata at C = 32.
 
 Samples per configuration: C * prod_i L_i * J (see :func:`samples_per_configuration`).
 """

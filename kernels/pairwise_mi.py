@@ -103,7 +103,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from ._grid import FEW_CLASSES, check_options, floor_log_probs, flushed_exp, lse, own_class, shifted_exp
+from ._grid import check_options, floor_log_probs, flushed_exp, lse, own_class, shifted_exp
 from .belief import PredictedBelief, check_predicted
 from .config_grid import ConfigGrid, position_rows
 from .likelihood import Likelihood, as_likelihoods
@@ -119,9 +119,10 @@ _GRID_LETTERS = "pqrstuvwxy"
 #: the classes in one fusion instead of a loop over c (see :func:`_information`)
 _SMALL_GRID = 1 << 16
 
-#: at most this many classes of nonzero weight: the grid is made for them alone
-#: (module docstring, "Few classes")
-_FEW_CLASSES = FEW_CLASSES
+#: at most this many classes of nonzero weight: a loop over them alone makes
+#: the grid (module docstring, "Few classes"; a class's turn costs ~1/25 of
+#: the whole grid at thesis size)
+_FEW_CLASSES = 8
 
 
 class PairwiseTables(NamedTuple):
