@@ -248,7 +248,7 @@ def _host_projected(planes, image_shape, states: RecognizerState, fresh, configs
     else the images: a continuing slot's images were taken at its state's
     configuration, a fresh slot's at ``configs``.  Inputs whose shapes do not
     agree go to the program as they are (it raises)."""
-    if planes is None or isinstance(states.config, jax.core.Tracer):
+    if planes is None or any(isinstance(x, jax.core.Tracer) for x in (states.config, fresh, configs, images)):
         return images
     fresh, configs, current = np.asarray(fresh), np.asarray(configs), np.asarray(states.config)
     if not (fresh.ndim == 1 and configs.shape == current.shape and len(fresh) == len(configs)):

@@ -213,25 +213,31 @@ def host_features(planes: Sequence[tuple[np.ndarray, np.ndarray]], config, image
 
 def _host_shapes(planes, configs: np.ndarray, imgs: np.ndarray, image_shape) -> bool:
     """Whether ``configs [B, n]`` and ``imgs [B, n, H, W]`` are image sets of
-    the model's cameras and size, gray levels and integer positions."""
+    the model's cameras and size, gray levels, and positions each camera has
+    (else the program sees them, as before)."""
     n = len(planes)
     return (imgs.ndim == 4 and imgs.shape[1:] == (n, *image_shape) and configs.shape == (len(imgs), n)
-            and imgs.dtype.kind in "uif" and configs.dtype.kind in "iu")
+            and imgs.dtype.kind in "uif" and configs.dtype.kind in "iu"
+            and all(0 <= int(configs[:, i].min(initial=0)) and int(configs[:, i].max(initial=0)) < len(b)
+                    for i, (b, _) in enumerate(planes)))
 
 
 def _usable_rows(y: np.ndarray, dtype) -> tuple[np.ndarray, np.ndarray]:
     """``(rows in dtype, usable [B])`` of image vectors ``y [B, D]``, as
-    :func:`_unit_energy` judges them (finite, >= 0, not all zero, not
-    constant); float rows divided by their peak (no overflow of the energy).
-    Call under ``np.errstate(all="ignore")``."""
-    # unsigned integers are finite and >= 0; floats are checked
-    good = np.ones(len(y), bool) if y.dtype.kind == "u" else np.isfinite(y).all(1) & (y >= 0).all(1)
-    hi = np.where(good, y.max(1), 0)
-    good &= (hi > 0) & (hi > y.min(1))
+    :func:`_unit_energy` judges them after the same cast to ``dtype``
+    (finite, >= 0, not all zero, not constant), each row divided by its peak
+    (no overflow of the energy); 8- and 16-bit unsigned rows, exact in
+    float32 and without overflow, are checked on their own values and not
+    scaled.  Call under ``np.errstate(all="ignore")``."""
+    if y.dtype.kind == "u" and y.dtype.itemsize <= 2:
+        hi = y.max(1)
+        return y.astype(dtype), (hi > 0) & (hi > y.min(1))
     out = y.astype(dtype)
-    if y.dtype.kind == "f":
-        out = out * (np.asarray(1, dtype) / np.where(good, hi, 1).astype(dtype))[:, None]
-    return out, good
+    out[np.abs(out) < np.finfo(dtype).tiny] = 0  # subnormal: zero, as XLA on the CPU reads it
+    good = np.isfinite(out).all(1) & (out >= 0).all(1)
+    hi = np.where(good, out.max(1), 0)
+    good &= (hi > 0) & (hi > out.min(1))
+    return out * (np.asarray(1, dtype) / np.where(good, hi, 1).astype(dtype))[:, None], good
 
 
 def host_features_batch(planes: Sequence[tuple[np.ndarray, np.ndarray]], configs, images,
@@ -239,8 +245,10 @@ def host_features_batch(planes: Sequence[tuple[np.ndarray, np.ndarray]], configs
     """:func:`host_features` of ``B`` image sets (``configs [B, n]``,
     ``images [B, n, H, W]``): per camera ``g [B, K_i]`` and ``ok [B]``, or
     ``None`` where the inputs are traced or not ``B`` image sets of the
-    model's cameras and size.  One matrix product per camera and position
-    in use."""
+    model's cameras and size.  Each set's features are computed as
+    :func:`host_features` computes them, bit for bit: a slot's value does
+    not depend on the other slots (the driver's batches are split and
+    sharded in different ways, with the same results)."""
     if isinstance(configs, jax.core.Tracer) or isinstance(images, jax.core.Tracer):
         return None
     configs, imgs = np.asarray(configs), np.asarray(images)
@@ -251,12 +259,9 @@ def host_features_batch(planes: Sequence[tuple[np.ndarray, np.ndarray]], configs
         for i, (basis, means) in enumerate(planes):
             y, good = _usable_rows(imgs[:, i].reshape(len(imgs), -1), basis.dtype)
             g = np.zeros((len(y), basis.shape[-1]), basis.dtype)
-            at = configs[:, i]
-            for v in np.unique(at[good]):
-                rows = np.flatnonzero(good & (at == v))
-                yv = y[rows]
-                inv = np.asarray(1, basis.dtype) / np.sqrt(np.einsum("bd,bd->b", yv, yv))
-                g[rows] = (yv @ basis[v]) * inv[:, None] - means[v]
+            for b in np.flatnonzero(good):  # one product per image set: a slot's value is its own alone
+                v = configs[b, i]
+                g[b] = (y[b] @ basis[v]) * (np.asarray(1, basis.dtype) / np.sqrt(np.dot(y[b], y[b]))) - means[v]
             gs.append(g)
             ok &= good
     return HostFeatures(tuple(gs), ok)

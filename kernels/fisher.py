@@ -216,7 +216,7 @@ def fisher_from_draws(tables: MITables, belief: PredictedBelief, draws: FisherDr
         spec = f"{grid_w},{grid_in}d,{grid_in}e->" + ("j" if with_stderr else "") + letters + "de"
         return jnp.einsum(spec, w, shaped, shaped)
 
-    if n_c > _FEW_CLASSES:
+    if n_c > 2 * _FEW_CLASSES:
         # the strata of the classes of nonzero weight alone, _FEW_CLASSES at a
         # time (as the MI's, :mod:`.mutual_information`, "Few classes")
         shape = ((j,) if with_stderr else ()) + positions + (n + 2, n + 2)

@@ -47,7 +47,7 @@ with the predicted prior of :func:`jaxrecog.kernels.transition_per_position`.
 Few classes: a class whose weight P(c) is flushed to 0 (below
 ``tiny ** (1 / (n + 1))``, :func:`._grid.weights`) adds nothing to the sum
 over the strata, though it stays in every mixture over c'.  With more than
-``_FEW_CLASSES`` classes the strata are summed over the classes of nonzero
+twice ``_FEW_CLASSES`` classes the strata are summed over the classes of nonzero
 weight alone, ``_FEW_CLASSES`` at a time (:func:`._grid.live_chunks`; their
 rows of the tables gathered): the same value to rounding, and after a view or
 two (a few live classes) one chunk, an eighth of the strata at C = 32.
@@ -273,9 +273,10 @@ def _mutual_information(tables: MITables, belief: PredictedBelief, target: str, 
             selfs = [jnp.take_along_axis(t, keep[None, :, None, None, None], axis=4)[..., 0] for t in ts]
         return mixture_information(ts, selfs, log_pc, log_pk, outer=outer)
 
-    if n_c > _FEW_CLASSES:
+    if n_c > 2 * _FEW_CLASSES:
         # the strata of the classes of nonzero weight alone, _FEW_CLASSES at a
-        # time (module docstring, "Few classes")
+        # time (module docstring, "Few classes"; with few classes in all, the
+        # whole computation)
         zero = jnp.zeros((j, math.prod(positions)), dtype)
         reps = live_chunks(log_pc, len(positions) + 1, lambda keep, valid: information((keep, valid)), zero,
                            size=_FEW_CLASSES)

@@ -145,8 +145,11 @@ def _image_sets(db):
     neg[0, 0, 0] = -1
     big[0] *= np.float32(1e30)  # its energy overflows float32 without the peak scaling
     inf[1, 2, 2] = np.inf
+    wide = good.astype(np.int32) * 10**6 + 7  # checked and scaled after the cast to float32
+    over, under = (good.astype(np.float64) * f for f in (1e37, 1e-47))  # float32: inf; 0 (all black)
     return {"uint8": good, "float32": odd, "float64": good.astype(np.float64), "uint16": good.astype(np.uint16) * 200,
-            "black": black, "constant": const, "nan": nan, "negative": neg, "huge": big, "inf": inf}
+            "int32": wide, "black": black, "constant": const, "nan": nan, "negative": neg, "huge": big, "inf": inf,
+            "float64-overflow": over, "float64-underflow": under}
 
 
 def test_host_features_equal_the_compiled_projection(setup):
@@ -161,9 +164,11 @@ def test_host_features_equal_the_compiled_projection(setup):
     compiled = jax.jit(lambda imgs, cfg: [project_at(c, cfg[i], imgs[i]) for i, c in enumerate(m.cameras)])
     for name, imgs in _image_sets(db).items():
         got = host_features(planes, config, imgs, m.image_shape)
-        want = compiled(jnp.asarray(imgs), jnp.asarray(config))
+        with np.errstate(over="ignore"):  # float64 beyond float32: inf, as the cast in the program gives
+            want = compiled(jnp.asarray(imgs, jnp.float32) if imgs.dtype == np.float64 else jnp.asarray(imgs),
+                            jnp.asarray(config))
         assert bool(got.ok) == all(bool(ok) for _, ok in want), name
-        assert bool(got.ok) == (name in ("uint8", "float32", "float64", "uint16", "huge")), name
+        assert bool(got.ok) == (name in ("uint8", "float32", "float64", "uint16", "int32", "huge")), name
         for g, (w, ok) in zip(got.gs, want):
             assert g.dtype == np.float32 and np.all(np.isfinite(g))
             if bool(got.ok):
@@ -185,3 +190,34 @@ def test_host_features_leave_traced_or_odd_input_to_the_program(setup):
     seen = []
     jax.jit(lambda i: seen.append(host_features(planes, np.array([0, 0]), i, m.image_shape)) or i)(imgs)
     assert seen == [None]
+
+
+def test_host_features_of_a_batch_are_those_of_each_image_set(setup):
+    """The driver's batch: slots at different positions, good and bad image
+    sets mixed, give bit for bit what each set gives alone (however a batch is
+    split, a slot's value is its own); positions a camera does not have go to
+    the program (None)."""
+    from jaxrecog.features import host_features, host_features_batch, host_planes
+
+    db, m = setup
+    planes = [host_planes(c) for c in m.cameras]
+    sets = _image_sets(db)
+    names = ["uint8", "black", "uint8", "nan", "uint8"]
+    imgs = np.stack([sets[n].astype(np.float32) for n in names])
+    configs = np.array([[0, 2], [1, 1], [1, 0], [0, 0], [1, 2]])
+    batch = host_features_batch(planes, configs, imgs, m.image_shape)
+    assert batch.ok.tolist() == [True, False, True, False, True]
+    for b, (cfg, img) in enumerate(zip(configs, imgs)):
+        one = host_features(planes, cfg, img, m.image_shape)
+        assert bool(one.ok) == bool(batch.ok[b])
+        for g, gb in zip(one.gs, batch.gs):
+            np.testing.assert_array_equal(gb[b], g)
+    assert host_features_batch(planes, configs + [[0, 1]], imgs, m.image_shape) is None   # camera 1 has 3
+    # 64-bit integers whose energy overflows float32: scaled by the peak, the image's own features
+    # (the program cannot take them: JAX keeps 32-bit integers)
+    big = host_features(planes, configs[0], sets["uint8"].astype(np.int64) * 10**16, m.image_shape)
+    ref = host_features(planes, configs[0], sets["uint8"], m.image_shape)
+    assert bool(big.ok)
+    for g, r in zip(big.gs, ref.gs):
+        np.testing.assert_allclose(g, r, rtol=1e-4, atol=1e-6)
+    assert host_features(planes, np.array([-1, 0]), imgs[0], m.image_shape) is None
