@@ -240,10 +240,14 @@ def _transition_form(log_pk):
     return ok, cur
 
 
-def _information(es, ms, selfs, log_pc, wks, weight_floor, patch=None):
+def _information(es, ms, selfs, log_pc, wks, weight_floor, patch=None, few: bool = False):
     """I_D on the grid from grid-layout E_i ``[C, X_i, C']``, M_i ``[C, X_i]``,
     S_i ``[C, X_i]`` (class target; ``None`` for the state target), floored
     log P(c) and the strata's weight factors ``wks`` ``[C, V_i, L_i]``.
+
+    ``few``: where at most ``_FEW_CLASSES`` classes have weight, loop over
+    them alone (module docstring, "Few classes"; off for the belief-free
+    tables and the uniform-class slabs, whose classes all have weight).
 
     ``patch = (big, start, e_rows)``: camera ``big``'s E rows
     ``[start, start + L)`` hold stale values in ``es`` and are replaced by
@@ -308,7 +312,7 @@ def _information(es, ms, selfs, log_pc, wks, weight_floor, patch=None):
             return jnp.sum(logz, axis=0)
         return jax.lax.fori_loop(0, n_o, body, jnp.zeros(xs, dtype))
 
-    if n_c > _FEW_CLASSES and n_c * math.prod(xs) > _SMALL_GRID:
+    if few and n_c > _FEW_CLASSES and n_c * math.prod(xs) > _SMALL_GRID:
         # a class of weight 0 (P(c) flushed) adds exactly 0 to the sum: when at
         # most _FEW_CLASSES have weight (a belief after a view or two), a loop
         # over those alone makes each one's grid product and log (module
@@ -410,7 +414,7 @@ def pairwise_mutual_information(
         ws = [_level_rows(e, m, lp) for e, m, lp in zip(tables.w_exp, tables.w_max, log_pk)]
         mes = [shifted_exp(w) for w in ws]
         selfs = [own_class(w, 0, 2) for w in ws] if klass else None
-        return _information([e for _, e in mes], [m for m, _ in mes], selfs, log_pc, wks, floor)
+        return _information([e for _, e in mes], [m for m, _ in mes], selfs, log_pc, wks, floor, few=True)
 
     big = max(range(n), key=lambda i: positions[i] * n_levels[i])
     zero = jnp.zeros((), jnp.int32)
@@ -444,7 +448,7 @@ def pairwise_mutual_information(
             e, m, own, p = patched(i, row, i == big)
             es.append(e), ms.append(m), selfs.append(own)
             patch = p or patch
-        return _information(es, ms, selfs if klass else None, log_pc, wks, floor, patch)
+        return _information(es, ms, selfs if klass else None, log_pc, wks, floor, patch, few=True)
 
     def uniform_class(cur):
         # the class prior is uniform (e.g. the tempered belief at tau = 0) and
