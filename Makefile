@@ -23,8 +23,11 @@ venv: $(STAMP)
 demo: $(STAMP)
 	$(BIN)/jaxrecog demo --out $(OUTDIR)
 
+# one OpenBLAS thread per test process: two workers on two cores, each with two
+# BLAS threads that spin while they wait, took 11-17 s longer (327.9 / 333.9 s
+# against 316.5 s of pytest, load ~2)
 test: $(STAMP)
-	$(BIN)/python -m pytest -q -n $(JOBS) --dist loadfile --no-loadscope-reorder $(PYTEST_ARGS)
+	OPENBLAS_NUM_THREADS=1 $(BIN)/python -m pytest -q -n $(JOBS) --dist loadfile --no-loadscope-reorder $(PYTEST_ARGS)
 
 bench: $(STAMP)
 	$(BIN)/jaxrecog bench --out out/bench
