@@ -205,10 +205,16 @@ def host_features(planes: Sequence[tuple[np.ndarray, np.ndarray]], config, image
             y, good = _usable_rows(image.reshape(1, -1), basis.dtype)
             g = np.zeros(basis.shape[-1], basis.dtype)
             if good[0]:
-                g = (y[0] @ basis[v]) * (np.asarray(1, basis.dtype) / np.sqrt(np.dot(y[0], y[0]))) - means[v]
+                g = _project_row(basis, means, v, y[0])
             ok &= bool(good[0])
             gs.append(g)
     return HostFeatures(tuple(gs), np.asarray(ok))
+
+
+def _project_row(basis: np.ndarray, means: np.ndarray, v, y: np.ndarray) -> np.ndarray:
+    """``g = V_vᵀ y / ||y|| - V_vᵀ x̄_v`` for one usable row ``y`` (one
+    matrix-vector product: a row's value does not depend on its batch)."""
+    return (y @ basis[v]) * (np.asarray(1, basis.dtype) / np.sqrt(np.dot(y, y))) - means[v]
 
 
 def _host_shapes(planes, configs: np.ndarray, imgs: np.ndarray, image_shape) -> bool:
@@ -261,7 +267,7 @@ def host_features_batch(planes: Sequence[tuple[np.ndarray, np.ndarray]], configs
             g = np.zeros((len(y), basis.shape[-1]), basis.dtype)
             for b in np.flatnonzero(good):  # one product per image set: a slot's value is its own alone
                 v = configs[b, i]
-                g[b] = (y[b] @ basis[v]) * (np.asarray(1, basis.dtype) / np.sqrt(np.dot(y[b], y[b]))) - means[v]
+                g[b] = _project_row(basis, means, v, y[b])
             gs.append(g)
             ok &= good
     return HostFeatures(tuple(gs), ok)

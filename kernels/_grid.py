@@ -209,14 +209,18 @@ def own_class(t, class_axis: int, other_class_axis: int):
 
 
 def live_chunks(log_pc, n_factors: int, body, init, size: int = FEW_CLASSES):
-    """``init + sum_k body(keep_k, valid_k)`` over chunks of ``size`` class
-    indices, the classes of nonzero weight (:func:`weights` with
-    ``n_factors``) first: ``keep_k`` ``[size]`` indices, ``valid_k`` whether
-    each is one of them (padding and dead classes are not).  A loop of
-    ceil(live / size) steps: a belief after a view or two runs one.  ``body``
-    must give 0 for the invalid entries (weight them by 0)."""
+    """The sum over the strata by classes: ``body(None)`` (every class at
+    once) where there are at most ``2 * size`` classes, else ``init + sum_k
+    body((keep_k, valid_k))`` over chunks of ``size`` class indices, the
+    classes of nonzero weight (:func:`weights` with ``n_factors``) first:
+    ``keep_k`` ``[size]`` indices, ``valid_k`` whether each is one of them
+    (padding and dead classes are not).  A loop of ceil(live / size) steps: a
+    belief after a view or two runs one.  ``body`` must give 0 for the
+    invalid entries (weight them by 0)."""
     n_c = log_pc.shape[0]
     m = int(size)
+    if n_c <= 2 * m:
+        return body(None)
     live = weights(log_pc, n_factors) > 0
     n_live = jnp.sum(live)
     order = jnp.argsort(~live, stable=True)  # the live classes first, ascending
@@ -226,7 +230,7 @@ def live_chunks(log_pc, n_factors: int, body, init, size: int = FEW_CLASSES):
 
     def step(k, acc):
         keep = jax.lax.dynamic_slice_in_dim(order, k * m, m)
-        return acc + body(keep, jax.lax.dynamic_slice_in_dim(valid, k * m, m))
+        return acc + body((keep, jax.lax.dynamic_slice_in_dim(valid, k * m, m)))
 
     return jax.lax.fori_loop(0, (n_live + m - 1) // m, step, init)
 

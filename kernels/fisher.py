@@ -216,14 +216,10 @@ def fisher_from_draws(tables: MITables, belief: PredictedBelief, draws: FisherDr
         spec = f"{grid_w},{grid_in}d,{grid_in}e->" + ("j" if with_stderr else "") + letters + "de"
         return jnp.einsum(spec, w, shaped, shaped)
 
-    if n_c > 2 * _FEW_CLASSES:
-        # the strata of the classes of nonzero weight alone, _FEW_CLASSES at a
-        # time (as the MI's, :mod:`.mutual_information`, "Few classes")
-        shape = ((j,) if with_stderr else ()) + positions + (n + 2, n + 2)
-        fis = live_chunks(log_pc, n + 1, lambda keep, valid: contributions((keep, valid)), jnp.zeros(shape, dtype),
-                          size=_FEW_CLASSES)
-    else:
-        fis = contributions(None)
+    # the strata of the classes of nonzero weight alone, _FEW_CLASSES at a time
+    # (as the MI's, :mod:`.mutual_information`, "Few classes")
+    shape = ((j,) if with_stderr else ()) + positions + (n + 2, n + 2)
+    fis = live_chunks(log_pc, n + 1, contributions, jnp.zeros(shape, dtype), size=_FEW_CLASSES)
     if not with_stderr:
         fis = (fis / j).reshape((-1, n + 2, n + 2))
         return 0.5 * (fis + jnp.swapaxes(fis, -1, -2))

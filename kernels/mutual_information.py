@@ -273,15 +273,11 @@ def _mutual_information(tables: MITables, belief: PredictedBelief, target: str, 
             selfs = [jnp.take_along_axis(t, keep[None, :, None, None, None], axis=4)[..., 0] for t in ts]
         return mixture_information(ts, selfs, log_pc, log_pk, outer=outer)
 
-    if n_c > 2 * _FEW_CLASSES:
-        # the strata of the classes of nonzero weight alone, _FEW_CLASSES at a
-        # time (module docstring, "Few classes"; with few classes in all, the
-        # whole computation)
-        zero = jnp.zeros((j, math.prod(positions)), dtype)
-        reps = live_chunks(log_pc, len(positions) + 1, lambda keep, valid: information((keep, valid)), zero,
-                           size=_FEW_CLASSES)
-    else:
-        reps = information(None)
+    # the strata of the classes of nonzero weight alone, _FEW_CLASSES at a
+    # time (module docstring, "Few classes"; with few classes in all, the
+    # whole computation)
+    reps = live_chunks(log_pc, len(positions) + 1, information, jnp.zeros((j, math.prod(positions)), dtype),
+                       size=_FEW_CLASSES)
     mi = jnp.mean(reps, axis=0)
     if not with_stderr:
         return mi

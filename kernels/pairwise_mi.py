@@ -281,6 +281,14 @@ def _information(es, ms, selfs, log_pc, wks, weight_floor, patch=None, few: bool
     spec = ",".join(f"c{l}z" for l in letters) + f"->c{letters}"
     tiny = float(jnp.finfo(dtype).tiny)
 
+    def class_term(z_c, c, wg_o):
+        """Class ``c``'s log grid ``z_c`` weighted by its strata's weights
+        (only rows of weight 0 can be below tiny, module docstring)."""
+        logz = jnp.log(jnp.maximum(z_c, tiny))
+        for i, w in enumerate(wg_o):
+            logz = logz * row_grid.expand(jax.lax.dynamic_index_in_dim(w, c, 0, keepdims=False), i)
+        return logz
+
     def grid_sum(es_o, wg_o, patch_o):
         """sum over the outer classes given (the leading axis of ``es_o``,
         ``wg_o`` and the patch's rows) of their weighted log grid ``[X_0, ...]``."""
@@ -296,12 +304,7 @@ def _information(es, ms, selfs, log_pc, wks, weight_floor, patch=None, few: bool
 
         def body(c, acc):
             # one fusion per class: its slice of the grid, log, weights, accumulate
-            # (only rows of weight 0 can be below tiny, module docstring)
-            logz = jnp.log(jnp.maximum(jax.lax.dynamic_index_in_dim(z, c, 0, keepdims=False), tiny))
-            for i, w in enumerate(wg_o):
-                wc = jax.lax.dynamic_index_in_dim(w, c, 0, keepdims=False)
-                logz = logz * row_grid.expand(wc, i)
-            return acc + logz
+            return acc + class_term(jax.lax.dynamic_index_in_dim(z, c, 0, keepdims=False), c, wg_o)
 
         if n_o * math.prod(xs) <= _SMALL_GRID:
             # a small grid (a slab of the uniform-class path): one fusion over all
@@ -330,10 +333,7 @@ def _information(es, ms, selfs, log_pc, wks, weight_floor, patch=None, few: bool
                 starts = [jnp.zeros((), jnp.int32)] * n
                 starts[big] = start
                 z = jax.lax.dynamic_update_slice(z, jnp.einsum(spec_c, *ops), starts)
-            logz = jnp.log(jnp.maximum(z, tiny))
-            for i, w in enumerate(wg):
-                logz = logz * row_grid.expand(jax.lax.dynamic_index_in_dim(w, c, 0, keepdims=False), i)
-            return acc + logz
+            return acc + class_term(z, c, wg)
 
         def few(_):
             order = jnp.argsort(~live, stable=True)  # the live classes first, ascending
