@@ -47,6 +47,7 @@ _EXPORTS: dict[str, str] = {
     **dict.fromkeys(["Noise", "SyntheticRig"], "render.synthetic"),
     **dict.fromkeys(["DatasetRig"], "rigs.dataset_rig"),
     **dict.fromkeys(["LocalRigs", "ProcessRigs"], "rigs.rig_pool"),
+    **dict.fromkeys(["CaptureMemo", "MemoRigs"], "rigs.capture_memo"),
 }
 
 __all__ = sorted(_EXPORTS, key=str.lower)

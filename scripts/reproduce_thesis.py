@@ -42,6 +42,7 @@ import time
 from jaxrecog.cli._options import (capture_options, capture_params, given_likelihood_options, likelihood_choice,
                                    likelihood_options, render_jitter_options, render_jitter_values,
                                    render_workers_option)
+from jaxrecog.hardware.rigs.capture_memo import CaptureMemo
 from jaxrecog.metrics import campaign_metrics
 from jaxrecog.campaigns import CASES, Settings, prepare, results_dir, run_case, run_trace
 
@@ -145,6 +146,7 @@ def main(argv=None) -> int:
     # train only the models the chosen cases use (the trace is a case-iii trial: DB2)
     databases = sorted({CASES[c].database if c != "trace" else CASES["iii"].database for c in cases})
     prepared = prepare(settings, progress=show, databases=databases)
+    memo = CaptureMemo()  # the captures every case's planners share, and cases of the same scenes ((ii), (iii))
     for name in cases:
         if name == "trace":
             md = ""
@@ -161,7 +163,7 @@ def main(argv=None) -> int:
             print(f"wrote {out}")
             continue
         planners = args.planners.split(",") if args.planners else None
-        report = run_case(name, settings, planners, progress=show, prepared=prepared)
+        report = run_case(name, settings, planners, progress=show, prepared=prepared, memo=memo)
         md_path, _ = report.write()
         print(report.markdown())
         for planner, res in report.results.items():

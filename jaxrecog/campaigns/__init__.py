@@ -40,7 +40,7 @@ from .dataset import DATASET_PLANNERS, dataset_planners, run_dataset
 from .naming import model_path, results_dir
 from .preparation import Prepared, prepare
 from .reports import CaseReport
-from .rigs import capture_pool, make_rig, rig_pool, rig_table
+from .rigs import capture_pool, make_rig, rig_pool, rig_table, rig_tag
 from .run import campaign_recognizer, compare_planners, run_case, run_trace
 from .settings import Settings
 from .turntable import TURNTABLE_PLANNERS, prepare_turntable, run_turntable
@@ -48,7 +48,7 @@ from .turntable import TURNTABLE_PLANNERS, prepare_turntable, run_turntable
 __all__ = [
     "Case", "CASES", "JITTER", "case_settings", "case_model", "case_trials", "off_grid",
     "Settings", "Prepared", "CaseReport", "prepare", "make_rig", "model_path", "results_dir",
-    "capture_pool", "rig_pool", "rig_table", "campaign_recognizer", "compare_planners",
+    "capture_pool", "rig_pool", "rig_table", "rig_tag", "campaign_recognizer", "compare_planners",
     "run_case", "run_trace", "DATASET_PLANNERS", "dataset_planners", "run_dataset",
     "TURNTABLE_PLANNERS", "prepare_turntable", "run_turntable",
 ]

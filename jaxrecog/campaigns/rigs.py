@@ -12,7 +12,7 @@ import functools
 from .cases import off_grid
 from .settings import Settings
 
-__all__ = ["rig_table", "make_rig", "rig_pool", "capture_pool", "renderer"]
+__all__ = ["rig_table", "make_rig", "rig_pool", "capture_pool", "rig_tag", "renderer"]
 
 
 def rig_table(settings: Settings):
@@ -54,22 +54,37 @@ def rig_pool(settings: Settings, cameras: tuple[int, ...] | None = None, *, seed
     return [make_rig(settings, cameras, seed=seed, clean_counts=shared) for _ in range(max(1, settings.batch))]
 
 
-def capture_pool(settings: Settings, cameras: tuple[int, ...] | None = None, *, seed: int = 0):
+def capture_pool(settings: Settings, cameras: tuple[int, ...] | None = None, *, seed: int = 0, memo=None):
     """:func:`rig_pool`'s rigs as a :class:`~jaxrecog.hardware.rigs.rig_pool.RigPool`
     for the trial driver: in this process (``settings.render_workers == 0``)
     or spread over that many worker processes, which render side by side
     (the results are the same), or in Ray actors (``settings.cluster``).
-    Close it when done (it is a context manager)."""
+    ``memo``: a :class:`~jaxrecog.hardware.rigs.capture_memo.CaptureMemo` that
+    keeps the captures, so that a later campaign of the same trials on alike
+    rigs (another planner, another case of the same scenes) renders only what
+    it has not seen (the same captures).  Close the pool when done (it is a
+    context manager)."""
     from ..hardware.rigs.rig_pool import LocalRigs, ProcessRigs
 
     factory = functools.partial(make_rig, settings, cameras, seed=seed, clean_counts={})
     if settings.cluster:
         from ..ray_rigs import RayRigs
 
-        return RayRigs(factory, max(1, settings.batch), settings.render_workers, cluster=settings.cluster)
-    if settings.render_workers:
-        return ProcessRigs(factory, max(1, settings.batch), settings.render_workers)
-    return LocalRigs(rig_pool(settings, cameras, seed=seed))
+        pool = RayRigs(factory, max(1, settings.batch), settings.render_workers, cluster=settings.cluster)
+    elif settings.render_workers:
+        pool = ProcessRigs(factory, max(1, settings.batch), settings.render_workers)
+    else:
+        pool = LocalRigs(rig_pool(settings, cameras, seed=seed))
+    if memo is None:
+        return pool
+    from ..hardware.rigs.capture_memo import MemoRigs
+
+    return MemoRigs(pool, memo, rig_tag(settings, cameras, seed))
+
+
+def rig_tag(settings: Settings, cameras: tuple[int, ...] | None, seed: int) -> tuple:
+    """What :func:`make_rig` builds its rig from: pools of equal tags render alike."""
+    return (settings.stride, cameras, tuple(settings.capture_noise), off_grid(settings), seed)
 
 
 def renderer(settings: Settings, local, name: str):

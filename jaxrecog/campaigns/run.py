@@ -12,7 +12,7 @@ that reveal identity.
 from __future__ import annotations
 
 import time
-from typing import Callable, Sequence
+from typing import TYPE_CHECKING, Callable, Sequence
 
 import jax.random as jr
 
@@ -26,6 +26,9 @@ from .preparation import Prepared, prepare, progress_bar
 from .reports import CaseReport
 from .rigs import capture_pool, make_rig
 from .settings import Settings
+
+if TYPE_CHECKING:
+    from ..hardware.rigs.capture_memo import CaptureMemo
 
 __all__ = ["campaign_recognizer", "compare_planners", "run_case", "run_trace"]
 
@@ -87,9 +90,16 @@ def run_case(
     progress: bool = False,
     prepared: Prepared | None = None,
     on_result: Callable[[str, TrialResult], None] | None = None,
+    memo: "CaptureMemo | None" = None,
 ) -> CaseReport:
     """Run one thesis case with each planner on the same trials (resumable:
-    finished trials are kept in ``workdir/trials``)."""
+    finished trials are kept in ``workdir/trials``).  The planners share
+    their captures (:class:`~jaxrecog.hardware.rigs.capture_memo.CaptureMemo`:
+    a trial's first images are the same for every planner, and so is any
+    later capture two planners agree on); pass ``memo`` to share them with
+    other cases too (``reproduce_thesis.py --case all``: cases (ii) and
+    (iii) show the same scenes).  The results are those of rendering every
+    capture."""
     if name not in CASES:
         raise ValueError(f"unknown case {name!r}; choose one of {', '.join(CASES)}")
     case = CASES[name]
@@ -103,7 +113,11 @@ def run_case(
     probe = make_rig(settings, case.cameras, seed=settings.seed)  # the table and geometry, here
     specs = case_trials(case, settings, probe, model.n_objects, model.n_poses)
     rid = run_id(settings, prepared.models[case.database])
-    with capture_pool(settings, case.cameras, seed=settings.seed) as rigs:
+    if memo is None:
+        from ..hardware.rigs.capture_memo import CaptureMemo
+
+        memo = CaptureMemo()
+    with capture_pool(settings, case.cameras, seed=settings.seed, memo=memo) as rigs:
         return compare_planners(case, model, rigs, specs, settings, list(planners or case.planners),
                                 lambda planner: f"case-{name}-{planner}-{rid}", progress=progress,
                                 on_result=on_result, probe=probe)
