@@ -46,7 +46,7 @@ from jaxtyping import Array, Float, PRNGKeyArray
 
 from . import kernels as K
 from .kernels import tempered_mi as _tempered_mi
-from .table_cache import divergence_tables
+from .table_cache import divergence_tables, sample_tables
 
 __all__ = [
     "Planner",
@@ -119,7 +119,7 @@ def samples_per_stratum(model, samples: int, min_per_stratum: int = 1) -> int:
 def _tables(model, key: PRNGKeyArray, samples: int, store: str, min_per_stratum: int) -> K.MITables:
     """The offline sample tables shared by MI and CRLB (J from :func:`samples_per_stratum`)."""
     j = samples_per_stratum(model, samples, min_per_stratum)
-    return K.mi_tables(model.likelihoods, key=key, samples_per_stratum=j, store=store)
+    return sample_tables(model.likelihoods, key=key, samples_per_stratum=j, store=store)
 
 
 class Planner(eqx.Module):

@@ -1,7 +1,8 @@
-"""The divergence tables of the pairwise planners, built once per model in a
-process (jaxrecog.table_cache): a hit for the same likelihoods by content
-(another load of the same file), a miss for another divergence or another
-model, the same values as a fresh build, nothing cached under a trace."""
+"""The divergence tables of the pairwise planners and the sample tables of the
+Monte Carlo ones, built once per model in a process (jaxrecog.table_cache): a
+hit for the same likelihoods by content (another load of the same file), a
+miss for another divergence, key, J or model, the same values as a fresh
+build, nothing cached under a trace."""
 
 from __future__ import annotations
 
@@ -57,3 +58,25 @@ def test_nothing_is_cached_under_a_trace(model_file):
     value = first_entry(tuple(model.likelihoods))
     assert table_cache._cache == {}
     assert jnp.isfinite(value)
+
+
+def test_the_monte_carlo_planners_share_their_sample_tables(model_file):
+    """``mi``, ``mi-class`` and ``crlb`` of one model and key: one build, the
+    values of a fresh one; another key or J, or another load's other model,
+    is a build of its own."""
+    key = jax.random.PRNGKey(3)
+    mi = make_planner("mi", load_model(model_file), key=key, samples=64)
+    assert make_planner("mi-class", load_model(model_file), key=key, samples=64).tables is mi.tables
+    crlb = make_planner("crlb", load_model(model_file), key=key, samples=64)
+    for a, b in zip(jax.tree.leaves(crlb.tables), jax.tree.leaves(mi.tables)):
+        assert a is b
+    model = load_model(model_file)
+    fresh = K.mi_tables(model.likelihoods, key=key, samples_per_stratum=mi.tables.ld_self[0].shape[-1], store="full")
+    for a, b in zip(jax.tree.leaves(mi.tables), jax.tree.leaves(fresh)):
+        np.testing.assert_array_equal(a, b)
+    assert make_planner("mi", model, key=jax.random.PRNGKey(4), samples=64).tables is not mi.tables
+    assert make_planner("mi", model, key=key, samples=4096).tables is not mi.tables
+    # a typed key keys the cache by its bits too
+    typed = table_cache.sample_tables(model.likelihoods, key=jax.random.key(3), samples_per_stratum=2, store="full")
+    assert table_cache.sample_tables(model.likelihoods, key=jax.random.key(3), samples_per_stratum=2,
+                                     store="full") is typed
