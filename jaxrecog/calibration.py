@@ -337,11 +337,14 @@ def fit_camera(camera: CameraModel, features: CameraFeatures, *, per_level: bool
     idx[pos, slot] = order
     mask[pos, slot] = True
     dtype = lik.dtype
-    g = jnp.asarray(features.g, dtype)[idx] if features.g.shape[0] else jnp.zeros((V, n_max, dim), dtype)
-    cls = jnp.asarray(features.cls[idx] if features.cls.size else np.zeros((V, n_max), np.int64))
+    # gathered on the host and put on the device as they are (an eager
+    # gather or cast compiles a program per shape)
+    g = np.asarray(features.g, dtype)[idx] if features.g.shape[0] else np.zeros((V, n_max, dim), dtype)
+    g = jax.device_put(g)
+    cls = jax.device_put(np.asarray(features.cls[idx] if features.cls.size else np.zeros((V, n_max)), np.int32))
     terms = _scaling_terms(lik, g)
     theta, it, conv, nll0, nll1 = _fit_positions(
-        lik, terms, cls, jnp.asarray(mask), jnp.asarray(prior_sd, dtype), jnp.asarray(int(max_iter)),
+        lik, terms, cls, jax.device_put(mask), jnp.asarray(prior_sd, dtype), jnp.asarray(int(max_iter)),
         jnp.asarray(tol, dtype), jnp.asarray(-jnp.inf if min_factor is None else math.log(min_factor), dtype),
         n_params=groups * (1 + n_shape), n_shape=n_shape)
     theta = np.asarray(theta, np.float64).reshape(V, 1 + n_shape, groups)

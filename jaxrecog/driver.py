@@ -260,7 +260,8 @@ def _host_projected(planes, image_shape, states: RecognizerState, fresh, configs
 
 def _initial_states(recognizer: Recognizer, batch: int) -> RecognizerState:
     one = recognizer.init(config=(0,) * len(recognizer.positions))
-    return jax.tree.map(lambda x: jnp.broadcast_to(x, (batch, *x.shape)), one)
+    # broadcast on the host: an eager broadcast compiles a program per shape
+    return jax.tree.map(lambda x: jax.device_put(np.broadcast_to(np.asarray(x), (batch, *x.shape))), one)
 
 
 @dataclasses.dataclass

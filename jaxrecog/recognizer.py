@@ -328,8 +328,10 @@ class Recognizer(eqx.Module):
         if config.shape != (len(positions),):
             raise ValueError(f"config must give one position per camera ({len(positions)}), got shape {config.shape}")
         prior = initial_belief(self.model, self.shared_view)
-        return RecognizerState(prior, config, jnp.zeros((), jnp.int32), jnp.zeros((self.n_configs,), bool),
-                               tuple(jnp.zeros((v,), bool) for v in positions), jnp.zeros((), jnp.int32))
+        # zeros made on the host: an eager jnp.zeros compiles a program per shape
+        zeros = lambda shape, dtype: jax.device_put(np.zeros(shape, dtype))  # noqa: E731
+        return RecognizerState(prior, config, zeros((), np.int32), zeros((self.n_configs,), bool),
+                               tuple(zeros((v,), bool) for v in positions), zeros((), np.int32))
 
     def step(self, state: RecognizerState, images: Real[ArrayLike, "n H W"] | HostFeatures, key: PRNGKeyArray, *,
              trace: bool = False, plan_on_stop: bool = True) -> tuple[RecognizerState, Decision]:

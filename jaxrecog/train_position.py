@@ -28,7 +28,7 @@ levels.
 
 from __future__ import annotations
 
-import jax.numpy as jnp
+import jax
 import numpy as np
 
 from .augment import SamplePlan, ShiftWindows, apply_geometry, capture_rng, draw_plan, plan_rng
@@ -47,8 +47,10 @@ def stack_positions(liks: list[Likelihood]) -> Likelihood:
 
 
 def stack_arrays(*per_position):
-    """``[V, ...]`` float32 JAX array of per-position float64 arrays."""
-    return jnp.asarray(np.stack(per_position).astype(np.float32))
+    """``[V, ...]`` float32 JAX array of per-position float64 arrays (put on
+    the device as it is: ``jnp.asarray`` of a NumPy array compiles a program
+    per shape)."""
+    return jax.device_put(np.stack(per_position).astype(np.float32))
 
 
 def fit_position(images, mean, basis, lam, levels, params, bank, seed, camera, position, *,
