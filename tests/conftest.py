@@ -105,11 +105,13 @@ def pytest_sessionfinish(session, exitstatus):
 #: XLA flags of the test run.  The suite's time is compile time
 #: (tests/conftest.py::_share_compilations), and nine tenths of that is XLA's
 #: CPU backend, not JAX's tracing or lowering (measured per test with
-#: ``jax.monitoring``'s ``backend_compile_duration``).  The flags:
+#: ``jax.monitoring``'s ``backend_compile_duration``).  The settings:
 #:
-#: - the LLVM optimisations off: for the larger programs (a recognizer step
-#:   with the CRLB planner on three cameras) they halve the compile (19 s ->
-#:   9 s of CPU for that test);
+#: - the LLVM optimisations off (``jax_disable_most_optimizations``: XLA's
+#:   backend optimisation level 0 and its expensive LLVM passes off): for the
+#:   larger programs (a recognizer step with the CRLB planner on three
+#:   cameras) they halve the compile (19 s -> 9 s of CPU for that test); a
+#:   test whose programs run long takes the :func:`optimized_xla` fixture;
 #: - the classic elemental emitters instead of the MLIR fusion emitters
 #:   (``xla_cpu_use_fusion_emitters=false``): tests/test_recognizer.py's
 #:   backend compile 64.5 s -> 24.8 s, the two-step lookahead kernel 1.58 s
@@ -122,8 +124,8 @@ def pytest_sessionfinish(session, exitstatus):
 #: tests compare against the NumPy oracles at unchanged tolerances).
 #: Benchmarks and the product do not use them.  ``JAXRECOG_TEST_XLA_OPT=1``
 #: keeps XLA's defaults.
-FAST_COMPILE_FLAGS = ("--xla_backend_optimization_level=0", "--xla_llvm_disable_expensive_passes=true",
-                      "--xla_cpu_use_fusion_emitters=false", "--xla_cpu_parallel_codegen_split_count=1")
+FAST_COMPILE_FLAGS = ("--xla_llvm_disable_expensive_passes=true", "--xla_cpu_use_fusion_emitters=false",
+                      "--xla_cpu_parallel_codegen_split_count=1")
 
 
 def _fast_compiles() -> None:
@@ -132,9 +134,27 @@ def _fast_compiles() -> None:
     flags = os.environ.get("XLA_FLAGS", "").split()
     add = [f for f in FAST_COMPILE_FLAGS if f.split("=")[0] not in {g.split("=")[0] for g in flags}]
     os.environ["XLA_FLAGS"] = " ".join(flags + add)  # read when the backend starts; subprocesses inherit it
+    os.environ["JAX_DISABLE_MOST_OPTIMIZATIONS"] = "1"  # subprocesses
+    jax.config.update("jax_disable_most_optimizations", True)  # read at every compile
 
 
 _fast_compiles()
+
+
+@pytest.fixture
+def optimized_xla():
+    """The test's programs compiled with XLA's optimisations (the suite turns
+    them off: :data:`FAST_COMPILE_FLAGS`), for a test whose programs run long
+    rather than many: tests/test_soak.py's 10 000 steps take 2.5 s so against
+    11.8 s unoptimised, its whole test 7 s against 15 s.  A program this
+    process compiled before (the same function, shapes and settings) is
+    reused as it was compiled."""
+    previous = jax.config.read("jax_disable_most_optimizations")
+    jax.config.update("jax_disable_most_optimizations", False)
+    try:
+        yield
+    finally:
+        jax.config.update("jax_disable_most_optimizations", previous)
 
 
 @pytest.fixture

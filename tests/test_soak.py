@@ -62,7 +62,7 @@ def _leaves_nan(tree) -> int:
     return sum(int(np.isnan(np.asarray(x)).sum()) for x in jax.tree.leaves(tree))
 
 
-def test_ten_thousand_steps_with_bad_images(capsys):
+def test_ten_thousand_steps_with_bad_images(capsys, optimized_xla):
     db = make_database(positions=(4, 3), n_objects=3, n_poses=2, image_shape=(24, 32), n_test=1)
     model = train_model(db, kind="DB2", n_components=4, samples_per_image=8)
     rec = Recognizer(model, make_planner("mi", model, key=jr.PRNGKey(0), samples=16))

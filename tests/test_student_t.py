@@ -59,7 +59,7 @@ def test_chi2_from_normal_in_float32_is_finite_and_close():
         np.testing.assert_allclose(got, chi2.ppf(norm.cdf(u.astype(np.float64)), nu), rtol=2e-3)
 
 
-def test_sampler_moments_and_marginals(rng, x64):
+def test_sampler_moments_and_marginals(rng, x64, optimized_xla):
     lik, mu, s2, nu = _t(rng, V=1, C=2, L=2, nu=(6.0, 12.0))
     one = lik.at(0)
     assert one.noise_dim == 4
