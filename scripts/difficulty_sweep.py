@@ -46,6 +46,7 @@ import jax.random as jr
 from jaxrecog import campaigns as ex
 from jaxrecog.scene import occluder_factory
 from jaxrecog.campaign import plan_trials, run_campaign
+from jaxrecog.hardware.rigs.capture_memo import CaptureMemo
 from jaxrecog.cluster import ClusterError, connect
 from jaxrecog.metrics import expected_calibration_error
 from jaxrecog.plots import save_png
@@ -153,7 +154,8 @@ def sweep(settings: ex.Settings, *, angles=ANGLES, planners=PLANNERS, databases=
         # one point's rigs at a time (in worker processes or on a cluster: its workers), every
         # model and planner on them; the rows below keep the order model, planner, point
         for axis, x, specs, s in points:
-            with ex.capture_pool(s, cams, seed=settings.seed) as rigs:
+            # the point's campaigns run the same trials: their common captures are rendered once
+            with ex.capture_pool(s, cams, seed=settings.seed, memo=CaptureMemo()) as rigs:
                 for db in databases:
                     for planner in planners:
                         t0 = time.perf_counter()

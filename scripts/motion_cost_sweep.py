@@ -31,6 +31,8 @@ import jax.random as jr
 
 from jaxrecog import campaigns as ex
 from jaxrecog.campaign import run_campaign
+from jaxrecog.hardware.rigs.capture_memo import CaptureMemo, MemoRigs
+from jaxrecog.hardware.rigs.rig_pool import LocalRigs
 from jaxrecog.motion import check_weight, rig_travel_times, with_motion_cost
 from jaxrecog.plots import save_png
 from jaxrecog.results import summarize
@@ -51,11 +53,13 @@ def sweep(settings: ex.Settings, case: str = "i", planner: str = "mi-class", lam
     specs = ex.case_trials(c, settings, rigs[0], model.n_objects, model.n_poses)
     travel = rig_travel_times(rigs[0])
     base = ex.campaign_recognizer(model, planner, settings, travel)
+    # every λ runs the same trials: the captures they agree on are rendered once
+    pool = MemoRigs(LocalRigs(rigs), CaptureMemo(), tag=None)
     rows = []
     for lam in lambdas:
         rec = with_motion_cost(base, lam)
         t0 = time.perf_counter()
-        res = run_campaign(rec, rigs, specs, key=jr.PRNGKey(settings.seed + 1), batch=settings.batch,
+        res = run_campaign(rec, pool, specs, key=jr.PRNGKey(settings.seed + 1), batch=settings.batch,
                            seed=settings.seed, devices=settings.devices)
         avg = summarize(res, model.n_objects)[-1]
         rows.append({
