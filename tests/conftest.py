@@ -149,12 +149,18 @@ def optimized_xla():
     11.8 s unoptimised, its whole test 7 s against 15 s.  A program this
     process compiled before (the same function, shapes and settings) is
     reused as it was compiled."""
-    previous = jax.config.read("jax_disable_most_optimizations")
-    jax.config.update("jax_disable_most_optimizations", False)
+    yield from _jax_setting("jax_disable_most_optimizations", False)
+
+
+def _jax_setting(name: str, value):
+    """A fixture's body: JAX's setting ``name`` is ``value`` for the test, as
+    it was afterwards."""
+    previous = jax.config.read(name)
+    jax.config.update(name, value)
     try:
         yield
     finally:
-        jax.config.update("jax_disable_most_optimizations", previous)
+        jax.config.update(name, previous)
 
 
 @pytest.fixture
@@ -205,12 +211,7 @@ def rng():
 @pytest.fixture
 def x64():
     """Run the test with 64-bit floats; restores the previous setting afterwards."""
-    previous = jax.config.read("jax_enable_x64")
-    jax.config.update("jax_enable_x64", True)
-    try:
-        yield
-    finally:
-        jax.config.update("jax_enable_x64", previous)
+    yield from _jax_setting("jax_enable_x64", True)
 
 
 @pytest.fixture
