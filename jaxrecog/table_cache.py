@@ -42,28 +42,37 @@ _samples: OrderedDict[tuple, K.MITables] = OrderedDict()
 
 
 def _key(arrays, *parts) -> tuple | None:
-    """``parts`` and the contents of ``arrays`` (a pytree), or ``None`` under a trace."""
+    """``parts``, the settings a build depends on beyond its inputs (64-bit
+    floats, the default PRNG) and the contents of ``arrays`` (a pytree; a
+    typed PRNG key by its implementation and bits), or ``None`` under a trace."""
     leaves, treedef = jax.tree.flatten(arrays)
     if any(isinstance(x, jax.core.Tracer) for x in leaves):
         return None
     digest = hashlib.sha1()
     for x in leaves:
         if jax.dtypes.issubdtype(getattr(x, "dtype", None), jax.dtypes.prng_key):
+            digest.update(str(x.dtype).encode())
             x = jax.random.key_data(x)
         a = np.ascontiguousarray(np.asarray(x))
         digest.update(f"{a.dtype.str}{a.shape}".encode())
         digest.update(a.tobytes())
-    return parts, str(treedef), digest.hexdigest()
+    settings = (bool(jax.config.jax_enable_x64), str(jax.config.jax_default_prng_impl))
+    return parts, settings, str(treedef), digest.hexdigest()
 
 
 def _kept(cache: OrderedDict, key: tuple | None, build):
-    """``build()``, or what ``cache`` keeps under ``key`` (the :data:`KEEP` latest)."""
+    """``build()``, or what ``cache`` keeps under ``key`` (the :data:`KEEP`
+    latest); a build that came out traced (called inside a transform) is
+    not kept."""
     if key is None:
         return build()
     if key in cache:
         cache.move_to_end(key)
         return cache[key]
-    value = cache[key] = build()
+    value = build()
+    if any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(value)):
+        return value
+    cache[key] = value
     while len(cache) > KEEP:
         cache.popitem(last=False)
     return value

@@ -143,12 +143,16 @@ _fast_compiles()
 
 @pytest.fixture
 def optimized_xla():
-    """The test's programs compiled with XLA's optimisations (the suite turns
-    them off: :data:`FAST_COMPILE_FLAGS`), for a test whose programs run long
-    rather than many: tests/test_soak.py's 10 000 steps take 2.5 s so against
-    11.8 s unoptimised, its whole test 7 s against 15 s.  A program this
-    process compiled before (the same function, shapes and settings) is
-    reused as it was compiled."""
+    """The test's programs compiled at XLA's default optimisation level (the
+    suite compiles at level 0: :data:`FAST_COMPILE_FLAGS`; the expensive LLVM
+    passes stay off), for a test whose programs run long rather than many:
+    tests/test_soak.py's 10 000 steps take 2.5 s so against 11.8 s, its whole
+    test 7 s against 15 s.  The setting is not part of JAX's in-memory jit
+    cache key: a program this process compiled before (the same function,
+    shapes and settings) is reused as it was compiled, and one compiled here
+    is reused by later tests of the process (both compute the same values to
+    rounding; the tests that compare programs bit for bit compile their
+    own)."""
     yield from _jax_setting("jax_disable_most_optimizations", False)
 
 

@@ -116,17 +116,43 @@ def test_the_memo_keeps_the_recently_used_within_its_bytes():
 
 
 def test_unkeyable_jobs_pass_through(moving_model):
-    """A job whose seed cannot key a dict, or a rig never given a scene, is
-    captured by the pool and not kept."""
+    """A job whose seed cannot key a dict or is ``None`` (fresh entropy), or
+    a rig never given a scene, is captured by the pool and not kept; a job
+    for a rig the pool does not have is refused even where the memo could
+    answer it."""
     db, _ = moving_model
     pool = CountingPool([DatasetRig(db, seed=0)])
     memo = CaptureMemo()
     rigs = MemoRigs(pool, memo, tag=None)
-    rigs.capture_batch([CaptureJob(0, SceneSpec(0, 1), [1, 2], (0,))])
-    rigs.capture_batch([CaptureJob(0, SceneSpec(0, 1), [1, 2], (0,))])
-    assert len(pool.ran) == 2 and len(memo) == 0
+    for seed in ([1, 2], [1, 2], None, None):
+        rigs.capture_batch([CaptureJob(0, SceneSpec(0, 1), seed, (0,))])
+    assert len(pool.ran) == 4 and len(memo) == 0
+    rigs.capture_batch([CaptureJob(0, SceneSpec(0, 1), (1, 2), (0,))])
+    with pytest.raises(ValueError, match="rig 1: the pool has rigs 0..0"):
+        rigs.capture_batch([CaptureJob(1, SceneSpec(0, 1), (1, 2), (0,))])
     with pytest.raises(TypeError):
         MemoRigs(pool, memo, tag=[1])
+
+
+def test_a_batch_that_fails_before_the_pool_runs_changes_nothing(moving_model):
+    """A job that cannot be keyed fails the batch before anything is sent:
+    the scene the batch's earlier job gave is not taken as shown, so the
+    rig's next job (sent without a scene, as the driver sends it) carries it."""
+    db, _ = moving_model
+    pool = CountingPool([DatasetRig(db, seed=0)])
+    rigs = MemoRigs(pool, CaptureMemo(), tag=None)
+    rigs.capture_batch([CaptureJob(0, SceneSpec(0, 0), (0, 0, 0), (0,))])
+
+    class Unhashable:
+        def __hash__(self):
+            raise RuntimeError("cannot hash")
+
+    scene = SceneSpec(1, 2)
+    with pytest.raises(RuntimeError, match="cannot hash"):
+        rigs.capture_batch([CaptureJob(0, scene, (0, 1, 0), (1,)), CaptureJob(0, None, Unhashable(), (1,))])
+    assert len(pool.ran) == 1
+    rigs.capture_batch([CaptureJob(0, None, (0, 1, 0), (1,))])
+    assert pool.ran[-1].scene == scene
 
 
 def test_capture_pool_keeps_captures_under_the_rig_settings():

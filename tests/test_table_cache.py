@@ -59,6 +59,20 @@ def test_nothing_is_cached_under_a_trace(model_file):
     assert table_cache._cache == {}
     assert jnp.isfinite(value)
 
+    @jax.jit
+    def tables_inside(key):  # concrete likelihoods, a traced key: the tables come out traced
+        return table_cache.sample_tables(model.likelihoods, key=key, samples_per_stratum=1, store="full").z[0]
+
+    tables_inside(jax.random.PRNGKey(0))
+
+    @jax.jit
+    def concrete_inputs():  # every input concrete, the build inside a trace: its tracers are not kept
+        return table_cache.sample_tables(model.likelihoods, key=jax.random.PRNGKey(1), samples_per_stratum=1,
+                                         store="full").z[0]
+
+    concrete_inputs()
+    assert table_cache._samples == {}
+
 
 def test_the_monte_carlo_planners_share_their_sample_tables(model_file):
     """``mi``, ``mi-class`` and ``crlb`` of one model and key: one build, the
@@ -76,7 +90,9 @@ def test_the_monte_carlo_planners_share_their_sample_tables(model_file):
         np.testing.assert_array_equal(a, b)
     assert make_planner("mi", model, key=jax.random.PRNGKey(4), samples=64).tables is not mi.tables
     assert make_planner("mi", model, key=key, samples=4096).tables is not mi.tables
-    # a typed key keys the cache by its bits too
+    # a typed key keys the cache by its implementation and bits
     typed = table_cache.sample_tables(model.likelihoods, key=jax.random.key(3), samples_per_stratum=2, store="full")
     assert table_cache.sample_tables(model.likelihoods, key=jax.random.key(3), samples_per_stratum=2,
                                      store="full") is typed
+    rbg = jax.random.key(3, impl="rbg")
+    assert table_cache.sample_tables(model.likelihoods, key=rbg, samples_per_stratum=2, store="full") is not typed

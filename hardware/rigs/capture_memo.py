@@ -80,9 +80,9 @@ class CaptureMemo:
 def _key(tag, scene: SceneSpec | None, job: CaptureJob):
     """The memo's key of ``job`` on a rig showing ``scene``; ``None`` (not
     kept) where the rig's scene is unknown or the seed cannot key a dict."""
-    if scene is None:
+    if scene is None or job.seed is None:  # no seed: the rig draws fresh entropy, a capture of its own
         return None
-    key = (tag, scene, job.seed, tuple(int(v) for v in job.config))
+    key = (tag, scene, job.seed, tuple(job.config))
     try:
         hash(key)
     except TypeError:
@@ -119,32 +119,38 @@ class MemoRigs:
         return self.pool.image_shape
 
     def capture_batch(self, jobs: Sequence[CaptureJob]) -> list[Capture]:
+        for job in jobs:  # as the pool would: a hit must not hide a bad job
+            if not 0 <= job.rig < self.n_rigs:
+                raise ValueError(f"capture job for rig {job.rig}: the pool has rigs 0..{self.n_rigs - 1}")
         out: list[Capture | None] = [None] * len(jobs)
         send: list[tuple[int, CaptureJob, Any]] = []
-        for i, job in enumerate(jobs):
-            if job.scene is not None:
-                self._told[job.rig] = job.scene
-            scene = self._told.get(job.rig)
-            key = _key(self.tag, scene, job)
-            cap = None if key is None else self.memo.get(key)
-            if cap is not None:
-                out[i] = cap
-                continue
-            if scene is not None and self._shows.get(job.rig) != scene:
-                job = dataclasses.replace(job, scene=scene)  # the rig missed a scene answered here
-            if job.scene is not None:
-                self._shows[job.rig] = job.scene
-            send.append((i, job, key))
-        if send:
-            try:
-                caps = self.pool.capture_batch([job for _, job, _ in send])
-            except BaseException:
-                self._shows.clear()  # what the rigs show is unknown now: every rig gets its scene again
-                raise
-            for (i, _, key), cap in zip(send, caps):
-                if key is not None:
-                    self.memo.put(key, cap)
-                out[i] = cap
+        told, shows = dict(self._told), dict(self._shows)  # kept only once the pool has run the batch
+        try:
+            for i, job in enumerate(jobs):
+                if job.scene is not None:
+                    told[job.rig] = job.scene
+                scene = told.get(job.rig)
+                key = _key(self.tag, scene, job)
+                cap = None if key is None else self.memo.get(key)
+                if cap is not None:
+                    out[i] = cap
+                    continue
+                if scene is not None and shows.get(job.rig) != scene:
+                    job = dataclasses.replace(job, scene=scene)  # the rig missed a scene answered here
+                if job.scene is not None:
+                    shows[job.rig] = job.scene
+                send.append((i, job, key))
+            caps = self.pool.capture_batch([job for _, job, _ in send]) if send else []
+        except BaseException:
+            # what the rigs show is unknown now: each gets the scene it was last given with its next job
+            self._told.update(told)
+            self._shows.clear()
+            raise
+        for (i, _, key), cap in zip(send, caps):
+            if key is not None:
+                self.memo.put(key, cap)
+            out[i] = cap
+        self._told, self._shows = told, shows
         return out
 
     def close(self) -> None:
