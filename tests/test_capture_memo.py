@@ -156,7 +156,7 @@ def test_a_batch_that_fails_before_the_pool_runs_changes_nothing(moving_model):
 
 
 def test_capture_pool_keeps_captures_under_the_rig_settings():
-    """``capture_pool(..., memo=)`` wraps the pool; the tag is what the rig is
+    """``capture_pool(..., memo=)`` wraps the pool (on this machine); the tag is what the rig is
     built from, so a case with other capture noise or cameras shares nothing."""
     settings = Settings(stride=8, batch=1, render_workers=0)
     memo = CaptureMemo()
@@ -166,3 +166,20 @@ def test_capture_pool_keeps_captures_under_the_rig_settings():
     other = Settings(stride=8, batch=1, render_workers=0, capture_noise=(0.0, 0.0, 0))
     assert rig_tag(other, (0,), 3) != rig_tag(settings, (0,), 3) != rig_tag(settings, None, 3)
     assert not isinstance(capture_pool(settings, (0,), seed=3), MemoRigs)
+
+
+def test_no_memo_on_a_cluster(monkeypatch):
+    """A cluster's pool runs whole trials in its actors (run_campaign hands
+    them over when the pool has ``run_trials``): it is not wrapped."""
+    from jaxrecog import ray_rigs
+
+    class Cluster:
+        def __init__(self, *args, cluster):
+            pass
+
+        def run_trials(self, *args, **kw):
+            pass
+
+    monkeypatch.setattr(ray_rigs, "RayRigs", Cluster)
+    pool = capture_pool(Settings(stride=8, batch=1, cluster="ray"), (0,), memo=CaptureMemo())
+    assert isinstance(pool, Cluster)

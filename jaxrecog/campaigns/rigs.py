@@ -62,8 +62,9 @@ def capture_pool(settings: Settings, cameras: tuple[int, ...] | None = None, *, 
     ``memo``: a :class:`~jaxrecog.hardware.rigs.capture_memo.CaptureMemo` that
     keeps the captures, so that a later campaign of the same trials on alike
     rigs (another planner, another case of the same scenes) renders only what
-    it has not seen (the same captures).  Close the pool when done (it is a
-    context manager)."""
+    it has not seen (the same captures); not on a cluster, whose actors run
+    whole trials beside their rigs (the captures never come here).  Close the
+    pool when done (it is a context manager)."""
     from ..hardware.rigs.rig_pool import LocalRigs, ProcessRigs
 
     factory = functools.partial(make_rig, settings, cameras, seed=seed, clean_counts={})
@@ -75,7 +76,7 @@ def capture_pool(settings: Settings, cameras: tuple[int, ...] | None = None, *, 
         pool = ProcessRigs(factory, max(1, settings.batch), settings.render_workers)
     else:
         pool = LocalRigs(rig_pool(settings, cameras, seed=seed))
-    if memo is None:
+    if memo is None or settings.cluster:
         return pool
     from ..hardware.rigs.capture_memo import MemoRigs
 
