@@ -335,12 +335,12 @@ def _information(es, ms, selfs, log_pc, wks, weight_floor, patch=None, few: bool
                 z = jax.lax.dynamic_update_slice(z, jnp.einsum(spec_c, *ops), starts)
             return acc + class_term(z, c, wg)
 
-        def few(_):
+        def live_loop(_):
             order = jnp.argsort(~live, stable=True)  # the live classes first, ascending
             return jax.lax.fori_loop(0, jnp.sum(live), functools.partial(live_class, order=order),
                                      jnp.zeros(xs, dtype))
 
-        acc = jax.lax.cond(jnp.sum(live) <= _FEW_CLASSES, few, lambda _: grid_sum(es, wg, patch), None)
+        acc = jax.lax.cond(jnp.sum(live) <= _FEW_CLASSES, live_loop, lambda _: grid_sum(es, wg, patch), None)
     else:
         acc = grid_sum(es, wg, patch)
     split = sum(((v, l) for v, l in zip(positions, n_levels)), ())
