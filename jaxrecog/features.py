@@ -196,19 +196,8 @@ def host_features(planes: Sequence[tuple[np.ndarray, np.ndarray]], config, image
     value, ``g = V_vᵀ y / ||y|| - V_vᵀ x̄_v``, to float32 rounding."""
     if isinstance(config, jax.core.Tracer) or isinstance(images, jax.core.Tracer):
         return None
-    cfg, imgs = np.asarray(config), np.asarray(images)
-    if not _host_shapes(planes, cfg[None], imgs[None], image_shape):
-        return None
-    gs, ok = [], True
-    with np.errstate(all="ignore"):  # NaN, inf and zero images are flagged, not computed with
-        for (basis, means), v, image in zip(planes, cfg, imgs):
-            y, good = _usable_rows(image.reshape(1, -1), basis.dtype)
-            g = np.zeros(basis.shape[-1], basis.dtype)
-            if good[0]:
-                g = _project_row(basis, means, v, y[0])
-            ok &= bool(good[0])
-            gs.append(g)
-    return HostFeatures(tuple(gs), np.asarray(ok))
+    one = host_features_batch(planes, np.asarray(config)[None], np.asarray(images)[None], image_shape)
+    return None if one is None else HostFeatures(tuple(g[0] for g in one.gs), np.asarray(one.ok[0]))
 
 
 def _project_row(basis: np.ndarray, means: np.ndarray, v, y: np.ndarray) -> np.ndarray:
