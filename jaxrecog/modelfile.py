@@ -43,6 +43,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import os
 import re
 import secrets
@@ -163,6 +164,7 @@ def save_model(path: str | os.PathLike, model: SensorModel, *, training: dict | 
         "calibrated": any(c.calibration is not None for c in model.cameras),
         "calibration": calibration or {},
         "recipe": recipe if recipe is not None else THESIS.to_dict(),
+        "stability": model.stability,
         "manifest_sha256": manifest_sha256,
         "content_sha256": _content_hash(arrays),
     }
@@ -374,8 +376,12 @@ def load_model(path: str | os.PathLike) -> SensorModel:
         kinds = meta.get("likelihoods")           # per camera; files before it: "covariance"
         kinds = None if kinds is None else [str(k) for k in kinds]
         common = str(meta["covariance"]) if kinds is None else None
+        stability = meta.get("stability")       # files before it: None (not fitted)
+        stability = None if stability is None else float(stability)
     except (KeyError, TypeError, ValueError, OverflowError) as e:  # OverflowError: int(Infinity)
         raise bad(f"metadata lacks a valid field ({type(e).__name__}: {e})") from None
+    if stability is not None and not (0.0 <= stability < math.inf):
+        raise bad(f"stability {stability} must be a finite number >= 0")
     C, L = n_objects * n_poses, len(levels)
     counts = (n_cam, *positions, n_objects, n_poses, L, H, W, K)
     if len(positions) != n_cam or min(counts) < 1 or (kinds is not None and len(kinds) != n_cam):
@@ -416,6 +422,7 @@ def load_model(path: str | os.PathLike) -> SensorModel:
         n_poses=n_poses,
         levels=levels,
         image_shape=(H, W),
+        stability=stability,
     )
 
 

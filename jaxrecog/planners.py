@@ -248,7 +248,13 @@ class StableViewMIPlanner(TemperedPairwiseMIPlanner):
     the adaptive scale such a capture weighs little and does not count
     toward the stop, so the planner prefers views the likely classes are
     stable at.  ``stability = 0`` is :class:`TemperedPairwiseMIPlanner`; a
-    model without view components has ``d = 0`` (the same)."""
+    model without view components has ``d = 0`` (the same).
+
+    ``stability=None`` (the default) takes the model's own weight, fitted on
+    held-out captures (``SensorModel.stability``,
+    :func:`jaxrecog.stability_fit.fit_stability`: 1 where instability
+    predicts the captures no class explains, 0 where it does not), or 1 for
+    a model without one."""
 
     temper: float = eqx.field(static=True, default=1.0)   # the belief itself (class docstring)
     instability: tuple[Float[Array, "_V C"], ...] = ()
@@ -256,7 +262,9 @@ class StableViewMIPlanner(TemperedPairwiseMIPlanner):
 
     @classmethod
     def from_model(cls, model, *, target: str = "class", divergence: str = "bhattacharyya",
-                   levels: str = "belief", temper: float = 1.0, stability: float = 1.0) -> "StableViewMIPlanner":
+                   levels: str = "belief", temper: float = 1.0, stability: float | None = None) -> "StableViewMIPlanner":
+        if stability is None:
+            stability = 1.0 if getattr(model, "stability", None) is None else model.stability
         if isinstance(stability, bool) or not isinstance(stability, (int, float)) or not 0.0 <= stability < math.inf:
             raise ValueError(f"stability must be a finite number >= 0, got {stability!r}")
         base = TemperedPairwiseMIPlanner.from_model(model, target=target, divergence=divergence, levels=levels,
@@ -533,7 +541,7 @@ PLANNERS: dict[str, PlannerSpec] = {
                                             "the uniform class prior; does not chase an over-confident belief, issue 28)"),
     "mi-class-pairwise-stable": PlannerSpec(_stable("class"), "mi",
                                             "pairwise I(c; g | a) under P(c)^tau (option temper, default 1) minus option "
-                                            "stability (default 1) times the expected "
+                                            "stability (default: the model's, fitted on held-out captures, else 1) times the expected "
                                             "view instability under the belief: prefers views the likely classes look alike "
                                             "at from either side (a view-mixture model's interpolated components; issue 28)"),
     "mi-lookahead": PlannerSpec(_lookahead("state"), "mi",

@@ -77,9 +77,13 @@ class CameraModel(eqx.Module):
 class SensorModel(eqx.Module):
     """The trained model: one :class:`CameraModel` per camera plus static sizes.
 
-    ``SensorModel(cameras, n_objects, n_poses, levels, image_shape[, covariance])``:
-    the optional last argument (the older name of the likelihood kind, e.g.
-    ``"diag"``) is checked against the cameras' likelihoods, not stored.
+    ``SensorModel(cameras, n_objects, n_poses, levels, image_shape[, covariance], stability=None)``:
+    the optional last positional argument (the older name of the likelihood
+    kind, e.g. ``"diag"``) is checked against the cameras' likelihoods, not
+    stored.  ``stability``: the weight of ``mi-class-pairwise-stable``'s
+    instability term fitted on held-out captures
+    (:func:`jaxrecog.stability_fit.fit_stability`); ``None``: not fitted (the
+    planner's default, 1).
     """
 
     cameras: tuple[CameraModel, ...]
@@ -87,13 +91,19 @@ class SensorModel(eqx.Module):
     n_poses: int = eqx.field(static=True)
     levels: tuple[float, ...] = eqx.field(static=True)
     image_shape: tuple[int, int] = eqx.field(static=True)
+    stability: float | None = eqx.field(static=True, default=None)
 
-    def __init__(self, cameras, n_objects, n_poses, levels, image_shape, covariance: str | None = None):
+    def __init__(self, cameras, n_objects, n_poses, levels, image_shape, covariance: str | None = None, *,
+                 stability: float | None = None):
         self.cameras = tuple(cameras)
         self.n_objects = n_objects
         self.n_poses = n_poses
         self.levels = levels
         self.image_shape = image_shape
+        if stability is not None and (isinstance(stability, bool) or not isinstance(stability, (int, float))
+                                      or not 0.0 <= float(stability) < float("inf")):
+            raise ValueError(f"SensorModel: stability must be a finite number >= 0 or None, got {stability!r}")
+        self.stability = None if stability is None else float(stability)
         for i, cam in enumerate(self.cameras):
             if covariance is not None and cam.likelihood.kind != covariance:
                 raise ValueError(f"SensorModel: covariance {covariance!r}, but camera {i} has a "

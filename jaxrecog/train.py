@@ -396,7 +396,7 @@ def add_objects(
             new = jax.vmap(lambda lik, s: lik.scaled(s))(new, jnp.asarray(cam.calibration, new.dtype))
         cameras.append(dataclasses.replace(cam, likelihood=_append_classes(cam.likelihood, new, where)))
     out = SensorModel(cameras=tuple(cameras), n_objects=model.n_objects + db.n_objects, n_poses=model.n_poses,
-                      levels=model.levels, image_shape=model.image_shape)
+                      levels=model.levels, image_shape=model.image_shape, stability=model.stability)
     if not return_info:
         return out
     seconds = time.perf_counter() - t0

@@ -62,7 +62,7 @@ def test_registry_and_thesis_is_todays_defaults():
 def test_recipes_command_lists_them():
     p = run_cli("recipes")
     assert p.returncode == 0
-    assert p.stdout.startswith("robust (default), version 4:") and "\nthesis, version 1:" in p.stdout
+    assert p.stdout.startswith("robust (default), version 5:") and "\nthesis, version 1:" in p.stdout
     assert "  interpolate = 2" in p.stdout and "  min_views = 1" in p.stdout
     assert "  planner = 'mi-class-pairwise-stable'" in p.stdout and "  planner = 'mi-class-pairwise'" in p.stdout
     p = run_cli("recipes", "fast")
@@ -78,8 +78,12 @@ def test_train_records_the_resolved_recipe_and_inspect_shows_it(photo_db, robust
     assert (r.name, r.likelihood, r.interpolate, r.calibrate, r.view_jitter) == ("robust", "view-mixture-lowrank", 2, True, False)
     assert meta["calibrated"] and meta["training"]["interpolate"]["points_per_side"] == 2
     assert load_model(robust_model).cameras[0].likelihood.mu.shape[3] == 5   # 1 training view + 2 x 2 blends
+    # stability 'auto': fitted on the calib split, the number recorded in the recipe and the model
+    fit = meta["training"]["stability_fit"]
+    assert r.stability == fit["weight"] == load_model(robust_model).stability and fit["weight"] in (0.0, 1.0)
+    assert fit["n"] == 2 * 4 * 9 and 0 <= fit["n_unexplained"] <= fit["n"]
     p = run_cli("inspect", robust_model)
-    assert "recipe: robust (version 4): likelihood = 'view-mixture-lowrank'" in p.stdout
+    assert "recipe: robust (version 5): likelihood = 'view-mixture-lowrank'" in p.stdout
     assert "interpolated views: 2 per side; neighbouring positions found per camera: [18] of [18]" in p.stdout
     # the thesis recipe: today's defaults; a flag overrides one part and the file records it
     out = photo_db / "thesis.npz"
@@ -96,6 +100,26 @@ def test_train_records_the_resolved_recipe_and_inspect_shows_it(photo_db, robust
     out2 = photo_db / "thesis-random.npz"
     p = run_cli("train", photo_db / "db", "--out", out2, *FAST, "--recipe", "thesis", "--planner", "random")
     assert p.returncode == 0 and dataset_planners(out2) == ("random",)
+
+
+def test_train_stability_option_and_a_database_without_calib_split(photo_db, tmp_path, capsys):
+    out = tmp_path / "w.npz"
+    p = run_cli("train", photo_db / "db", "--out", out, *FAST, "--stability", "0.5")
+    assert p.returncode == 0, p.stderr
+    assert recipe_from_meta(load_model_meta(out)).stability == 0.5 == load_model(out).stability
+    assert "stability_fit" not in load_model_meta(out)["training"]
+    for bad in ("-1", "often", "inf"):
+        p = run_cli("train", photo_db / "db", "--out", tmp_path / "x.npz", *FAST, "--stability", bad)
+        assert p.returncode == 2 and "--stability: expected a" in p.stderr and not (tmp_path / "x.npz").exists()
+    # 'auto' without a calib split: not fitted, the planner's default 1, said in one line
+    from types import SimpleNamespace
+
+    from jaxrecog.cli.train import _resolve_stability
+
+    params = {}
+    recipe, model = _resolve_stability(ROBUST, load_model(out), SimpleNamespace(split=np.array(["train", "test"])), params)
+    assert recipe.stability == 1.0 == model.stability and params == {}
+    assert "has no 'calib' split, so the planner's stability weight is not fitted (1)" in capsys.readouterr().out
 
 
 def test_old_model_files_load_as_thesis(photo_db, robust_model, tmp_path):

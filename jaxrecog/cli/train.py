@@ -3,15 +3,18 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 
 from ..augment import AugmentParams
 from ..calibration import calibrate_model
+from ..calibration_data import features_from_database
 from ..database import load_database
 from ..eigenspace import ComponentsError
 from ..kernels import likelihood_class
 from ..modelfile import check_writable, load_model, load_model_meta, save_model
 from .._progress import bar
+from ..stability_fit import fit_stability
 from ..recipes import AUTO, DEFAULT_RECIPE, RECIPES, Recipe, get_recipe, recipe_from_meta
 from ..train import add_objects, added_calibration_features, train_model
 from ._common import UsageError
@@ -89,7 +92,24 @@ def add_arguments(p) -> None:
                         "(1 = off; jaxrecog.kernels.adaptive_scale)")
     g.add_argument("--planner", choices=PLANNERS, default=None,
                    help="view planner recorded in the model (recognize, plan and experiment --rig dataset: use it)")
+    g.add_argument("--stability", type=_stability, default=None, metavar="W|auto",
+                   help="weight of mi-class-pairwise-stable's view-instability term recorded in the model: a number "
+                        ">= 0, or 'auto' (fitted on the 'calib' split: 1 where instability predicts the captures no "
+                        "class explains, else 0; 1 without a calib split; jaxrecog.stability_fit)")
     capture_options(p, unset=True)
+
+
+def _stability(text: str) -> float | str:
+    """``--stability``: ``auto`` or a finite number >= 0."""
+    if text.strip().lower() == AUTO:
+        return AUTO
+    try:
+        w = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number >= 0 or 'auto', got {text!r}") from None
+    if not 0.0 <= w < float("inf"):
+        raise argparse.ArgumentTypeError(f"expected a finite number >= 0 or 'auto', got {text!r}")
+    return w
 
 
 def resolve_recipe(args, db=None) -> Recipe:
@@ -119,7 +139,7 @@ def resolve_recipe(args, db=None) -> Recipe:
     for opt, part in (("interpolate", "interpolate"), ("interpolation", "interpolation"), ("calibrate", "calibrate"), ("view_jitter", "view_jitter"),
                       ("threshold", "p_threshold"), ("min_views", "min_views"),
                       ("exclude_visited", "exclude_visited"), ("adaptive_scale", "adaptive_scale"),
-                      ("max_shift", "max_shift"), ("planner", "planner")):
+                      ("max_shift", "max_shift"), ("planner", "planner"), ("stability", "stability")):
         if getattr(args, opt, None) is not None:
             parts[part] = getattr(args, opt)
     try:
@@ -203,11 +223,30 @@ def run(args) -> int:
         params["calibrated"] = True
         calibration = cal.to_dict()
         print(cal.summary())
+    recipe, model = _resolve_stability(recipe, model, db, params)
     path = save_model(args.out, model, training=params, manifest_sha256=info.manifest_sha256,
                       calibration=calibration, recipe=recipe.to_dict())
     print(f"trained {args.kind} (K={params['K']}, recipe {recipe.name}) in {info.seconds:.1f} s -> {path}")
     print(model.summary())
     return 0
+
+
+def _resolve_stability(recipe: Recipe, model, db, params: dict):
+    """The recipe and model with the planner's stability weight as a number:
+    ``auto`` fitted on ``db``'s ``calib`` split (its result in ``params``
+    and one printed line), 1 without one; a number as given."""
+    w = recipe.stability
+    if w == AUTO:
+        if int((db.split == "calib").sum()):
+            fit = fit_stability(model, features_from_database(model, db, "calib"), max_scale=recipe.adaptive_scale)
+            params["stability_fit"] = fit.to_dict()
+            print(fit.summary())
+            w = fit.weight
+        else:
+            print(f"recipe {recipe.name}: the database has no 'calib' split, so the planner's stability weight "
+                  f"is not fitted (1)")
+            w = 1.0
+    return recipe.replace(stability=float(w)), dataclasses.replace(model, stability=float(w))
 
 
 #: the options ``--add`` honours besides its own (every other training option is the model's)
