@@ -35,12 +35,7 @@ from jaxrecog.calibration_plots import reliability_plot
 from jaxrecog.campaign import run_campaign
 from jaxrecog.database import load_database
 from jaxrecog.campaigns import CASES, Settings, campaign_recognizer, case_settings, case_trials, make_rig, prepare
-from jaxrecog.hardware import OccluderLayout, random_occluders
-from jaxrecog.hardware.render.occluders import OCCLUDER_OFFSET, OCCLUDER_SIZE
-from jaxrecog.hardware.geometry.positions import CameraTable
-from jaxrecog.hardware.render.scene import default_objects, object_radius
-from jaxrecog.hardware import render_database
-from jaxrecog.hardware.geometry.positions import default_table
+from jaxrecog.campaigns.held_out import render_held_out
 from jaxrecog.hardware.render.synthetic import Noise, Perturb
 from jaxrecog.metrics import campaign_metrics
 from jaxrecog.modelfile import load_model, save_model
@@ -102,25 +97,12 @@ def main(argv=None) -> int:
                       noise=Noise(brightness=b, pixel=p, max_shift=int(s)))
     calib_dir = args.workdir / (f"calib-{'occ' if case.occluded else 'clean'}-n{args.calib_per_view}"
                                 f"-y{args.yaw:g}-e{args.eye_offset:g}-l{args.light:g}-seed{args.seed}")
-    table = default_table()
-    radius = object_radius(default_objects())
-
-    def board_in_front(rng, camera, position):
-        """Like the campaigns' first board (jaxrecog.scene.occluder_factory), for a share of the views."""
-        if rng.random() >= args.occluded_fraction:
-            return None
-        one = CameraTable(table.workspace, tuple((views[position if i == camera else 0],)
-                                                 for i, views in enumerate(table.views)))
-        return OccluderLayout(random_occluders(rng, one, radius=radius, cameras=(camera,), size=OCCLUDER_SIZE,
-                                               offset=OCCLUDER_OFFSET).boards)
-
     if case.occluded:
         calib_dir = calib_dir.with_name(calib_dir.name + f"-front{args.occluded_fraction:g}")
     if not (calib_dir / "manifest.csv").exists():
         print(f"rendering calibration views into {calib_dir} ...", flush=True)
-        render_database(calib_dir, table, train=False, calib_per_view=args.calib_per_view,
-                        calib_perturb=perturb, calib_occluders=board_in_front if case.occluded else False,
-                        seed=args.seed + 1000)
+        render_held_out(calib_dir, settings, case, perturb, calib_per_view=args.calib_per_view,
+                        occluded_fraction=args.occluded_fraction, seed=args.seed + 1000)
     calib_db = load_database(calib_dir)
 
     model_path = prepared.models[case.database]

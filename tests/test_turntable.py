@@ -182,6 +182,7 @@ def test_turntable_campaign_end_to_end(tmp_path):
     prep = prepare_turntable(s, 3, 1, False, poses=1, step_deg=120)
     model = load_model(prep.models["turntable"])
     assert model.cameras[0].calibration is not None and tuple(model.positions) == (3,)
+    assert model.stability is None          # the thesis recipe fits no planner weight
     mtime = prep.models["turntable"].stat().st_mtime_ns
     report = run_turntable(s, 3, 1, False, planners=["random"], poses=1, step_deg=120)
     assert prep.models["turntable"].stat().st_mtime_ns == mtime  # cached
@@ -206,3 +207,18 @@ def test_turntable_takes_the_settings_likelihood_and_view_jitter(tmp_path):
     with pytest.raises(ValueError, match="view_jitter_deg"):
         prepare_turntable(Settings(workdir=tmp_path, view_jitter=2, view_jitter_deg=60.0), 3, 1, False, poses=1,
                           step_deg=120)
+
+
+def test_turntable_with_the_robust_recipe_fits_the_planner_weight_on_its_calib_split(tmp_path):
+    """recipe robust (stability = auto): the calibrated turntable model carries the
+    weight fitted on the set's calib split, and the fit is recorded."""
+    from jaxrecog.campaigns import Settings, prepare_turntable
+    from jaxrecog.modelfile import load_model, load_model_meta
+    from jaxrecog.recipes import ROBUST
+
+    s = Settings(recipe=ROBUST, workdir=tmp_path, n_components=2, samples_per_image=6)
+    prep = prepare_turntable(s, 3, 1, False, poses=1, step_deg=120)
+    meta = load_model_meta(prep.models["turntable"])
+    fit = meta["training"]["stability_fit"]
+    assert load_model(prep.models["turntable"]).stability == fit["weight"] in (0.0, 1.0)
+    assert fit["n"] == 3 * 3 and meta["training"]["params"]["stability"] == "auto"

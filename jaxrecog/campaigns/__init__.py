@@ -29,6 +29,7 @@ One idea per module:
 ``run``          the thesis cases' campaigns: :func:`run_case`, :func:`run_trace`
 ``dataset``      a campaign on an image database: :func:`run_dataset`
 ``turntable``    the turntable set and its campaign: :func:`run_turntable`
+``held_out``     held-out captures of a case, drawn like its own, for what a recipe fits on a ``calib`` split
 ================ ==========================================================
 
 The capture noise and the cardboard boards of a trial's scene are

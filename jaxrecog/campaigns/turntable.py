@@ -4,11 +4,13 @@ trained and calibrated, then the database campaign on its test split."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import time
 from typing import Sequence
 
 from ..database import load_database
+from ..recipes import AUTO
 from ..modelfile import save_model
 from .dataset import run_dataset
 from .naming import training_params, turntable_dir, turntable_model_path
@@ -32,11 +34,15 @@ def prepare_turntable(settings: Settings, n_objects: int = 50, cameras: int = 1,
     test view when ``occluded``) into ``workdir/turntable-...`` and train its
     model (``kind``: DB1 for a clean set, DB2 for an occluded one; K, samples
     and seed from ``settings``), calibrated on the set's ``calib`` split, as
-    ``jaxrecog train --calibrate`` does.  Both are cached (the model by its
+    ``jaxrecog train --calibrate`` does, and with the recipe's ``stability =
+    auto`` (robust) the planner's stability weight fitted on the same split
+    (:func:`jaxrecog.stability_fit.fit_stability`).  Both are cached (the model by its
     training parameters and the manifest's hash).  ``Prepared.models`` has
     one entry, ``"turntable"``."""
     from ..calibration import calibrate_model
+    from ..calibration_data import features_from_database
     from ..hardware.render.random_objects import random_objects
+    from ..stability_fit import fit_stability
     from ..hardware.render.turntable import render_turntable
 
     kind = kind or ("DB2" if occluded else "DB1")
@@ -64,13 +70,23 @@ def prepare_turntable(settings: Settings, n_objects: int = 50, cameras: int = 1,
              "seconds": round(time.perf_counter() - t0, 1), "images": total}, indent=2) + "\n")
     db = load_database(db_dir)
     path = turntable_model_path(settings, db_dir, kind)
-    if not cached_model_is_fresh(path, db, dict(training_params(settings, kind), calibrated=True)):
+    params = dict(training_params(settings, kind), calibrated=True)
+    fit_weight = settings.recipe.stability == AUTO   # the robust recipe: the planner's weight from the calib split
+    if fit_weight:
+        params["stability"] = AUTO
+    if not cached_model_is_fresh(path, db, params):
         model, info = train_for(settings, db, kind, progress)
         t0 = time.perf_counter()
         model, cal = calibrate_model(model, db)
         training = info.to_dict()
         training["params"] = dict(training["params"], calibrated=True)
         training["calibration_seconds"] = time.perf_counter() - t0
+        if fit_weight:
+            fit = fit_stability(model, features_from_database(model, db, "calib"),
+                                max_scale=settings.recipe.adaptive_scale)
+            model = dataclasses.replace(model, stability=fit.weight)
+            training["params"]["stability"] = AUTO
+            training["stability_fit"] = fit.to_dict()
         save_model(path, model, training=training, manifest_sha256=db.manifest_sha256, calibration=cal.to_dict())
     return Prepared(db_dir, {"turntable": path})
 
