@@ -248,13 +248,9 @@ class StableViewMIPlanner(TemperedPairwiseMIPlanner):
     the adaptive scale such a capture weighs little and does not count
     toward the stop, so the planner prefers views the likely classes are
     stable at.  ``stability = 0`` is :class:`TemperedPairwiseMIPlanner`; a
-    model without view components has ``d = 0`` (the same).
-
-    ``stability=None`` (the default) takes the model's own weight, fitted on
-    held-out captures (``SensorModel.stability``,
-    :func:`jaxrecog.stability_fit.fit_stability`: 1 where instability
-    predicts the captures no class explains, 0 where it does not), or 1 for
-    a model without one."""
+    model without view components has ``d = 0`` (the same).  ``stability=None``: the
+    model's weight fitted on held-out captures (``SensorModel.stability``,
+    :mod:`jaxrecog.stability_fit`), 1 for a model without one."""
 
     temper: float = eqx.field(static=True, default=1.0)   # the belief itself (class docstring)
     instability: tuple[Float[Array, "_V C"], ...] = ()
