@@ -42,6 +42,7 @@ from pathlib import Path
 
 from jaxrecog.cli import main as cli_main
 from jaxrecog.metrics import campaign_metrics
+from jaxrecog.modelfile import load_model_meta
 from jaxrecog.photo_turntable import PHOTOS, build_photo_database, scan_photos
 from jaxrecog.recipes import RECIPES
 from jaxrecog.results import TrialStore
@@ -132,7 +133,8 @@ def run(out: Path, *, photos: Path, grids, recipes, approaches, trials: int, obj
                 rows.append({"grid": grid, "offset": grid / 2, "variant": name, "planner": planner,
                              "train_s": train_s, "min_views": settings["min_views"],
                              "exclude_visited": settings["exclude_visited_positions"],
-                             "p_threshold": settings["p_threshold"], **m})
+                             "p_threshold": settings["p_threshold"],
+                             "stability": load_model_meta(model).get("stability"), **m})
                 print(_line(rows[-1]), flush=True)
     return rows
 

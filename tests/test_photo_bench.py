@@ -28,6 +28,8 @@ def test_quick_benchmark_writes_its_table_json_and_figure(tmp_path):
     thesis = [r for r in rows if r["variant"] == "recipe thesis"]
     assert all((r["min_views"], r["exclude_visited"]) == (2, True) and r["mean_views"] >= 2 for r in robust)
     assert all((r["min_views"], r["exclude_visited"]) == (1, False) for r in thesis)
+    # the robust model's planner weight was fitted on the calib split (a number); the thesis's 1
+    assert all(r["stability"] in (0.0, 1.0) for r in robust) and all(r["stability"] == 1.0 for r in thesis)
     md = (out / "photo_bench.md").read_text().splitlines()
     assert md[0] == mod.HEADER.splitlines()[0] and len(md) == 2 + len(rows)
     assert (out / "photo_bench_confident_errors.png").stat().st_size > 10_000
