@@ -35,7 +35,7 @@ import time
 from pathlib import Path
 
 from jaxrecog.calibration import calibrate_model
-from jaxrecog.cli._options import gray_range
+from jaxrecog.cli._options import gray_range, stability_weight
 from jaxrecog.calibration_data import features_from_database
 from jaxrecog.campaigns import CASES, Settings, capture_pool, case_settings, case_trials, compare_planners, make_rig, prepare
 from jaxrecog.campaigns.held_out import like_case, render_held_out
@@ -64,18 +64,23 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--view-jitter-deg", type=float, default=20.0, help="their yaw range, +-degrees")
     ap.add_argument("--occluder-gray", type=gray_range, default=(0.0, 0.0), metavar="LO,HI",
                     help="DB2 training occluders with a gray level uniform in [LO, HI] (default black, the thesis's)")
+    ap.add_argument("--stability", type=stability_weight, default=None, metavar="W|auto",
+                    help="the planner's stability weight (default: the recipe's; auto = fitted on the held-out captures)")
+    ap.add_argument("--calib-per-view", type=int, default=1,
+                    help="held-out captures per (camera, position, object, pose)")
     ap.add_argument("--occluded-fraction", type=float, default=0.5,
                     help="occluded cases: share of held-out views with a board in front")
     return ap
 
 
-def fitted_model(settings: Settings, case, prepared, *, occluded_fraction: float = 0.5):
+def fitted_model(settings: Settings, case, prepared, *, occluded_fraction: float = 0.5, calib_per_view: int = 1):
     """The case's model with the recipe's ``calib``-split parts applied on its
     held-out captures; returns ``(model, notes)`` (``notes``: what was fitted, for the report)."""
     recipe = settings.recipe
     folder = settings.workdir / (f"held-out-{case.name}-stride{settings.stride}-seed{settings.seed}"
+                                 f"{f'-n{calib_per_view}' if calib_per_view != 1 else ''}"
                                  f"{f'-front{occluded_fraction:g}' if case.occluded else ''}")
-    db = load_database(render_held_out(folder, settings, case, like_case(case, settings),
+    db = load_database(render_held_out(folder, settings, case, like_case(case, settings), calib_per_view=calib_per_view,
                                        occluded_fraction=occluded_fraction, seed=settings.seed + 2000))
     model = load_model(prepared.models[case.database])
     notes = {"held_out": str(folder)}
@@ -97,6 +102,8 @@ def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     case = CASES[args.case]
     recipe = get_recipe(args.recipe)
+    if args.stability is not None:
+        recipe = recipe.replace(stability=args.stability)
     settings = Settings(recipe=recipe, workdir=args.workdir, trials_per_object=args.trials, seed=args.seed,
                         stride=args.stride, n_components=args.n_components, samples_per_image=args.samples_per_image,
                         view_jitter=args.view_jitter, view_jitter_deg=args.view_jitter_deg,
@@ -104,7 +111,8 @@ def main(argv=None) -> int:
     settings = case_settings(case, settings)
     t0 = time.perf_counter()
     prepared = prepare(settings, progress=False, databases=(case.database,))
-    model, notes = fitted_model(settings, case, prepared, occluded_fraction=args.occluded_fraction)
+    model, notes = fitted_model(settings, case, prepared, occluded_fraction=args.occluded_fraction,
+                                calib_per_view=args.calib_per_view)
     for k in ("calibration", "stability"):
         if k in notes:
             print(notes[k], flush=True)
@@ -112,7 +120,7 @@ def main(argv=None) -> int:
     probe = make_rig(settings, case.cameras, seed=settings.seed)
     specs = case_trials(case, settings, probe, model.n_objects, model.n_poses)
     tag = (f"{recipe.name}{recipe.version}-w{model.stability:g}-cal{int(bool(recipe.calibrate))}"
-           f"-front{args.occluded_fraction:g}-{run_id(settings, prepared.models[case.database])}")
+           f"-front{args.occluded_fraction:g}-c{args.calib_per_view}-{run_id(settings, prepared.models[case.database])}")
     with capture_pool(settings, case.cameras, seed=settings.seed) as rigs:
         report = compare_planners(case, model, rigs, specs, settings, planners,
                                   lambda planner: f"recipe-{case.name}-{planner}-{tag}", progress=False,
@@ -132,7 +140,9 @@ def main(argv=None) -> int:
     out = settings.workdir / "results"
     out.mkdir(parents=True, exist_ok=True)
     gray = "" if args.occluder_gray == (0.0, 0.0) else f"-gray{args.occluder_gray[0]:g}-{args.occluder_gray[1]:g}"
-    stem = f"rig-recipe-{case.name}-{recipe.name}-n{args.trials}-stride{args.stride}{gray}"
+    extra = f"-w{model.stability:g}" if args.stability is not None else ""
+    extra += f"-c{args.calib_per_view}" if args.calib_per_view != 1 else ""
+    stem = f"rig-recipe-{case.name}-{recipe.name}-n{args.trials}-stride{args.stride}{gray}{extra}"
     (out / f"{stem}.md").write_text(table + "\n")
     (out / f"{stem}.json").write_text(json.dumps({"metrics": metrics, "notes": notes, "recipe": recipe.to_dict(),
                                                   "stability": model.stability, "case": case.name}, indent=1))

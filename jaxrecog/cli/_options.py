@@ -249,6 +249,19 @@ def sigma_range(text: str) -> tuple[float, float]:
     return vals[0], vals[1]
 
 
+def stability_weight(text: str) -> float | str:
+    """``--stability``: ``auto`` or a finite number >= 0."""
+    if text.strip().lower() == "auto":
+        return "auto"
+    try:
+        w = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number >= 0 or 'auto', got {text!r}") from None
+    if not 0.0 <= w < float("inf"):
+        raise argparse.ArgumentTypeError(f"expected a finite number >= 0 or 'auto', got {text!r}")
+    return w
+
+
 def gray_range(text: str) -> tuple[float, float]:
     """An argparse type: ``LO,HI`` gray levels with ``0 <= LO <= HI <= 255``."""
     vals = _numbers(text)

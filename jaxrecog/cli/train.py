@@ -18,7 +18,7 @@ from ..stability_fit import fit_stability
 from ..recipes import AUTO, DEFAULT_RECIPE, RECIPES, Recipe, get_recipe, recipe_from_meta
 from ..train import add_objects, added_calibration_features, train_model
 from ._common import UsageError
-from ._options import (PLANNERS, adaptive_scale, capture_options, capture_params, default_likelihood, given_likelihood_options,
+from ._options import (PLANNERS, adaptive_scale, stability_weight, capture_options, capture_params, default_likelihood, given_likelihood_options,
                        likelihood_choice, likelihood_options, nonneg, positive, probability)
 
 NAME = "train"
@@ -92,24 +92,11 @@ def add_arguments(p) -> None:
                         "(1 = off; jaxrecog.kernels.adaptive_scale)")
     g.add_argument("--planner", choices=PLANNERS, default=None,
                    help="view planner recorded in the model (recognize, plan and experiment --rig dataset: use it)")
-    g.add_argument("--stability", type=_stability, default=None, metavar="W|auto",
+    g.add_argument("--stability", type=stability_weight, default=None, metavar="W|auto",
                    help="weight of mi-class-pairwise-stable's view-instability term recorded in the model: a number "
                         ">= 0, or 'auto' (fitted on the 'calib' split: 1 where instability predicts the captures no "
                         "class explains, else 0; 1 without a calib split; jaxrecog.stability_fit)")
     capture_options(p, unset=True)
-
-
-def _stability(text: str) -> float | str:
-    """``--stability``: ``auto`` or a finite number >= 0."""
-    if text.strip().lower() == AUTO:
-        return AUTO
-    try:
-        w = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number >= 0 or 'auto', got {text!r}") from None
-    if not 0.0 <= w < float("inf"):
-        raise argparse.ArgumentTypeError(f"expected a finite number >= 0 or 'auto', got {text!r}")
-    return w
 
 
 def resolve_recipe(args, db=None) -> Recipe:
