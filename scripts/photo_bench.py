@@ -64,6 +64,9 @@ APPROACHES: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "robust, adaptive scale off": (("--recipe", "robust",), ("--adaptive-scale", "1")),
     "robust, 1 explained view": (("--recipe", "robust",), ("--min-views", "1")),
     "robust, tempered MI planner (no stability)": (("--recipe", "robust",), ("--planners", "mi-class-pairwise-robust")),
+    # version 5: the planner's stability weight fitted on the calib split; these force it / allow revisits
+    "robust, stability weight 0": (("--recipe", "robust", "--stability", "0"), ()),
+    "robust, revisits allowed": (("--recipe", "robust",), ("--no-exclude-visited",)),
 }
 QUICK = {"grids": [40], "objects": 2, "trials": 3, "samples": 10, "components": 6}
 

@@ -103,7 +103,7 @@ def build_parser() -> argparse.ArgumentParser:
     g = p.add_argument_group("training (each choice has its own cached models; default: the thesis's)")
     likelihood_options(g)
     render_jitter_options(g)
-    capture_options(p)
+    capture_options(p, unset=True)   # not given: the recipe's (its max_shift, occluder_gray) and the thesis's defaults
     p.add_argument("--recipe", choices=sorted(RECIPES), default="thesis",
                    help="training and stop rule (default: thesis, the thesis's protocol this script reproduces; "
                         "robust: the product's default, `jaxrecog recipes`); --likelihood and the capture options "

@@ -66,6 +66,10 @@ def build_parser() -> argparse.ArgumentParser:
                     help="DB2 training occluders with a gray level uniform in [LO, HI] (default black, the thesis's)")
     ap.add_argument("--stability", type=stability_weight, default=None, metavar="W|auto",
                     help="the planner's stability weight (default: the recipe's; auto = fitted on the held-out captures)")
+    ap.add_argument("--calibrate", action=argparse.BooleanOptionalAction, default=None,
+                    help="override the recipe's calibration on the held-out captures")
+    ap.add_argument("--exclude-visited", action=argparse.BooleanOptionalAction, default=None,
+                    help="override the recipe's revisit exclusion")
     ap.add_argument("--calib-per-view", type=int, default=1,
                     help="held-out captures per (camera, position, object, pose)")
     ap.add_argument("--occluded-fraction", type=float, default=0.5,
@@ -104,6 +108,10 @@ def main(argv=None) -> int:
     recipe = get_recipe(args.recipe)
     if args.stability is not None:
         recipe = recipe.replace(stability=args.stability)
+    if args.exclude_visited is not None:
+        recipe = recipe.replace(exclude_visited=args.exclude_visited)
+    if args.calibrate is not None:
+        recipe = recipe.replace(calibrate=args.calibrate)
     settings = Settings(recipe=recipe, workdir=args.workdir, trials_per_object=args.trials, seed=args.seed,
                         stride=args.stride, n_components=args.n_components, samples_per_image=args.samples_per_image,
                         view_jitter=args.view_jitter, view_jitter_deg=args.view_jitter_deg,
@@ -120,6 +128,7 @@ def main(argv=None) -> int:
     probe = make_rig(settings, case.cameras, seed=settings.seed)
     specs = case_trials(case, settings, probe, model.n_objects, model.n_poses)
     tag = (f"{recipe.name}{recipe.version}-w{model.stability:g}-cal{int(bool(recipe.calibrate))}"
+           f"{'' if recipe.exclude_visited else '-noxv'}"
            f"-front{args.occluded_fraction:g}-c{args.calib_per_view}-{run_id(settings, prepared.models[case.database])}")
     with capture_pool(settings, case.cameras, seed=settings.seed) as rigs:
         report = compare_planners(case, model, rigs, specs, settings, planners,
@@ -142,6 +151,8 @@ def main(argv=None) -> int:
     gray = "" if args.occluder_gray == (0.0, 0.0) else f"-gray{args.occluder_gray[0]:g}-{args.occluder_gray[1]:g}"
     extra = f"-w{model.stability:g}" if args.stability is not None else ""
     extra += f"-c{args.calib_per_view}" if args.calib_per_view != 1 else ""
+    extra += "" if args.exclude_visited is None else f"-xv{int(args.exclude_visited)}"
+    extra += "" if args.calibrate is None else f"-cal{int(args.calibrate)}"
     stem = f"rig-recipe-{case.name}-{recipe.name}-n{args.trials}-stride{args.stride}{gray}{extra}"
     (out / f"{stem}.md").write_text(table + "\n")
     (out / f"{stem}.json").write_text(json.dumps({"metrics": metrics, "notes": notes, "recipe": recipe.to_dict(),

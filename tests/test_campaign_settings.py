@@ -28,7 +28,7 @@ def test_the_flat_names_are_mains_in_mains_order():
     assert tuple(Settings().flat()) == MAIN_FIELDS
     assert {f.name for f in dataclasses.fields(Settings)} == set(MAIN_FIELDS) - {
         "p_threshold", "min_views", "exclude_visited_positions", "adaptive_scale", "likelihood",
-        "likelihood_options", "max_shift", "interpolate", "interpolation"} | {"recipe"}
+        "likelihood_options", "max_shift", "interpolate", "interpolation", "occluder_gray"} | {"recipe"}
 
 
 def test_the_recipe_parts_live_in_the_recipe():
@@ -46,6 +46,8 @@ def test_a_recipe_gives_the_defaults_and_flat_names_override_them():
     assert (s.likelihood, s.interpolate, s.interpolation, s.min_views, s.adaptive_scale) == (
         "view-mixture-lowrank", 2, "flow", 2, 32.0)
     assert s.exclude_visited_positions and s.recipe.planner == ROBUST.planner
+    assert s.occluder_gray == (0.0, 255.0) and Settings().occluder_gray == (0.0, 0.0)    # robust: gray occluders
+    assert Settings(recipe=ROBUST, occluder_gray=[0, 0]).recipe.occluder_gray == (0.0, 0.0)
 
 
 def test_replace_keeps_the_recipe_and_changes_a_flat_name():

@@ -214,3 +214,22 @@ def test_plan_weighs_the_images_as_recognize_does(photo_db, robust_model, tmp_pa
         np.testing.assert_allclose(doc["images"]["probability"], float(dec.probability), rtol=1e-5)
         got[scale] = doc["images"]["probability"]
     assert got[recipe.adaptive_scale] < got[1.0]  # weakened evidence: a less certain belief
+
+
+def test_recipe_part_occluder_gray(photo_db, tmp_path):
+    assert ROBUST.occluder_gray == (0.0, 255.0) and THESIS.occluder_gray == (0.0, 0.0)
+    assert "occluder_gray = (0.0, 255.0)" in ROBUST.describe()
+    v4 = {k: v for k, v in ROBUST.to_dict().items() if k not in ("occluder_gray", "stability")} | {"version": 4}
+    assert recipe_from_meta({"recipe": v4}).occluder_gray == (0.0, 0.0)       # as it ran: black
+    assert recipe_from_meta({"recipe": json.loads(json.dumps(ROBUST.to_dict()))}) == ROBUST
+    for bad in ((10.0, 5.0), (0.0, 300.0), (-1.0, 0.0)):
+        with pytest.raises(ValueError, match="occluder_gray must be two gray levels"):
+            ROBUST.replace(occluder_gray=bad)
+    # the flag overrides the part and the file records it; DB2 trains with it
+    out = tmp_path / "g.npz"
+    p = run_cli("train", photo_db / "db", "--out", out, "--kind", "DB2", "--samples", "4", "--components", "3",
+                "--recipe", "thesis", "--occluder-gray", "40,60")
+    assert p.returncode == 0, p.stderr
+    meta = load_model_meta(out)
+    assert recipe_from_meta(meta).occluder_gray == (40.0, 60.0)
+    assert tuple(meta["training"]["augment"]["occluder_gray"]) == (40.0, 60.0)

@@ -55,11 +55,12 @@ RECIPE_PARTS: dict[str, str] = {
     "max_shift": "max_shift",
     "interpolate": "interpolate",
     "interpolation": "interpolation",
+    "occluder_gray": "occluder_gray",
 }
 _PART_TYPES = {"p_threshold": "float", "min_views": "int", "exclude_visited_positions": "bool",
                "adaptive_scale": "float", "likelihood": "str",
                "likelihood_options": "tuple[tuple[str, object], ...] | dict[str, object]", "max_shift": "int",
-               "interpolate": "int", "interpolation": "str"}
+               "interpolate": "int", "interpolation": "str", "occluder_gray": "tuple[float, float] | list[float]"}
 
 #: Every setting's flat name, in the dialect's order (``--print-config``,
 #: ``config.toml``, reports' JSON, the trial stores' run ids).
@@ -156,7 +157,7 @@ class Settings:
             (:class:`~jaxrecog.augment.AugmentParams`; off by default).
         occluder_gray: ``(lo, hi)``: DB2's training occluders get a gray
             level drawn from ``U(lo, hi)`` (0..255) instead of black (the
-            thesis's; ``(0, 0)``, the default).
+            thesis's; ``(0, 0)``, the default; *recipe*, robust ``(0, 255)``).
         max_shift: training samples are shifted by up to this many pixels
             in x and y (:class:`~jaxrecog.augment.AugmentParams`; default 3;
             the thesis gives no number; *recipe*).  The synthetic rig's captures shift
@@ -205,7 +206,6 @@ class Settings:
     blur_sigma: tuple[float, float] | list[float] | float = (0.0, 0.0)  # one number: (0, sigma)
     gain_amplitude: float = 0.0
     gain_cells: int = 3
-    occluder_gray: tuple[float, float] | list[float] = (0.0, 0.0)
     view_jitter: int = 0
     view_jitter_deg: float = 10.0
 
@@ -239,6 +239,8 @@ class Settings:
                            doc="interpolated views per side toward each neighbouring position")
     interpolation = property(lambda self: self.recipe.interpolation,
                              doc="how interpolated views are made: 'linear' or 'flow'")
+    occluder_gray = property(lambda self: self.recipe.occluder_gray,
+                             doc="DB2's training occluders' gray range ((0, 0): black, the thesis's)")
 
     @classmethod
     def defaults(cls) -> dict[str, Any]:

@@ -126,7 +126,8 @@ def resolve_recipe(args, db=None) -> Recipe:
     for opt, part in (("interpolate", "interpolate"), ("interpolation", "interpolation"), ("calibrate", "calibrate"), ("view_jitter", "view_jitter"),
                       ("threshold", "p_threshold"), ("min_views", "min_views"),
                       ("exclude_visited", "exclude_visited"), ("adaptive_scale", "adaptive_scale"),
-                      ("max_shift", "max_shift"), ("planner", "planner"), ("stability", "stability")):
+                      ("max_shift", "max_shift"), ("occluder_gray", "occluder_gray"), ("planner", "planner"),
+                      ("stability", "stability")):
         if getattr(args, opt, None) is not None:
             parts[part] = getattr(args, opt)
     try:
@@ -185,7 +186,7 @@ def run(args) -> int:
     db = load_database(args.database)
     recipe = resolve_recipe(args, db)
     try:
-        augment = AugmentParams(**{**capture, "max_shift": recipe.max_shift})
+        augment = AugmentParams(**{**capture, "max_shift": recipe.max_shift, "occluder_gray": recipe.occluder_gray})
     except (ValueError, argparse.ArgumentTypeError) as e:
         raise UsageError(f"capture augmentation: {e}") from None
     with bar(sum(db.positions), f"train {args.kind}", "pos") as b:
