@@ -377,6 +377,8 @@ def load_model(path: str | os.PathLike) -> SensorModel:
         kinds = None if kinds is None else [str(k) for k in kinds]
         common = str(meta["covariance"]) if kinds is None else None
         stability = meta.get("stability")       # files before it: None (not fitted)
+        if stability is not None and (isinstance(stability, bool) or not isinstance(stability, (int, float))):
+            raise TypeError(f"stability {stability!r} is not a number")
         stability = None if stability is None else float(stability)
     except (KeyError, TypeError, ValueError, OverflowError) as e:  # OverflowError: int(Infinity)
         raise bad(f"metadata lacks a valid field ({type(e).__name__}: {e})") from None

@@ -11,7 +11,7 @@ from jaxtyping import PRNGKeyArray
 
 from .motion import MotionCost
 from .planners import DEFAULT_MIN_PER_STRATUM, Planner, make_planner
-from .recipes import THESIS, Recipe
+from .recipes import AUTO, THESIS, Recipe
 from .recognizer import Recognizer
 
 __all__ = ["make_recognizer", "MotionCostWithoutGeometry"]
@@ -34,7 +34,9 @@ def make_recognizer(model, planner: str | Planner | None = None, *, recipe: Reci
             built with :func:`~jaxrecog.planners.make_planner` (tables drawn
             from ``key``, default ``PRNGKey(0)``; ``samples`` and
             ``min_per_stratum`` the Monte Carlo sizes); ``None``: the
-            recipe's planner.
+            recipe's planner.  ``mi-class-pairwise-stable`` takes the
+            model's fitted weight (``SensorModel.stability``), else the
+            recipe's ``stability`` when it is a number, else 1.
         recipe: the stop rule (:data:`~jaxrecog.recipes.STOP_FIELDS`:
             ``p_threshold``, ``min_views``, ``exclude_visited``,
             ``adaptive_scale``); default the thesis's, the recognizer's own
@@ -53,9 +55,13 @@ def make_recognizer(model, planner: str | Planner | None = None, *, recipe: Reci
         raise MotionCostWithoutGeometry(f"motion_cost = {motion_cost} needs the rig's travel times (its geometry); "
                                         "this rig has none (a replayed image database)")
     if planner is None or isinstance(planner, str):
-        planner = make_planner(recipe.planner if planner is None else planner, model,
-                               key=jr.PRNGKey(0) if key is None else key, samples=samples,
-                               min_per_stratum=min_per_stratum)
+        name = recipe.planner if planner is None else planner
+        options = {}
+        if (name == "mi-class-pairwise-stable" and getattr(model, "stability", None) is None
+                and recipe.stability != AUTO):
+            options["stability"] = float(recipe.stability)   # a model without its own weight: the recipe's
+        planner = make_planner(name, model, key=jr.PRNGKey(0) if key is None else key, samples=samples,
+                               min_per_stratum=min_per_stratum, **options)
     motion = None if travel is None else MotionCost(travel, motion_cost)
     return Recognizer(model, planner, p_threshold=recipe.p_threshold, max_steps=max_steps,
                       min_views=recipe.min_views, transition=transition, rho=rho,

@@ -129,6 +129,9 @@ def fit_stability(model, calib, *, max_scale: float = 32.0, alpha: float = DEFAU
     """
     if not 0.0 < alpha < 1.0:
         raise ValueError(f"alpha must lie in (0, 1), got {alpha!r}")
+    if len(scale_grid(max_scale)) < 3:
+        raise ValueError(f"the stability fit needs an adaptive scale of at least 2 (a capture above √2 is "
+                         f"unexplained), got {max_scale!r}")
     d_all, unexplained = [], []
     for cam, f in zip(model.cameras, calib.cameras):
         if len(f.g) == 0:

@@ -35,8 +35,8 @@ import time
 from pathlib import Path
 
 from jaxrecog.calibration import calibrate_model
-from jaxrecog.cli._options import gray_range, stability_weight
-from jaxrecog.calibration_data import features_from_database
+from jaxrecog.cli._options import gray_range, positive, probability, stability_weight
+from jaxrecog.calibration_data import CalibrationFeatures, features_from_database
 from jaxrecog.campaigns import CASES, Settings, capture_pool, case_settings, case_trials, compare_planners, make_rig, prepare
 from jaxrecog.campaigns.held_out import like_case, render_held_out
 from jaxrecog.campaigns.naming import run_id
@@ -62,17 +62,18 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--samples-per-image", type=int, default=100)
     ap.add_argument("--view-jitter", type=int, default=8, help="rendered views per training view (0: none)")
     ap.add_argument("--view-jitter-deg", type=float, default=20.0, help="their yaw range, +-degrees")
-    ap.add_argument("--occluder-gray", type=gray_range, default=(0.0, 0.0), metavar="LO,HI",
-                    help="DB2 training occluders with a gray level uniform in [LO, HI] (default black, the thesis's)")
+    ap.add_argument("--occluder-gray", type=gray_range, default=None, metavar="LO,HI",
+                    help="DB2 training occluders with a gray level uniform in [LO, HI] (default: the recipe's; "
+                         "robust 0,255, thesis 0,0 = black)")
     ap.add_argument("--stability", type=stability_weight, default=None, metavar="W|auto",
                     help="the planner's stability weight (default: the recipe's; auto = fitted on the held-out captures)")
     ap.add_argument("--calibrate", action=argparse.BooleanOptionalAction, default=None,
                     help="override the recipe's calibration on the held-out captures")
     ap.add_argument("--exclude-visited", action=argparse.BooleanOptionalAction, default=None,
                     help="override the recipe's revisit exclusion")
-    ap.add_argument("--calib-per-view", type=int, default=1,
+    ap.add_argument("--calib-per-view", type=positive, default=1,
                     help="held-out captures per (camera, position, object, pose)")
-    ap.add_argument("--occluded-fraction", type=float, default=0.5,
+    ap.add_argument("--occluded-fraction", type=probability, default=0.5,
                     help="occluded cases: share of held-out views with a board in front")
     return ap
 
@@ -91,11 +92,13 @@ def fitted_model(settings: Settings, case, prepared, *, occluded_fraction: float
     if recipe.calibrate:                      # True or auto: the split is here
         model, info = calibrate_model(model, db)
         notes["calibration"] = info.summary()
-    if case.cameras is not None:
+    feats = features_from_database(model, db, "calib") if recipe.stability == AUTO else None
+    if case.cameras is not None:   # a single-camera case: its cameras' model and held-out captures
         model = restrict_cameras(model, case.cameras)
+        feats = feats and CalibrationFeatures(tuple(feats.cameras[i] for i in case.cameras))
     weight = recipe.stability
     if weight == AUTO:
-        fit = fit_stability(model, features_from_database(model, db, "calib"), max_scale=recipe.adaptive_scale)
+        fit = fit_stability(model, feats, max_scale=recipe.adaptive_scale)
         notes["stability_fit"] = fit.to_dict()
         notes["stability"] = fit.summary()
         weight = fit.weight
@@ -115,7 +118,7 @@ def main(argv=None) -> int:
     settings = Settings(recipe=recipe, workdir=args.workdir, trials_per_object=args.trials, seed=args.seed,
                         stride=args.stride, n_components=args.n_components, samples_per_image=args.samples_per_image,
                         view_jitter=args.view_jitter, view_jitter_deg=args.view_jitter_deg,
-                        occluder_gray=args.occluder_gray)
+                        **({} if args.occluder_gray is None else {"occluder_gray": args.occluder_gray}))
     settings = case_settings(case, settings)
     t0 = time.perf_counter()
     prepared = prepare(settings, progress=False, databases=(case.database,))
@@ -148,14 +151,16 @@ def main(argv=None) -> int:
     print(table)
     out = settings.workdir / "results"
     out.mkdir(parents=True, exist_ok=True)
-    gray = "" if args.occluder_gray == (0.0, 0.0) else f"-gray{args.occluder_gray[0]:g}-{args.occluder_gray[1]:g}"
+    lo, hi = settings.occluder_gray
+    gray = f"-gray{lo:g}-{hi:g}" if case.database == "DB2" else ""
     extra = f"-w{model.stability:g}" if args.stability is not None else ""
     extra += f"-c{args.calib_per_view}" if args.calib_per_view != 1 else ""
     extra += "" if args.exclude_visited is None else f"-xv{int(args.exclude_visited)}"
     extra += "" if args.calibrate is None else f"-cal{int(args.calibrate)}"
+    extra += f"-seed{args.seed}" if args.seed else ""
     stem = f"rig-recipe-{case.name}-{recipe.name}-n{args.trials}-stride{args.stride}{gray}{extra}"
     (out / f"{stem}.md").write_text(table + "\n")
-    (out / f"{stem}.json").write_text(json.dumps({"metrics": metrics, "notes": notes, "recipe": recipe.to_dict(),
+    (out / f"{stem}.json").write_text(json.dumps({"metrics": metrics, "notes": notes, "recipe": settings.recipe.replace(stability=model.stability, calibrate=bool(settings.recipe.calibrate)).to_dict(),
                                                   "stability": model.stability, "case": case.name}, indent=1))
     print(f"wrote {out / stem}.{{md,json}} ({time.perf_counter() - t0:.0f} s)")
     return 0

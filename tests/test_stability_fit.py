@@ -152,3 +152,43 @@ def test_stability_fit_is_frozen_and_plain():
     fit = StabilityFit(1.0, 0.8, 1e-5, 10, 5)
     with pytest.raises(dataclasses.FrozenInstanceError):
         fit.weight = 0.0
+
+
+def test_the_recognizer_takes_the_model_weight_then_the_recipe_number_then_1():
+    from jaxrecog.recognizer_factory import make_recognizer
+
+    model = _mixture_model()
+
+    def weight(m, recipe):
+        return make_recognizer(m, "mi-class-pairwise-stable", recipe=recipe).planner.stability
+
+    assert weight(model, ROBUST) == 1.0                                   # auto, nothing fitted: 1
+    assert weight(model, ROBUST.replace(stability=0.0)) == 0.0            # a model without a weight: the recipe's
+    assert weight(dataclasses.replace(model, stability=1.0), ROBUST.replace(stability=0.0)) == 1.0   # the model's
+    assert weight(dataclasses.replace(model, stability=0.0), THESIS.replace(planner="mi-class-pairwise-stable")) == 0.0
+
+
+def test_the_fit_needs_an_adaptive_scale_that_can_mark_a_capture_unexplained():
+    model = _mixture_model(positions=(6, 3), m=3)
+    with pytest.raises(ValueError, match="needs an adaptive scale of at least 2"):
+        fit_stability(model, _captures(model, unexplained_where="unstable"), max_scale=1.5)
+    from types import SimpleNamespace
+
+    from jaxrecog.cli.train import _resolve_stability
+
+    recipe, m = _resolve_stability(ROBUST.replace(adaptive_scale=1.0), model, SimpleNamespace(split=np.array(["calib"])), {})
+    assert recipe.stability == 1.0 == m.stability
+
+
+def test_a_model_file_whose_weight_is_not_a_number_is_one_line(tmp_path):
+    import json
+    path = save_model(tmp_path / "m.npz", _mixture_model())
+    with np.load(path) as f:
+        arrays = dict(f)
+    for bad in (True, "0.5"):
+        meta = json.loads(bytes(arrays["meta"]).decode())
+        meta["stability"] = bad
+        arrays["meta"] = np.frombuffer(json.dumps(meta).encode(), np.uint8)
+        np.savez(tmp_path / "bad.npz", **arrays)
+        with pytest.raises(ModelFileContentError, match="is not a number"):
+            load_model(tmp_path / "bad.npz")

@@ -182,7 +182,7 @@ def test_turntable_campaign_end_to_end(tmp_path):
     prep = prepare_turntable(s, 3, 1, False, poses=1, step_deg=120)
     model = load_model(prep.models["turntable"])
     assert model.cameras[0].calibration is not None and tuple(model.positions) == (3,)
-    assert model.stability is None          # the thesis recipe fits no planner weight
+    assert model.stability == 1.0           # the thesis recipe's number (nothing fitted)
     mtime = prep.models["turntable"].stat().st_mtime_ns
     report = run_turntable(s, 3, 1, False, planners=["random"], poses=1, step_deg=120)
     assert prep.models["turntable"].stat().st_mtime_ns == mtime  # cached
@@ -222,3 +222,9 @@ def test_turntable_with_the_robust_recipe_fits_the_planner_weight_on_its_calib_s
     fit = meta["training"]["stability_fit"]
     assert load_model(prep.models["turntable"]).stability == fit["weight"] in (0.0, 1.0)
     assert fit["n"] == 3 * 3 and meta["training"]["params"]["stability"] == "auto"
+    assert meta["recipe"]["name"] == "robust" and meta["recipe"]["stability"] == fit["weight"]   # the file says so
+    # a numeric weight is the model's, and never reuses the file fitted under 'auto'
+    s0 = Settings(recipe=ROBUST.replace(stability=0.25), workdir=tmp_path, n_components=2, samples_per_image=6)
+    prep0 = prepare_turntable(s0, 3, 1, False, poses=1, step_deg=120)
+    assert load_model(prep0.models["turntable"]).stability == 0.25
+    assert "stability_fit" not in load_model_meta(prep0.models["turntable"])["training"]

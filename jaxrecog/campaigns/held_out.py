@@ -44,6 +44,8 @@ def render_held_out(folder: Path, settings: Settings, case: Case, perturb, *, ca
     from ..hardware.render.occluders import OCCLUDER_OFFSET, OCCLUDER_SIZE
     from ..hardware.render.scene import default_objects, object_radius
 
+    if not 0.0 <= occluded_fraction <= 1.0:
+        raise ValueError(f"occluded_fraction must lie in [0, 1], got {occluded_fraction!r}")
     folder = Path(folder)
     if (folder / "manifest.csv").exists():
         return folder

@@ -70,24 +70,27 @@ def prepare_turntable(settings: Settings, n_objects: int = 50, cameras: int = 1,
              "seconds": round(time.perf_counter() - t0, 1), "images": total}, indent=2) + "\n")
     db = load_database(db_dir)
     path = turntable_model_path(settings, db_dir, kind)
-    params = dict(training_params(settings, kind), calibrated=True)
-    fit_weight = settings.recipe.stability == AUTO   # the robust recipe: the planner's weight from the calib split
-    if fit_weight:
-        params["stability"] = AUTO
+    recipe = settings.recipe
+    # the planner's weight: the recipe's number, or (robust: auto) fitted on the calib split with the
+    # recipe's adaptive scale; both in the cache key, so a cached model never lends its weight to another
+    weight_key = {"stability": recipe.stability,
+                  **({"stability_max_scale": recipe.adaptive_scale} if recipe.stability == AUTO else {})}
+    params = dict(training_params(settings, kind), calibrated=True, **weight_key)
     if not cached_model_is_fresh(path, db, params):
         model, info = train_for(settings, db, kind, progress)
         t0 = time.perf_counter()
         model, cal = calibrate_model(model, db)
         training = info.to_dict()
-        training["params"] = dict(training["params"], calibrated=True)
+        training["params"] = dict(training["params"], calibrated=True, **weight_key)
         training["calibration_seconds"] = time.perf_counter() - t0
-        if fit_weight:
-            fit = fit_stability(model, features_from_database(model, db, "calib"),
-                                max_scale=settings.recipe.adaptive_scale)
-            model = dataclasses.replace(model, stability=fit.weight)
-            training["params"]["stability"] = AUTO
+        weight = recipe.stability
+        if weight == AUTO:
+            fit = fit_stability(model, features_from_database(model, db, "calib"), max_scale=recipe.adaptive_scale)
             training["stability_fit"] = fit.to_dict()
-        save_model(path, model, training=training, manifest_sha256=db.manifest_sha256, calibration=cal.to_dict())
+            weight = fit.weight
+        model = dataclasses.replace(model, stability=float(weight))
+        save_model(path, model, training=training, manifest_sha256=db.manifest_sha256, calibration=cal.to_dict(),
+                   recipe=recipe.replace(stability=float(weight), calibrate=True).to_dict())
     return Prepared(db_dir, {"turntable": path})
 
 

@@ -225,7 +225,11 @@ def _resolve_stability(recipe: Recipe, model, db, params: dict):
     and one printed line), 1 without one; a number as given."""
     w = recipe.stability
     if w == AUTO:
-        if int((db.split == "calib").sum()):
+        if recipe.adaptive_scale < 2.0:
+            print(f"recipe {recipe.name}: adaptive scale {recipe.adaptive_scale:g} marks no capture unexplained, "
+                  f"so the planner's stability weight is not fitted (1)")
+            w = 1.0
+        elif int((db.split == "calib").sum()):
             fit = fit_stability(model, features_from_database(model, db, "calib"), max_scale=recipe.adaptive_scale)
             params["stability_fit"] = fit.to_dict()
             print(fit.summary())
