@@ -14,12 +14,12 @@ from ..eigenspace import ComponentsError
 from ..kernels import likelihood_class
 from ..modelfile import check_writable, load_model, load_model_meta, save_model
 from .._progress import bar
-from ..stability_fit import fit_stability
 from ..recipes import AUTO, DEFAULT_RECIPE, RECIPES, Recipe, get_recipe, recipe_from_meta
+from ..stability_fit import fit_stability
 from ..train import add_objects, added_calibration_features, train_model
 from ._common import UsageError
-from ._options import (PLANNERS, adaptive_scale, stability_weight, capture_options, capture_params, default_likelihood, given_likelihood_options,
-                       likelihood_choice, likelihood_options, nonneg, positive, probability)
+from ._options import (PLANNERS, adaptive_scale, capture_options, capture_params, default_likelihood, given_likelihood_options,
+                       likelihood_choice, likelihood_options, nonneg, positive, probability, stability_weight)
 
 NAME = "train"
 ORDER = 20
