@@ -67,6 +67,7 @@ APPROACHES: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     # version 5: the planner's stability weight fitted on the calib split; these force it / allow revisits
     "robust, stability weight 0": (("--recipe", "robust", "--stability", "0"), ()),
     "robust, revisits allowed": (("--recipe", "robust",), ("--no-exclude-visited",)),
+    "robust, not calibrated": (("--recipe", "robust", "--no-calibrate"), ()),
 }
 QUICK = {"grids": [40], "objects": 2, "trials": 3, "samples": 10, "components": 6}
 
