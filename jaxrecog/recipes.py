@@ -159,6 +159,7 @@ class Recipe:
         """JSON form (the model file's ``recipe`` entry)."""
         d = dataclasses.asdict(self)
         d["likelihood_options"] = {k: v for k, v in self.likelihood_options}
+        d["occluder_gray"] = list(self.occluder_gray)
         return d
 
     def describe(self) -> list[str]:
