@@ -180,7 +180,6 @@ def turntable_case(args) -> int:
     """``--case turntable`` / ``turntable-occluded``: render, train + calibrate
     (cached in WORKDIR), run the campaign, print and write its tables and metrics."""
     from jaxrecog.campaigns import run_turntable
-    from jaxrecog.metrics import campaign_metrics
 
     try:
         settings = _settings(args)
@@ -190,14 +189,8 @@ def turntable_case(args) -> int:
     show = not args.quiet and sys.stderr.isatty()
     planners = args.planners.split(",") if args.planners else None
     report = run_turntable(settings, args.objects, args.cameras, TURNTABLE_CASES[args.case], planners, progress=show)
-    lines = [report.markdown(), "", "| Planner | Trials | Rate (%) | Mean views | Confident errors (% of trials) | ECE | Seconds |",
-             "|---|---:|---:|---:|---:|---:|---:|"]
-    metrics = {}
-    for planner, res in report.results.items():
-        m = campaign_metrics(res, settings.p_threshold)
-        metrics[planner] = m
-        lines.append(f"| {planner} | {m['trials']} | {m['recognition_rate']:.1f} | {m['mean_views']:.2f} | "
-                     f"{m['confident_error_pct_of_trials']:.1f} | {m['ece']:.3f} | {report.seconds[planner]:.0f} |")
+    rows, metrics = report.metrics_table()
+    lines = [report.markdown(), "", *rows]
     md = "\n".join(lines) + "\n"
     tag = "" if settings.likelihood == DEFAULT_LIKELIHOOD else f"-{settings.likelihood}"
     tag += f"-vj{settings.view_jitter}x{settings.view_jitter_deg:g}" if settings.view_jitter else ""

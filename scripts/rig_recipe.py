@@ -41,7 +41,6 @@ from jaxrecog.campaigns import CASES, Settings, capture_pool, case_settings, cas
 from jaxrecog.campaigns.held_out import like_case, render_held_out
 from jaxrecog.campaigns.naming import run_id
 from jaxrecog.database import load_database
-from jaxrecog.metrics import campaign_metrics
 from jaxrecog.modelfile import load_model
 from jaxrecog.recipes import AUTO, RECIPES, get_recipe
 from jaxrecog.recognizer import restrict_cameras
@@ -137,17 +136,9 @@ def main(argv=None) -> int:
         report = compare_planners(case, model, rigs, specs, settings, planners,
                                   lambda planner: f"recipe-{case.name}-{planner}-{tag}", progress=False,
                                   on_result=None, probe=probe)
-    lines = [f"Case {case.name} ({case.title}), recipe {recipe.name} version {recipe.version}, "
-             f"{args.trials} trials per object, P_th = {settings.p_threshold}", "",
-             "| planner | trials | rate % | views | confident errors % of trials | ECE | s |",
-             "|---|---:|---:|---:|---:|---:|---:|"]
-    metrics = {}
-    for planner, res in report.results.items():
-        m = campaign_metrics(res, settings.p_threshold)
-        metrics[planner] = m
-        lines.append(f"| {planner} | {m['trials']} | {m['recognition_rate']:.2f} | {m['mean_views']:.2f} | "
-                     f"{m['confident_error_pct_of_trials']:.2f} | {m['ece']:.3f} | {report.seconds[planner]:.0f} |")
-    table = "\n".join(lines)
+    rows, metrics = report.metrics_table(digits=2)
+    table = "\n".join([f"Case {case.name} ({case.title}), recipe {recipe.name} version {recipe.version}, "
+                       f"{args.trials} trials per object, P_th = {settings.p_threshold}", "", *rows])
     print(table)
     out = settings.workdir / "results"
     out.mkdir(parents=True, exist_ok=True)

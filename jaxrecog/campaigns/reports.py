@@ -56,6 +56,23 @@ class CaseReport:
             parts.append(table_markdown(rows, f"{planner.upper()} — {n} trials per object, {self.seconds[planner]:.0f} s", reference=ref))
         return "\n".join(parts)
 
+    def metrics_table(self, digits: int = 1) -> tuple[list[str], dict[str, dict]]:
+        """One Markdown row per planner (rate, views, confident errors as %
+        of trials with ``digits`` decimals, ECE, seconds) under its header,
+        and each planner's :func:`~jaxrecog.metrics.campaign_metrics` at the
+        settings' P_th."""
+        from ..metrics import campaign_metrics
+
+        lines = ["| Planner | Trials | Rate (%) | Mean views | Confident errors (% of trials) | ECE | Seconds |",
+                 "|---|---:|---:|---:|---:|---:|---:|"]
+        metrics = {}
+        for planner, res in self.results.items():
+            m = metrics[planner] = campaign_metrics(res, self.settings.p_threshold)
+            lines.append(f"| {planner} | {m['trials']} | {m['recognition_rate']:.{digits}f} | {m['mean_views']:.2f} | "
+                         f"{m['confident_error_pct_of_trials']:.{digits}f} | {m['ece']:.3f} | "
+                         f"{self.seconds[planner]:.0f} |")
+        return lines, metrics
+
     def to_json(self) -> dict:
         return {
             "case": dataclasses.asdict(self.case),
