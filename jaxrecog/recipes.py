@@ -32,7 +32,8 @@ records the parts as they were used.
     where the model is worst and ends below random on the photos), its
     instability weight fitted on the ``calib`` split (1 where instability
     predicts the captures no class explains, 0 where it does not, as on
-    the synthetic rig's on-grid captures; :mod:`jaxrecog.stability_fit`).
+    the synthetic rig's on-grid captures; :mod:`jaxrecog.stability_fit`);
+    DB2 is trained with occluders of a random gray, not black.
 
 The registry :data:`RECIPES` maps names to recipes; :func:`get_recipe`
 looks one up (an unknown name is one line listing the known ones).

@@ -27,7 +27,7 @@ unexplained captures, and ``w = 0`` (the plain pairwise MI) otherwise.  On
 the photo benchmark's calib splits (5° off the grid) the test rejects at
 every grid (AUC 0.80-0.92, p < 1e-6).
 
-Public: :func:`capture_scales`, :func:`fit_stability`, :class:`StabilityFit`.
+Public: :func:`capture_scales`, :func:`auc_test`, :func:`fit_stability`, :class:`StabilityFit`.
 """
 
 from __future__ import annotations
@@ -42,7 +42,7 @@ from scipy import stats
 from .kernels.adaptive_scale import EXPLAINED_SCALE, adaptive_log_density, scale_grid
 from .kernels.view_stability import view_instability
 
-__all__ = ["StabilityFit", "capture_scales", "fit_stability", "DEFAULT_ALPHA", "DEFAULT_MIN_UNEXPLAINED"]
+__all__ = ["StabilityFit", "auc_test", "capture_scales", "fit_stability", "DEFAULT_ALPHA", "DEFAULT_MIN_UNEXPLAINED"]
 
 #: the one-sided test's level
 DEFAULT_ALPHA = 0.01

@@ -94,7 +94,8 @@ def fitted_model(settings: Settings, case, prepared, *, occluded_fraction: float
     feats = features_from_database(model, db, "calib") if recipe.stability == AUTO else None
     if case.cameras is not None:   # a single-camera case: its cameras' model and held-out captures
         model = restrict_cameras(model, case.cameras)
-        feats = feats and CalibrationFeatures(tuple(feats.cameras[i] for i in case.cameras))
+        if feats is not None:
+            feats = CalibrationFeatures(tuple(feats.cameras[i] for i in case.cameras))
     weight = recipe.stability
     if weight == AUTO:
         fit = fit_stability(model, feats, max_scale=recipe.adaptive_scale)

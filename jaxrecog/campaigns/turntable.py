@@ -10,8 +10,8 @@ import time
 from typing import Sequence
 
 from ..database import load_database
-from ..recipes import AUTO
 from ..modelfile import save_model
+from ..recipes import AUTO
 from .dataset import run_dataset
 from .naming import training_params, turntable_dir, turntable_model_path
 from .preparation import Prepared, cached_model_is_fresh, progress_bar, train_for
@@ -42,8 +42,8 @@ def prepare_turntable(settings: Settings, n_objects: int = 50, cameras: int = 1,
     from ..calibration import calibrate_model
     from ..calibration_data import features_from_database
     from ..hardware.render.random_objects import random_objects
-    from ..stability_fit import fit_stability
     from ..hardware.render.turntable import render_turntable
+    from ..stability_fit import fit_stability
 
     kind = kind or ("DB2" if occluded else "DB1")
     jitter = settings.view_jitter
