@@ -27,12 +27,14 @@ unexplained captures, and ``w = 0`` (the plain pairwise MI) otherwise.  On
 the photo benchmark's calib splits (5° off the grid) the test rejects at
 every grid (AUC 0.80-0.92, p < 1e-6).
 
-Public: :func:`capture_scales`, :func:`auc_test`, :func:`fit_stability`, :class:`StabilityFit`.
+Public: :func:`capture_scales`, :func:`auc_test`, :func:`fit_stability`, :func:`with_stability`,
+:class:`StabilityFit`.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 
 import jax
@@ -41,8 +43,9 @@ from scipy import stats
 
 from .kernels.adaptive_scale import EXPLAINED_SCALE, adaptive_log_density, scale_grid
 from .kernels.view_stability import view_instability
+from .recipes import AUTO
 
-__all__ = ["StabilityFit", "auc_test", "capture_scales", "fit_stability", "DEFAULT_ALPHA", "DEFAULT_MIN_UNEXPLAINED"]
+__all__ = ["StabilityFit", "auc_test", "capture_scales", "fit_stability", "with_stability", "DEFAULT_ALPHA", "DEFAULT_MIN_UNEXPLAINED"]
 
 #: the one-sided test's level
 DEFAULT_ALPHA = 0.01
@@ -85,6 +88,11 @@ class StabilityFit:
                 f"unexplained, AUC {auc}, p = {self.p_value:.2g} ({why})")
 
 
+@functools.partial(jax.jit, static_argnames="scales")
+def _chunk_scales(lik, g, v, scales: tuple[float, ...]):
+    return jax.vmap(lambda gi, vi: adaptive_log_density(lik.at(vi), gi, scales)[1])(g, v)
+
+
 def capture_scales(lik, g: np.ndarray, position: np.ndarray, max_scale: float) -> np.ndarray:
     """``s*`` of every capture ``g[n]`` at ``position[n]`` under one camera's
     likelihood (:func:`~jaxrecog.kernels.adaptive_scale.adaptive_log_density`,
@@ -92,7 +100,6 @@ def capture_scales(lik, g: np.ndarray, position: np.ndarray, max_scale: float) -
     ``max_scale``), ``float [N]``.  Chunks of a fixed size (the last padded),
     so any ``N`` is one compiled program."""
     scales = scale_grid(max_scale)
-    fn = jax.jit(lambda lk, gg, vv: jax.vmap(lambda gi, vi: adaptive_log_density(lk.at(vi), gi, scales)[1])(gg, vv))
     g = np.asarray(g, np.float32)
     position = np.asarray(position, np.int32)
     out = np.empty(len(g), np.float64)
@@ -102,7 +109,7 @@ def capture_scales(lik, g: np.ndarray, position: np.ndarray, max_scale: float) -
         if n < _CHUNK:
             gs = np.concatenate([gs, np.repeat(gs[-1:], _CHUNK - n, 0)])
             vs = np.concatenate([vs, np.repeat(vs[-1:], _CHUNK - n, 0)])
-        out[i:i + n] = np.asarray(fn(lik, jax.device_put(gs), jax.device_put(vs)))[:n]
+        out[i:i + n] = np.asarray(_chunk_scales(lik, jax.device_put(gs), jax.device_put(vs), scales))[:n]
     return out
 
 
@@ -113,6 +120,18 @@ def auc_test(x_unexplained: np.ndarray, x_explained: np.ndarray) -> tuple[float,
         return float("nan"), 1.0
     u = stats.mannwhitneyu(x_unexplained, x_explained, alternative="greater")
     return float(u.statistic) / (len(x_unexplained) * len(x_explained)), float(u.pvalue)
+
+
+def with_stability(model, recipe, calib=None):
+    """``(model with its planner weight, fit or None)``: ``recipe.stability``
+    when it is a number, else (``"auto"``) fitted on ``calib`` (held-out
+    features, :func:`fit_stability` at the recipe's adaptive scale)."""
+    fit = None
+    weight = recipe.stability
+    if weight == AUTO:
+        fit = fit_stability(model, calib, max_scale=recipe.adaptive_scale)
+        weight = fit.weight
+    return dataclasses.replace(model, stability=float(weight)), fit
 
 
 def fit_stability(model, calib, *, max_scale: float = 32.0, alpha: float = DEFAULT_ALPHA,

@@ -132,13 +132,14 @@ def run(out: Path, *, photos: Path, grids, recipes, approaches, trials: int, obj
                  *exp_flags, log=log)
             report = json.loads((exp / "case_dataset.json").read_text())
             settings = report["settings"]
+            weight = load_model_meta(model).get("stability")
             for planner in report["tables"]:   # the model recipe's planner and random unless --planners
                 m = planner_metrics(exp / "work", planner, settings["p_threshold"])
                 rows.append({"grid": grid, "offset": grid / 2, "variant": name, "planner": planner,
                              "train_s": train_s, "min_views": settings["min_views"],
                              "exclude_visited": settings["exclude_visited_positions"],
                              "p_threshold": settings["p_threshold"],
-                             "stability": load_model_meta(model).get("stability"), **m})
+                             "stability": weight, **m})
                 print(_line(rows[-1]), flush=True)
     return rows
 

@@ -28,7 +28,6 @@ Example (docs/results.md, "The synthetic cases with every part of the recipe")::
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import sys
 import time
@@ -44,7 +43,7 @@ from jaxrecog.database import load_database
 from jaxrecog.modelfile import load_model
 from jaxrecog.recipes import AUTO, RECIPES, get_recipe
 from jaxrecog.recognizer import restrict_cameras
-from jaxrecog.stability_fit import fit_stability
+from jaxrecog.stability_fit import with_stability
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -96,13 +95,11 @@ def fitted_model(settings: Settings, case, prepared, *, occluded_fraction: float
         model = restrict_cameras(model, case.cameras)
         if feats is not None:
             feats = CalibrationFeatures(tuple(feats.cameras[i] for i in case.cameras))
-    weight = recipe.stability
-    if weight == AUTO:
-        fit = fit_stability(model, feats, max_scale=recipe.adaptive_scale)
+    model, fit = with_stability(model, recipe, feats)
+    if fit is not None:
         notes["stability_fit"] = fit.to_dict()
         notes["stability"] = fit.summary()
-        weight = fit.weight
-    return dataclasses.replace(model, stability=float(weight)), notes
+    return model, notes
 
 
 def main(argv=None) -> int:

@@ -4,7 +4,6 @@ trained and calibrated, then the database campaign on its test split."""
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import time
 from typing import Sequence
@@ -43,7 +42,7 @@ def prepare_turntable(settings: Settings, n_objects: int = 50, cameras: int = 1,
     from ..calibration_data import features_from_database
     from ..hardware.render.random_objects import random_objects
     from ..hardware.render.turntable import render_turntable
-    from ..stability_fit import fit_stability
+    from ..stability_fit import with_stability
 
     kind = kind or ("DB2" if occluded else "DB1")
     jitter = settings.view_jitter
@@ -83,14 +82,12 @@ def prepare_turntable(settings: Settings, n_objects: int = 50, cameras: int = 1,
         training = info.to_dict()
         training["params"] = dict(training["params"], calibrated=True, **weight_key)
         training["calibration_seconds"] = time.perf_counter() - t0
-        weight = recipe.stability
-        if weight == AUTO:
-            fit = fit_stability(model, features_from_database(model, db, "calib"), max_scale=recipe.adaptive_scale)
+        model, fit = with_stability(model, recipe,
+                                    features_from_database(model, db, "calib") if recipe.stability == AUTO else None)
+        if fit is not None:
             training["stability_fit"] = fit.to_dict()
-            weight = fit.weight
-        model = dataclasses.replace(model, stability=float(weight))
         save_model(path, model, training=training, manifest_sha256=db.manifest_sha256, calibration=cal.to_dict(),
-                   recipe=recipe.replace(stability=float(weight), calibrate=True).to_dict())
+                   recipe=recipe.replace(stability=model.stability, calibrate=True).to_dict())
     return Prepared(db_dir, {"turntable": path})
 
 

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import sys
 
 from ..augment import AugmentParams
@@ -15,7 +14,7 @@ from ..kernels import likelihood_class
 from ..modelfile import check_writable, load_model, load_model_meta, save_model
 from .._progress import bar
 from ..recipes import AUTO, DEFAULT_RECIPE, RECIPES, Recipe, get_recipe, recipe_from_meta
-from ..stability_fit import fit_stability
+from ..stability_fit import with_stability
 from ..train import add_objects, added_calibration_features, train_model
 from ._common import UsageError
 from ._options import (PLANNERS, adaptive_scale, capture_options, capture_params, default_likelihood, given_likelihood_options,
@@ -223,22 +222,20 @@ def _resolve_stability(recipe: Recipe, model, db, params: dict):
     """The recipe and model with the planner's stability weight as a number:
     ``auto`` fitted on ``db``'s ``calib`` split (its result in ``params``
     and one printed line), 1 without one; a number as given."""
-    w = recipe.stability
-    if w == AUTO:
-        if recipe.adaptive_scale < 2.0:
-            print(f"recipe {recipe.name}: adaptive scale {recipe.adaptive_scale:g} marks no capture unexplained, "
-                  f"so the planner's stability weight is not fitted (1)")
-            w = 1.0
-        elif int((db.split == "calib").sum()):
-            fit = fit_stability(model, features_from_database(model, db, "calib"), max_scale=recipe.adaptive_scale)
-            params["stability_fit"] = fit.to_dict()
-            print(fit.summary())
-            w = fit.weight
-        else:
-            print(f"recipe {recipe.name}: the database has no 'calib' split, so the planner's stability weight "
-                  f"is not fitted (1)")
-            w = 1.0
-    return recipe.replace(stability=float(w)), dataclasses.replace(model, stability=float(w))
+    if recipe.stability == AUTO and recipe.adaptive_scale < 2.0:
+        print(f"recipe {recipe.name}: adaptive scale {recipe.adaptive_scale:g} marks no capture unexplained, "
+              f"so the planner's stability weight is not fitted (1)")
+        recipe = recipe.replace(stability=1.0)
+    elif recipe.stability == AUTO and not int((db.split == "calib").sum()):
+        print(f"recipe {recipe.name}: the database has no 'calib' split, so the planner's stability weight "
+              f"is not fitted (1)")
+        recipe = recipe.replace(stability=1.0)
+    calib = features_from_database(model, db, "calib") if recipe.stability == AUTO else None
+    model, fit = with_stability(model, recipe, calib)
+    if fit is not None:
+        params["stability_fit"] = fit.to_dict()
+        print(fit.summary())
+    return recipe.replace(stability=model.stability), model
 
 
 #: the options ``--add`` honours besides its own (every other training option is the model's)
