@@ -86,6 +86,7 @@ __all__ = [
     "calibration_factors",
     "uncalibrated",
     "calibrate_model",
+    "pooled_log_factors",
 ]
 
 
@@ -143,7 +144,8 @@ class CalibrationInfo:
             na = float(np.sum(self.nll_after[i] * n) / max(n.sum(), 1))
             lines.append(
                 f"camera {i}: {int(n.sum())} images at {int(used.sum())}/{len(n)} positions, "
-                f"factors {f.min():.3g}..{f.max():.3g} (median {np.median(f):.3g}), "
+                f"factors {f.min():.3g}..{f.max():.3g} (median {np.median(f):.3g}"
+                f"{', pooled per camera' if self.settings.get('pool') else ''}), "
                 f"NLL {nb:.3f} -> {na:.3f}, L-BFGS iterations <= {int(self.iterations[i].max())}, "
                 f"converged {int(self.converged[i].sum())}/{len(n)}"
             )
@@ -219,7 +221,9 @@ def _fit_positions(lik, terms, true_cls, mask, prior_sd, max_iter, tol, log_min,
                    n_shape: int = 0):
     """vmap over positions (of the camera's likelihood ``lik`` and its
     ``scaling_terms``) of the L-BFGS fit: ``(theta [V, P], iters [V],
-    converged [V], nll0 [V], nll1 [V])``, ``P = n_params`` (``(1 + n_shape)``
+    converged [V], nll0 [V], nll1 [V], free [V, G], info [V, G])`` (``free``:
+    the unconstrained log factors, ``info``: the images' information on each,
+    NaN where not positive; :func:`pooled_log_factors`), ``P = n_params`` (``(1 + n_shape)``
     groups: the log factors, then each shape offset).  ``prior_sd``,
     ``max_iter``, ``tol``, ``log_min`` are traced scalars (changing them does
     not recompile).  The unconstrained optimum's log factors are clipped to
@@ -238,7 +242,16 @@ def _fit_positions(lik, terms, true_cls, mask, prior_sd, max_iter, tol, log_min,
 
         theta0 = jnp.zeros((n_params,), dtype)
         theta, it = _lbfgs(loss, theta0, max_iter, tol)
-        scale = jnp.maximum(theta[:groups], log_min)
+        free = theta[:groups]
+        # the images' information on each log factor at the unconstrained optimum:
+        # 1 / its sampling variance, from the Hessian of the negative log likelihood
+        # (the whole posterior's, n x the per-image mean, less the prior's 1 / sd^2),
+        # its inverse's diagonal (the shape offsets, if any, are correlated with it);
+        # not positive: the images say nothing (NaN, pooled_log_factors drops it)
+        h = n * jax.hessian(loss)(theta) - jnp.eye(n_params, dtype=dtype) / prior_sd**2
+        var = jnp.diagonal(jnp.linalg.inv(h))[:groups]
+        curv = jnp.where(var > 0, 1.0 / var, jnp.nan)
+        scale = jnp.maximum(free, log_min)
         if n_shape:
             shape, it2 = _lbfgs(lambda sh: loss(jnp.concatenate([scale, sh])), theta[groups:], max_iter, tol)
             theta, it = jnp.concatenate([scale, shape]), it + it2
@@ -248,9 +261,20 @@ def _fit_positions(lik, terms, true_cls, mask, prior_sd, max_iter, tol, log_min,
             theta = scale
         nll0 = jnp.sum(_neg_log_posterior(theta0, lik, terms, true_cls, mask, n_shape)) / n
         nll1 = jnp.sum(_neg_log_posterior(theta, lik, terms, true_cls, mask, n_shape)) / n
-        return theta, it, gnorm < tol, nll0, nll1
+        return theta, it, gnorm < tol, nll0, nll1, free, curv
 
     return jax.vmap(fit_one)(lik, terms, true_cls, mask)
+
+
+@eqx.filter_jit
+def _mean_nll(lik, terms, true_cls, mask, theta, *, n_shape: int = 0):
+    """``[V]`` mean ``-log p'(c* | g)`` per position under ``theta [V, P]``
+    (:func:`_neg_log_posterior`), e.g. for factors pooled after the fit."""
+    def one(lik, terms, true_cls, mask, th):
+        n = jnp.maximum(jnp.sum(mask), 1).astype(lik.dtype)
+        return jnp.sum(_neg_log_posterior(th, lik, terms, true_cls, mask, n_shape)) / n
+
+    return jax.vmap(one)(lik, terms, true_cls, mask, theta)
 
 
 class CameraFit(NamedTuple):
@@ -302,9 +326,55 @@ def _scaling_terms(lik: K.Likelihood, g: Float[Array, "V N K"], budget: int = _T
     return jax.tree_util.tree_unflatten(jax.tree_util.tree_structure(parts[0]), out)
 
 
+def pooled_log_factors(theta: Float[ArrayLike, "V G"], curvature: Float[ArrayLike, "V G"],
+                       n_images: Int[ArrayLike, " V"]) -> np.ndarray:
+    """Per-position log factors ``θ[v, g]`` shrunk toward their camera's
+    pooled value (a random-effects estimate, DerSimonian & Laird 1986), per
+    group ``g`` (one, or one per level).
+
+    Each position's ``θ_v`` is its own (unconstrained) fit, with sampling
+    variance ``e_v² = 1 / H_v`` from the curvature ``H_v`` of its negative log
+    posterior.  With the fixed-effect weights ``w_v = 1 / e_v²`` over the ``m``
+    positions that have images::
+
+        θ_FE = Σ w θ / Σ w,   Q = Σ w (θ - θ_FE)²,
+        τ² = max(0, (Q - (m - 1)) / (Σ w - Σ w² / Σ w))          (spread between positions)
+        θ̄ = Σ w* θ / Σ w*,   w*_v = 1 / (e_v² + τ²)
+        θ'_v = θ̄ + τ² / (τ² + e_v²) · (θ_v - θ̄)
+
+    A position whose few images say little (large ``e_v``) keeps little of its
+    own value; with no spread beyond the sampling noise (``τ² = 0``) every
+    position takes ``θ̄``; a position without images, or whose images carry no
+    information on ``θ`` (curvature not positive or not finite), takes ``θ̄``.
+    Fewer than two positions with information: ``θ`` unchanged.  A position
+    with images and a non-finite ``θ`` stays non-finite (the caller's check
+    says the fit diverged).  ``θ_v`` is the fit's MAP estimate under its weak
+    prior, and ``H_v`` the likelihood's curvature alone.
+    """
+    theta = np.array(theta, np.float64)
+    curvature = np.asarray(curvature, np.float64)
+    out = theta.copy()
+    images = np.asarray(n_images) > 0
+    for g in range(theta.shape[1]):
+        th, h = theta[:, g], curvature[:, g]
+        have = images & np.isfinite(th) & np.isfinite(h) & (h > 0)
+        if have.sum() < 2:
+            continue
+        e2, t = 1.0 / h[have], th[have]
+        w = 1.0 / e2
+        fixed = np.sum(w * t) / np.sum(w)
+        q = np.sum(w * (t - fixed) ** 2)
+        tau2 = max(0.0, (q - (t.size - 1)) / (np.sum(w) - np.sum(w * w) / np.sum(w)))
+        ws = 1.0 / (e2 + tau2)
+        mean = np.sum(ws * t) / np.sum(ws)
+        out[:, g] = np.where(images & ~np.isfinite(th), th, mean)
+        out[have, g] = mean + tau2 / (tau2 + e2) * (t - mean)
+    return out
+
+
 def fit_camera(camera: CameraModel, features: CameraFeatures, *, per_level: bool = False,
                prior_sd: float = 1.0, max_iter: int = 100, tol: float = 1e-5,
-               min_factor: float | None = 1.0, fit_shape: bool = True) -> CameraFit:
+               min_factor: float | None = 1.0, fit_shape: bool = True, pool: bool = False) -> CameraFit:
     """Fit one camera's variance factors ``s [V, L]`` and, with ``fit_shape``,
     its likelihood's shape offsets (module docstring).
 
@@ -318,6 +388,11 @@ def fit_camera(camera: CameraModel, features: CameraFeatures, *, per_level: bool
         min_factor: lower bound on ``s`` (default 1: inflate only, never make the
             model surer than trained); ``None`` = unbounded.
         fit_shape: fit the family's ``calibration_shapes`` too (none for the Gaussians).
+        pool: shrink each position's factor toward the camera's pooled factor
+            (:func:`pooled_log_factors`), so a position whose few held-out
+            images happen to fit badly is not inflated alone; a position
+            without images takes the pooled factor.  The shape offsets stay
+            those fitted beside the positions' own factors.
     """
     if not prior_sd > 0 or not max_iter >= 1 or not tol > 0 or not (min_factor is None or min_factor > 0):
         raise ValueError(f"need prior_sd > 0, max_iter >= 1, tol > 0, min_factor > 0 or None "
@@ -343,11 +418,17 @@ def fit_camera(camera: CameraModel, features: CameraFeatures, *, per_level: bool
     g = jax.device_put(g)
     cls = jax.device_put(np.asarray(features.cls[idx] if features.cls.size else np.zeros((V, n_max)), np.int32))
     terms = _scaling_terms(lik, g)
-    theta, it, conv, nll0, nll1 = _fit_positions(
+    log_min = -math.inf if min_factor is None else math.log(min_factor)
+    theta, it, conv, nll0, nll1, free, curv = _fit_positions(
         lik, terms, cls, jax.device_put(mask), jnp.asarray(prior_sd, dtype), jnp.asarray(int(max_iter)),
-        jnp.asarray(tol, dtype), jnp.asarray(-jnp.inf if min_factor is None else math.log(min_factor), dtype),
+        jnp.asarray(tol, dtype), jnp.asarray(log_min, dtype),
         n_params=groups * (1 + n_shape), n_shape=n_shape)
-    theta = np.asarray(theta, np.float64).reshape(V, 1 + n_shape, groups)
+    theta = np.array(theta, np.float64).reshape(V, 1 + n_shape, groups)   # a copy: written below
+    if pool:
+        theta[:, 0] = np.maximum(pooled_log_factors(np.asarray(free, np.float64), np.asarray(curv, np.float64),
+                                                    counts), log_min)
+        nll1 = _mean_nll(lik, terms, cls, jax.device_put(mask),
+                         jnp.asarray(theta.reshape(V, -1), dtype), n_shape=n_shape)
     s = np.broadcast_to(np.exp(theta[:, 0]), (V, L)).astype(np.float32)
     shape = np.broadcast_to(np.swapaxes(theta[:, 1:], 1, 2), (V, L, n_shape)).astype(np.float32)
     if not np.all(np.isfinite(s)) or not np.all(np.isfinite(shape)):
@@ -436,7 +517,8 @@ def uncalibrated(model: SensorModel) -> SensorModel:
 
 def calibrate_model(model: SensorModel, calib, *, per_level: bool = False, prior_sd: float = 1.0,
                     max_iter: int = 100, tol: float = 1e-5, min_factor: float | None = 1.0,
-                    split: str = "calib", fit_shape: bool = True) -> tuple[SensorModel, CalibrationInfo]:
+                    split: str = "calib", fit_shape: bool = True, pool: bool = False
+                    ) -> tuple[SensorModel, CalibrationInfo]:
     """Fit variance factors on held-out views and return the calibrated model.
 
     Args:
@@ -449,6 +531,8 @@ def calibrate_model(model: SensorModel, calib, *, per_level: bool = False, prior
         min_factor: lower bound on the factors (default 1: inflation only); ``None`` = unbounded.
         split: which rows of a database to use.
         fit_shape: also fit the likelihood's shape parameters (Student-t: ``ν``).
+        pool: shrink the positions' factors toward each camera's pooled one
+            (:func:`pooled_log_factors`; recipe part ``calib_pool``).
 
     Returns:
         ``(calibrated model, CalibrationInfo)``; the model's ``calibration``
@@ -456,7 +540,7 @@ def calibrate_model(model: SensorModel, calib, *, per_level: bool = False, prior
     """
     feats = checked_features(model, calib, split)
     res = [fit_camera(cam, f, per_level=per_level, prior_sd=prior_sd, max_iter=max_iter, tol=tol,
-                      min_factor=min_factor, fit_shape=fit_shape)
+                      min_factor=min_factor, fit_shape=fit_shape, pool=pool)
            for cam, f in zip(model.cameras, feats.cameras)]
     out = apply_shape(apply_calibration(model, [r.factors for r in res]), [r.shape for r in res])
     info = CalibrationInfo(
@@ -464,7 +548,7 @@ def calibrate_model(model: SensorModel, calib, *, per_level: bool = False, prior
         converged=tuple(r.converged for r in res), nll_before=tuple(r.nll_before for r in res),
         nll_after=tuple(r.nll_after for r in res), n_images=tuple(r.n_images for r in res),
         settings={"per_level": per_level, "prior_sd": prior_sd, "max_iter": max_iter, "tol": tol,
-                  "min_factor": min_factor, "split": split, "fit_shape": fit_shape},
+                  "min_factor": min_factor, "split": split, "fit_shape": fit_shape, "pool": pool},
         shape=tuple(r.shape for r in res),
         shape_names=tuple(tuple(c.likelihood.calibration_shapes) if fit_shape else () for c in model.cameras),
     )

@@ -83,6 +83,11 @@ LIKELIHOODS: dict[str, type["Likelihood"]] = {}
 """Kind name -> :class:`Likelihood` subclass (filled by :func:`register_likelihood`)."""
 
 
+
+def _check_divergence(kind: str) -> None:
+    if kind not in ("bhattacharyya", "kl"):
+        raise ValueError(f"divergence: kind must be 'bhattacharyya' or 'kl', got {kind!r}")
+
 class Likelihood(eqx.Module):
     """p(g | c, k, v) of one camera: the interface every sensor-model family implements.
 
@@ -262,13 +267,19 @@ class Likelihood(eqx.Module):
         family this is not a bound any more (the pairwise estimator's bounds hold
         for the exact divergences); it is exact where the family is Gaussian.
         """
-        if kind not in ("bhattacharyya", "kl"):
-            raise ValueError(f"divergence: kind must be 'bhattacharyya' or 'kl', got {kind!r}")
+        _check_divergence(kind)
         try:
             return self.bhattacharyya() if kind == "bhattacharyya" else self.kl()
         except NotImplementedError:
-            matched = likelihood_class("full").from_moments(self.mean(), self.covariance())
-            return matched.bhattacharyya() if kind == "bhattacharyya" else matched.kl()
+            return self.moment_matched_divergence(kind)
+
+    def moment_matched_divergence(self, kind: str) -> Float[Array, "C L C L"]:
+        """The divergence ``kind`` between the moment-matched Gaussians
+        N(mean(), covariance()) of the components (:meth:`divergence`'s
+        approximation for a family without a closed form)."""
+        _check_divergence(kind)
+        matched = likelihood_class("full").from_moments(self.mean(), self.covariance())
+        return matched.bhattacharyya() if kind == "bhattacharyya" else matched.kl()
 
     def scaling_terms(self, g: Float[Array, "N K"]):
         """Whatever :meth:`scaled_log_density` needs from the features ``g``,

@@ -89,8 +89,10 @@ kind, it is not a bound on I(c; g | a), but I_D(c; g | a) <= H(c) always
 state estimate (>= 0) it may be slightly negative.
 
 The divergence tables come from the likelihood family
-(:meth:`~jaxrecog.kernels.Likelihood.divergence`): closed forms for the two
-Gaussians; a moment-matched Gaussian approximation for a family without one.
+(:meth:`~jaxrecog.kernels.Likelihood.divergence`): closed forms for the
+Gaussians; a moment-matched Gaussian approximation for a family without one,
+and for the view mixtures, whose pairwise-component bound collapses to 0
+between look-alikes when neighbouring views overlap (:mod:`.view_mixture`).
 """
 
 from __future__ import annotations

@@ -68,6 +68,8 @@ APPROACHES: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "robust, stability weight 0": (("--recipe", "robust", "--stability", "0"), ()),
     "robust, revisits allowed": (("--recipe", "robust",), ("--no-exclude-visited",)),
     "robust, not calibrated": (("--recipe", "robust", "--no-calibrate"), ()),
+    # version 6: the calibration factors pooled per camera; this keeps each position's own (version 5)
+    "robust, calibration not pooled": (("--recipe", "robust", "--no-calib-pool"), ()),
 }
 QUICK = {"grids": [40], "objects": 2, "trials": 3, "samples": 10, "components": 6}
 

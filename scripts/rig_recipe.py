@@ -67,6 +67,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="the planner's stability weight (default: the recipe's; auto = fitted on the held-out captures)")
     ap.add_argument("--calibrate", action=argparse.BooleanOptionalAction, default=None,
                     help="override the recipe's calibration on the held-out captures")
+    ap.add_argument("--calib-pool", action=argparse.BooleanOptionalAction, default=None,
+                    help="pool the calibration factors per camera (default: the recipe's calib_pool)")
     ap.add_argument("--exclude-visited", action=argparse.BooleanOptionalAction, default=None,
                     help="override the recipe's revisit exclusion")
     ap.add_argument("--calib-per-view", type=positive, default=1,
@@ -88,7 +90,7 @@ def fitted_model(settings: Settings, case, prepared, *, occluded_fraction: float
     model = load_model(prepared.models[case.database])
     notes = {"held_out": str(folder)}
     if recipe.calibrate:                      # True or auto: the split is here
-        model, info = calibrate_model(model, db)
+        model, info = calibrate_model(model, db, pool=recipe.calib_pool)
         notes["calibration"] = info.summary()
     feats = features_from_database(model, db, "calib") if recipe.stability == AUTO else None
     if case.cameras is not None:   # a single-camera case: its cameras' model and held-out captures
@@ -112,6 +114,8 @@ def main(argv=None) -> int:
         recipe = recipe.replace(exclude_visited=args.exclude_visited)
     if args.calibrate is not None:
         recipe = recipe.replace(calibrate=args.calibrate)
+    if args.calib_pool is not None:
+        recipe = recipe.replace(calib_pool=args.calib_pool)
     settings = Settings(recipe=recipe, workdir=args.workdir, trials_per_object=args.trials, seed=args.seed,
                         stride=args.stride, n_components=args.n_components, samples_per_image=args.samples_per_image,
                         view_jitter=args.view_jitter, view_jitter_deg=args.view_jitter_deg,
@@ -128,6 +132,7 @@ def main(argv=None) -> int:
     probe = make_rig(settings, case.cameras, seed=settings.seed)
     specs = case_trials(case, settings, probe, model.n_objects, model.n_poses)
     tag = (f"{recipe.name}{recipe.version}-w{model.stability:g}-cal{int(bool(recipe.calibrate))}"
+           f"{'-pool' if recipe.calibrate and recipe.calib_pool else ''}"
            f"{'' if recipe.exclude_visited else '-noxv'}"
            f"-front{args.occluded_fraction:g}-c{args.calib_per_view}-{run_id(settings, prepared.models[case.database])}")
     with capture_pool(settings, case.cameras, seed=settings.seed) as rigs:
@@ -146,6 +151,7 @@ def main(argv=None) -> int:
     extra += f"-c{args.calib_per_view}" if args.calib_per_view != 1 else ""
     extra += "" if args.exclude_visited is None else f"-xv{int(args.exclude_visited)}"
     extra += "" if args.calibrate is None else f"-cal{int(args.calibrate)}"
+    extra += "" if args.calib_pool is None else f"-pool{int(args.calib_pool)}"
     extra += f"-seed{args.seed}" if args.seed else ""
     stem = f"rig-recipe-{case.name}-{recipe.name}-n{args.trials}-stride{args.stride}{gray}{extra}"
     (out / f"{stem}.md").write_text(table + "\n")

@@ -15,7 +15,7 @@ from scipy.stats import multivariate_normal
 
 from jaxrecog.calibration import (
     CalibrationError, CalibrationFeatures, CameraFeatures, apply_calibration, calibrate_model,
-    calibration_factors, fit_factors, holdout_calibration, mahalanobis_terms, uncalibrated,
+    calibration_factors, fit_factors, holdout_calibration, mahalanobis_terms, pooled_log_factors, uncalibrated,
 )
 from jaxrecog.metrics import (
     campaign_metrics, confident_errors, expected_calibration_error, reliability_bins,
@@ -413,3 +413,58 @@ def test_scaling_terms_in_chunks_equal_the_vmap_over_positions(rng, full):
     assert jax.tree_util.tree_structure(got) == jax.tree_util.tree_structure(want)
     for a, b in zip(jax.tree_util.tree_leaves(want), jax.tree_util.tree_leaves(got)):
         assert a.shape == b.shape and np.asarray(a).tobytes() == np.asarray(b).tobytes()
+
+
+def _random_effects_reference(theta, e2):
+    """DerSimonian-Laird by the textbook's steps, one group, every position with images."""
+    w = [1.0 / x for x in e2]
+    fixed = sum(wi * t for wi, t in zip(w, theta)) / sum(w)
+    q = sum(wi * (t - fixed) ** 2 for wi, t in zip(w, theta))
+    tau2 = max(0.0, (q - (len(theta) - 1)) / (sum(w) - sum(wi * wi for wi in w) / sum(w)))
+    ws = [1.0 / (x + tau2) for x in e2]
+    mean = sum(wi * t for wi, t in zip(ws, theta)) / sum(ws)
+    return [mean + tau2 / (tau2 + x) * (t - mean) for t, x in zip(theta, e2)], mean
+
+
+def test_pooled_log_factors_against_the_textbook_steps():
+    theta = np.array([[0.2], [1.5], [0.4], [2.6]])
+    curv = np.array([[40.0], [8.0], [25.0], [2.0]])
+    got = pooled_log_factors(theta, curv, np.array([5, 5, 5, 5]))
+    want, mean = _random_effects_reference(theta[:, 0], 1.0 / curv[:, 0])
+    np.testing.assert_allclose(got[:, 0], want, rtol=1e-12)
+    # the spread is real here (tau2 > 0): each keeps part of its own value, the
+    # least certain (position 3) the smallest part
+    kept = (got[:, 0] - mean) / (theta[:, 0] - mean)
+    assert np.all((kept > 0) & (kept < 1)) and np.argmin(kept) == 3
+    # no spread beyond the sampling noise: all take the pooled value; a position
+    # without images takes it too; fewer than two with images: unchanged
+    a = np.asarray
+    same = pooled_log_factors(a([[1.0], [1.1], [0.9], [5.0]]), np.ones((4, 1)), a([3, 3, 3, 0]))
+    np.testing.assert_allclose(same[:, 0], np.mean([1.0, 1.1, 0.9]), rtol=1e-12)
+    np.testing.assert_array_equal(pooled_log_factors(a([[0.3], [2.0]]), a([[4.0], [4.0]]), a([7, 0])), [[0.3], [2.0]])
+    # a position whose images carry no information takes the pooled value; a
+    # diverged one stays non-finite (the fit's check raises)
+    some = pooled_log_factors(a([[1.0], [1.2], [3.0], [np.nan]]), a([[5.0], [5.0], [np.nan], [5.0]]), a([4, 4, 4, 4]))
+    assert some[2, 0] == pytest.approx(1.1) and np.isnan(some[3, 0])
+
+
+def test_pooled_calibration_is_nearer_a_shared_factor_and_fills_empty_positions(rng):
+    model = _model(rng, V=6, sep=1.5)
+    full = _draw(rng, model, np.full((6, 1), 4.0), n=3).cameras[0]   # 24 images a position
+    keep = full.position != 5                                           # position 5: none
+    feats = CalibrationFeatures((CameraFeatures(full.g[keep], full.position[keep], full.cls[keep]),))
+    _, own = calibrate_model(model, feats)
+    _, pooled = calibrate_model(model, feats, pool=True)
+    err = lambda s: np.sqrt(np.mean(np.log(s[:5, 0] / 4.0) ** 2))      # noqa: E731
+    assert err(pooled.factors[0]) < err(own.factors[0])
+    assert own.factors[0][5, 0] == 1.0 and pooled.factors[0][5, 0] > 2.0
+    assert pooled.settings["pool"] is True and own.settings["pool"] is False
+    # the NLL it reports is that of the factors it applied: a model scaled by them
+    # starts there (its NLL at s = 1)
+    _, again = calibrate_model(apply_calibration(model, pooled.factors), feats, max_iter=1)
+    np.testing.assert_allclose(again.nll_before[0][:5], pooled.nll_after[0][:5], rtol=1e-4)
+    # one factor per level: pooled per level, finite
+    two = _model(rng, V=4, L=2)
+    _, levels = calibrate_model(two, _draw(rng, two, np.full((4, 2), 3.0), n=20, level_of=True), per_level=True,
+                                pool=True)
+    assert levels.factors[0].shape == (4, 2) and np.all(np.isfinite(levels.factors[0]))

@@ -57,12 +57,17 @@ def test_registry_and_thesis_is_todays_defaults():
         ROBUST.replace(colour=1)
     with pytest.raises(ValueError, match="calibrate must be true, false or 'auto'"):
         ROBUST.replace(calibrate="sometimes")
+    # a robust file of version 5 (before pooled calibration factors) loads as it ran: not pooled
+    v5 = {k: v for k, v in ROBUST.to_dict().items() if k != "calib_pool"} | {"version": 5}
+    assert recipe_from_meta({"recipe": v5}).calib_pool is False and ROBUST.calib_pool is True
+    with pytest.raises(ValueError, match="the model's recipe entry is not readable"):
+        recipe_from_meta({"recipe": v5 | {"calib_pool": "yes"}})
 
 
 def test_recipes_command_lists_them():
     p = run_cli("recipes")
     assert p.returncode == 0
-    assert p.stdout.startswith("robust (default), version 5:") and "\nthesis, version 1:" in p.stdout
+    assert p.stdout.startswith("robust (default), version 6:") and "\nthesis, version 1:" in p.stdout
     assert "  interpolate = 2" in p.stdout and "  min_views = 1" in p.stdout
     assert "  planner = 'mi-class-pairwise-stable'" in p.stdout and "  planner = 'mi-class-pairwise'" in p.stdout
     p = run_cli("recipes", "fast")
@@ -77,13 +82,14 @@ def test_train_records_the_resolved_recipe_and_inspect_shows_it(photo_db, robust
     # 'auto' resolved against the database: it has a calib split and no jitter rows
     assert (r.name, r.likelihood, r.interpolate, r.calibrate, r.view_jitter) == ("robust", "view-mixture-lowrank", 2, True, False)
     assert meta["calibrated"] and meta["training"]["interpolate"]["points_per_side"] == 2
+    assert r.calib_pool is True and meta["calibration"]["settings"]["pool"] is True
     assert load_model(robust_model).cameras[0].likelihood.mu.shape[3] == 5   # 1 training view + 2 x 2 blends
     # stability 'auto': fitted on the calib split, the number recorded in the recipe and the model
     fit = meta["training"]["stability_fit"]
     assert r.stability == fit["weight"] == load_model(robust_model).stability and fit["weight"] in (0.0, 1.0)
     assert fit["n"] == 2 * 4 * 9 and 0 <= fit["n_unexplained"] <= fit["n"]
     p = run_cli("inspect", robust_model)
-    assert "recipe: robust (version 5): likelihood = 'view-mixture-lowrank'" in p.stdout
+    assert "recipe: robust (version 6): likelihood = 'view-mixture-lowrank'" in p.stdout
     assert "interpolated views: 2 per side; neighbouring positions found per camera: [18] of [18]" in p.stdout
     # the thesis recipe: today's defaults; a flag overrides one part and the file records it
     out = photo_db / "thesis.npz"
@@ -120,6 +126,17 @@ def test_train_stability_option_and_a_database_without_calib_split(photo_db, tmp
     recipe, model = _resolve_stability(ROBUST, load_model(out), SimpleNamespace(split=np.array(["train", "test"])), params)
     assert recipe.stability == 1.0 == model.stability and params == {}
     assert "has no 'calib' split, so the planner's stability weight is not fitted (1)" in capsys.readouterr().out
+
+
+def test_calib_pool_option_is_recorded_and_contradicting_no_calibrate_is_one_line(photo_db, tmp_path):
+    out = tmp_path / "own.npz"
+    p = run_cli("train", photo_db / "db", "--out", out, *FAST, "--no-calib-pool")
+    assert p.returncode == 0, p.stderr
+    meta = load_model_meta(out)
+    assert recipe_from_meta(meta).calib_pool is False and meta["calibration"]["settings"]["pool"] is False
+    p = run_cli("train", photo_db / "db", "--out", tmp_path / "x.npz", *FAST, "--calib-pool", "--no-calibrate")
+    assert p.returncode == 2 and not (tmp_path / "x.npz").exists()
+    _one_error(p, "--calib-pool pools calibration factors, and recipe robust is not calibrated here")
 
 
 def test_old_model_files_load_as_thesis(photo_db, robust_model, tmp_path):

@@ -29,7 +29,7 @@ def test_rig_recipe_script_on_a_strided_table(tmp_path, strided_workdir):
                    "--n-components", "4", "--samples-per-image", "10", "--no-calibrate", "--workdir", work)
     assert p.returncode == 0, p.stderr
     assert "planner stability weight" in p.stdout and "factors" not in p.stdout     # fitted, not calibrated
-    assert "recipe robust version 5" in p.stdout and "| mi-class-pairwise-stable | 8 |" in p.stdout
+    assert "recipe robust version 6" in p.stdout and "| mi-class-pairwise-stable | 8 |" in p.stdout
     js = json.loads((work / "results" / "rig-recipe-single-clean-robust-n1-stride8-cal0.json").read_text())
     fit = js["notes"]["stability_fit"]
     # a single-camera case: the fit reads camera 0's held-out captures only (4 positions x 8 objects x 4 poses)
@@ -37,7 +37,7 @@ def test_rig_recipe_script_on_a_strided_table(tmp_path, strided_workdir):
     assert js["recipe"]["occluder_gray"] == [0.0, 255.0] and js["recipe"]["calibrate"] is False   # the parts as used
     assert js["recipe"]["stability"] == js["stability"]
     assert (work / "held-out-single-clean-stride8-seed0" / "manifest.csv").exists()
-    assert len(list((work / "trials").glob("recipe-single-clean-mi-class-pairwise-stable-robust5-*.jsonl"))) == 1
+    assert len(list((work / "trials").glob("recipe-single-clean-mi-class-pairwise-stable-robust6-*.jsonl"))) == 1
     q = run_script("rig_recipe", "--case", "iv")
     assert q.returncode == 2 and "'iv'" in q.stderr and "Traceback" not in q.stderr
 

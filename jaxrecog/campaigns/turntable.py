@@ -68,17 +68,20 @@ def prepare_turntable(settings: Settings, n_objects: int = 50, cameras: int = 1,
              "names": [o.name for o in objects], "seed": settings.seed,
              "seconds": round(time.perf_counter() - t0, 1), "images": total}, indent=2) + "\n")
     db = load_database(db_dir)
-    path = turntable_model_path(settings, db_dir, kind)
     recipe = settings.recipe
+    path = turntable_model_path(settings, db_dir, kind)
+    if recipe.calib_pool:   # its own file: a cache key with fewer keys must not match it
+        path = path.with_name(path.stem + "-pool" + path.suffix)
     # the planner's weight: the recipe's number, or (robust: auto) fitted on the calib split with the
     # recipe's adaptive scale; both in the cache key, so a cached model never lends its weight to another
     weight_key = {"stability": recipe.stability,
-                  **({"stability_max_scale": recipe.adaptive_scale} if recipe.stability == AUTO else {})}
+                  **({"stability_max_scale": recipe.adaptive_scale} if recipe.stability == AUTO else {}),
+                  **({"calib_pool": True} if recipe.calib_pool else {})}   # pooled factors: another model
     params = dict(training_params(settings, kind), calibrated=True, **weight_key)
     if not cached_model_is_fresh(path, db, params):
         model, info = train_for(settings, db, kind, progress)
         t0 = time.perf_counter()
-        model, cal = calibrate_model(model, db)
+        model, cal = calibrate_model(model, db, pool=recipe.calib_pool)
         training = info.to_dict()
         training["params"] = dict(training["params"], calibrated=True, **weight_key)
         training["calibration_seconds"] = time.perf_counter() - t0

@@ -97,7 +97,7 @@ def _recipe_fields() -> dict[str, Key]:
 
     types = {"name": "string", "version": "integer", "summary": "string", "likelihood": "string",
              "likelihood_options": "object", "interpolate": "integer", "interpolation": "string",
-             "view_jitter": "boolean|string", "calibrate": "boolean|string", "max_shift": "integer",
+             "view_jitter": "boolean|string", "calibrate": "boolean|string", "calib_pool": "boolean", "max_shift": "integer",
              "p_threshold": "number", "min_views": "integer", "exclude_visited": "boolean",
              "adaptive_scale": "number", "planner": "string"}
     fields = {f.name: Key(types.get(f.name, "any"), f"the recipe's {f.name}") for f in dataclasses.fields(Recipe)}

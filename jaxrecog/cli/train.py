@@ -77,6 +77,9 @@ def add_arguments(p) -> None:
                    help="how the interpolated views are made: 'linear' (cross-fade) or 'flow' (optical-flow morph)")
     g.add_argument("--calibrate", action=argparse.BooleanOptionalAction, default=None,
                    help="calibrate the model on the database's 'calib' split (jaxrecog.calibration)")
+    g.add_argument("--calib-pool", action=argparse.BooleanOptionalAction, default=None,
+                   help="shrink each position's calibration factor toward its camera's pooled one "
+                        "(jaxrecog.calibration.pooled_log_factors; a position without calib images takes it)")
     g.add_argument("--view-jitter", action=argparse.BooleanOptionalAction, default=None,
                    help="use the database's 'jitter' rows (images near a training view, each labelled with that "
                         "view) as extra base images of their view: each gets --samples augmented samples like "
@@ -122,7 +125,8 @@ def resolve_recipe(args, db=None) -> Recipe:
         parts["likelihood_options"] = given
     elif given:
         parts["likelihood_options"] = {**recipe.options, **given}
-    for opt, part in (("interpolate", "interpolate"), ("interpolation", "interpolation"), ("calibrate", "calibrate"), ("view_jitter", "view_jitter"),
+    for opt, part in (("interpolate", "interpolate"), ("interpolation", "interpolation"), ("calibrate", "calibrate"), ("calib_pool", "calib_pool"),
+                      ("view_jitter", "view_jitter"),
                       ("threshold", "p_threshold"), ("min_views", "min_views"),
                       ("exclude_visited", "exclude_visited"), ("adaptive_scale", "adaptive_scale"),
                       ("max_shift", "max_shift"), ("occluder_gray", "occluder_gray"), ("planner", "planner"),
@@ -133,6 +137,9 @@ def resolve_recipe(args, db=None) -> Recipe:
         recipe = recipe.replace(**parts)
     except ValueError as e:
         raise UsageError(str(e)) from None
+    if parts.get("calib_pool") and recipe.calibrate is False:
+        raise UsageError(f"--calib-pool pools calibration factors, and recipe {recipe.name} is not calibrated here: "
+                         f"add --calibrate, or leave --calib-pool out")
     family = likelihood_class(recipe.likelihood)
     if recipe.interpolate and not family.view_components:
         if "interpolate" in parts:
@@ -206,7 +213,7 @@ def run(args) -> int:
               f"--components {comps} is more than the data holds)", file=sys.stderr)
     calibration = None
     if recipe.calibrate:
-        model, cal = calibrate_model(model, db)
+        model, cal = calibrate_model(model, db, pool=recipe.calib_pool)
         params["calibrated"] = True
         calibration = cal.to_dict()
         print(cal.summary())
@@ -286,7 +293,7 @@ def _run_add(args) -> int:
     params = dict(info.params)
     calibration = meta.get("calibration") or {}
     if calibrate:
-        out, cal = calibrate_model(out, added_calibration_features(out, db))
+        out, cal = calibrate_model(out, added_calibration_features(out, db), pool=recipe.calib_pool)
         params["calibrated"] = True
         calibration = {**cal.to_dict(), "previous": calibration}
         print(cal.summary())
