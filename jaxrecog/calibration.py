@@ -222,7 +222,7 @@ def _fit_positions(lik, terms, true_cls, mask, prior_sd, max_iter, tol, log_min,
     """vmap over positions (of the camera's likelihood ``lik`` and its
     ``scaling_terms``) of the L-BFGS fit: ``(theta [V, P], iters [V],
     converged [V], nll0 [V], nll1 [V], free [V, G], info [V, G])`` (``free``:
-    the unconstrained log factors, ``info``: the images' information on each,
+    the unconstrained log factors, ``info``: 1 / their posterior variances,
     NaN where not positive; :func:`pooled_log_factors`), ``P = n_params`` (``(1 + n_shape)``
     groups: the log factors, then each shape offset).  ``prior_sd``,
     ``max_iter``, ``tol``, ``log_min`` are traced scalars (changing them does
@@ -243,12 +243,13 @@ def _fit_positions(lik, terms, true_cls, mask, prior_sd, max_iter, tol, log_min,
         theta0 = jnp.zeros((n_params,), dtype)
         theta, it = _lbfgs(loss, theta0, max_iter, tol)
         free = theta[:groups]
-        # the images' information on each log factor at the unconstrained optimum:
-        # 1 / its sampling variance, from the Hessian of the negative log likelihood
-        # (the whole posterior's, n x the per-image mean, less the prior's 1 / sd^2),
-        # its inverse's diagonal (the shape offsets, if any, are correlated with it);
-        # not positive: the images say nothing (NaN, pooled_log_factors drops it)
-        h = n * jax.hessian(loss)(theta) - jnp.eye(n_params, dtype=dtype) / prior_sd**2
+        # each log factor's posterior variance at the unconstrained optimum, under the
+        # fit's own weak prior: the diagonal of the inverse Hessian of the whole negative
+        # log posterior (n x the per-image mean; the shape offsets, if any, are correlated
+        # with it).  With the prior's share taken out, a position whose views say little
+        # about its factor (all classified with a wide margin) got the pool's value: on
+        # the rig's jitter case every position 4.59 and 93.75 % (docs/results.md)
+        h = n * jax.hessian(loss)(theta)
         var = jnp.diagonal(jnp.linalg.inv(h))[:groups]
         curv = jnp.where(var > 0, 1.0 / var, jnp.nan)
         scale = jnp.maximum(free, log_min)
@@ -348,8 +349,10 @@ def pooled_log_factors(theta: Float[ArrayLike, "V G"], curvature: Float[ArrayLik
     information on ``θ`` (curvature not positive or not finite), takes ``θ̄``.
     Fewer than two positions with information: ``θ`` unchanged.  A position
     with images and a non-finite ``θ`` stays non-finite (the caller's check
-    says the fit diverged).  ``θ_v`` is the fit's MAP estimate under its weak
-    prior, and ``H_v`` the likelihood's curvature alone.
+    says the fit diverged).  :func:`fit_camera` gives ``θ_v`` as the fit's MAP
+    estimate under its weak prior ``N(0, prior_sd²)`` and ``1 / H_v`` as its
+    posterior variance: a position whose views say little about its factor
+    stays near 1 and counts as such (the prior's share is not taken out).
     """
     theta = np.array(theta, np.float64)
     curvature = np.asarray(curvature, np.float64)

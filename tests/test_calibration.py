@@ -468,3 +468,18 @@ def test_pooled_calibration_is_nearer_a_shared_factor_and_fills_empty_positions(
     _, levels = calibrate_model(two, _draw(rng, two, np.full((4, 2), 3.0), n=20, level_of=True), per_level=True,
                                 pool=True)
     assert levels.factors[0].shape == (4, 2) and np.all(np.isfinite(levels.factors[0]))
+
+
+def test_pooling_keeps_well_fitting_positions_near_one_beside_a_badly_fitting_one(rng):
+    """Four positions whose held-out views fit as trained (factor 1) and one
+    that needs 8: the pool does not lend the bad one's inflation to the others
+    (their posterior variances under the fit's prior count them as near 1), and
+    the bad one keeps most of its own."""
+    model = _model(rng, V=5, sep=2.5)
+    feats = _draw(rng, model, np.array([[1.0], [1.0], [1.0], [1.0], [8.0]]), n=4)
+    _, own = calibrate_model(model, feats)
+    _, pooled = calibrate_model(model, feats, pool=True)
+    s_own, s_pool = own.factors[0][:, 0], pooled.factors[0][:, 0]
+    assert s_own[4] > 4.0 and np.all(s_own[:4] < 2.0)
+    assert np.all(s_pool[:4] < 1.15 * s_own[:4] + 0.15)          # not pulled toward the pool's mean
+    assert s_pool[4] > 0.8 * s_own[4]
