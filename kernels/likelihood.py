@@ -83,10 +83,10 @@ LIKELIHOODS: dict[str, type["Likelihood"]] = {}
 """Kind name -> :class:`Likelihood` subclass (filled by :func:`register_likelihood`)."""
 
 
-
 def _check_divergence(kind: str) -> None:
     if kind not in ("bhattacharyya", "kl"):
         raise ValueError(f"divergence: kind must be 'bhattacharyya' or 'kl', got {kind!r}")
+
 
 class Likelihood(eqx.Module):
     """p(g | c, k, v) of one camera: the interface every sensor-model family implements.
