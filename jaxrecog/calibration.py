@@ -421,17 +421,17 @@ def fit_camera(camera: CameraModel, features: CameraFeatures, *, per_level: bool
     g = jax.device_put(g)
     cls = jax.device_put(np.asarray(features.cls[idx] if features.cls.size else np.zeros((V, n_max)), np.int32))
     terms = _scaling_terms(lik, g)
+    mask = jax.device_put(mask)
     log_min = -math.inf if min_factor is None else math.log(min_factor)
     theta, it, conv, nll0, nll1, free, curv = _fit_positions(
-        lik, terms, cls, jax.device_put(mask), jnp.asarray(prior_sd, dtype), jnp.asarray(int(max_iter)),
+        lik, terms, cls, mask, jnp.asarray(prior_sd, dtype), jnp.asarray(int(max_iter)),
         jnp.asarray(tol, dtype), jnp.asarray(log_min, dtype),
         n_params=groups * (1 + n_shape), n_shape=n_shape)
     theta = np.array(theta, np.float64).reshape(V, 1 + n_shape, groups)   # a copy: written below
     if pool:
         theta[:, 0] = np.maximum(pooled_log_factors(np.asarray(free, np.float64), np.asarray(curv, np.float64),
                                                     counts), log_min)
-        nll1 = _mean_nll(lik, terms, cls, jax.device_put(mask),
-                         jnp.asarray(theta.reshape(V, -1), dtype), n_shape=n_shape)
+        nll1 = _mean_nll(lik, terms, cls, mask, jnp.asarray(theta.reshape(V, -1), dtype), n_shape=n_shape)
     s = np.broadcast_to(np.exp(theta[:, 0]), (V, L)).astype(np.float32)
     shape = np.broadcast_to(np.swapaxes(theta[:, 1:], 1, 2), (V, L, n_shape)).astype(np.float32)
     if not np.all(np.isfinite(s)) or not np.all(np.isfinite(shape)):

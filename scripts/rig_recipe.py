@@ -107,15 +107,8 @@ def fitted_model(settings: Settings, case, prepared, *, occluded_fraction: float
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     case = CASES[args.case]
-    recipe = get_recipe(args.recipe)
-    if args.stability is not None:
-        recipe = recipe.replace(stability=args.stability)
-    if args.exclude_visited is not None:
-        recipe = recipe.replace(exclude_visited=args.exclude_visited)
-    if args.calibrate is not None:
-        recipe = recipe.replace(calibrate=args.calibrate)
-    if args.calib_pool is not None:
-        recipe = recipe.replace(calib_pool=args.calib_pool)
+    given = {part: getattr(args, part) for part in ("stability", "exclude_visited", "calibrate", "calib_pool")}
+    recipe = get_recipe(args.recipe).replace(**{part: v for part, v in given.items() if v is not None})
     settings = Settings(recipe=recipe, workdir=args.workdir, trials_per_object=args.trials, seed=args.seed,
                         stride=args.stride, n_components=args.n_components, samples_per_image=args.samples_per_image,
                         view_jitter=args.view_jitter, view_jitter_deg=args.view_jitter_deg,
@@ -155,7 +148,8 @@ def main(argv=None) -> int:
     extra += f"-seed{args.seed}" if args.seed else ""
     stem = f"rig-recipe-{case.name}-{recipe.name}-n{args.trials}-stride{args.stride}{gray}{extra}"
     (out / f"{stem}.md").write_text(table + "\n")
-    (out / f"{stem}.json").write_text(json.dumps({"metrics": metrics, "notes": notes, "recipe": settings.recipe.replace(stability=model.stability, calibrate=bool(settings.recipe.calibrate)).to_dict(),
+    ran = settings.recipe.replace(stability=model.stability, calibrate=bool(settings.recipe.calibrate))
+    (out / f"{stem}.json").write_text(json.dumps({"metrics": metrics, "notes": notes, "recipe": ran.to_dict(),
                                                   "stability": model.stability, "case": case.name}, indent=1))
     print(f"wrote {out / stem}.{{md,json}} ({time.perf_counter() - t0:.0f} s)")
     return 0

@@ -125,8 +125,8 @@ def resolve_recipe(args, db=None) -> Recipe:
         parts["likelihood_options"] = given
     elif given:
         parts["likelihood_options"] = {**recipe.options, **given}
-    for opt, part in (("interpolate", "interpolate"), ("interpolation", "interpolation"), ("calibrate", "calibrate"), ("calib_pool", "calib_pool"),
-                      ("view_jitter", "view_jitter"),
+    for opt, part in (("interpolate", "interpolate"), ("interpolation", "interpolation"), ("calibrate", "calibrate"),
+                      ("calib_pool", "calib_pool"), ("view_jitter", "view_jitter"),
                       ("threshold", "p_threshold"), ("min_views", "min_views"),
                       ("exclude_visited", "exclude_visited"), ("adaptive_scale", "adaptive_scale"),
                       ("max_shift", "max_shift"), ("occluder_gray", "occluder_gray"), ("planner", "planner"),
