@@ -7,10 +7,10 @@ a key to ``[A]`` scores, higher = better, A = prod_i V_i (row-major).  The
 recognizer takes the argmax; it never branches on the planner's kind.
 
 - :class:`MIPlanner` — Mutual Information I(s; g | a) (thesis eq. 5.3-5.13),
-  or I(c; g | a) with ``target="class"`` (see DESIGN.md §3, "Target").
+  or I(c; g | a) with ``target="class"`` (see docs/design.md §3, "Target").
 - :class:`PairwiseMIPlanner` — the deterministic pairwise-distance estimate of
   the same I(s; g | a) or I(c; g | a) (Kolchinsky & Tracey 2017; Bhattacharyya:
-  a lower bound, KL: an upper bound), no samples (DESIGN.md §7).
+  a lower bound, KL: an upper bound), no samples (docs/design.md §7).
 - :class:`LookaheadMIPlanner` — the two-step value of a first configuration:
   its pairwise MI plus the expected pairwise MI of the best second
   configuration after each sampled outcome (non-myopic, where the thesis

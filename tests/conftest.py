@@ -1,4 +1,4 @@
-"""Strict test settings (STYLE.md §11): rank promotion raises, strict dtype
+"""Strict test settings (docs/style.md, item 11): rank promotion raises, strict dtype
 promotion for the numerics modules, a ``getkey`` fixture, an ``x64`` fixture
 for numerics tests that need double precision, and the session's shared
 end-to-end inputs: one trained model of the moving database, one rendered

@@ -1,4 +1,4 @@
-"""The thesis's cases (chapter 7, DESIGN.md §4) and what a case fixes: its
+"""The thesis's cases (chapter 7, docs/design.md §4) and what a case fixes: its
 off-grid amounts, its model and its trials.
 
 ============== ======== =========== ======= ======================
