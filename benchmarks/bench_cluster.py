@@ -1,4 +1,4 @@
-"""Campaign throughput on Ray against the number of workers (issue 30, item 2).
+"""Campaign throughput on Ray against the number of workers.
 
 A case (iii) campaign (occluded scenes, DB2 model, 8 objects x
 ``--trials`` trials, 800 by default) on a local Ray instance with
@@ -10,7 +10,7 @@ all of them alike; the ratios are taken per repeat (same moment) and their
 median reported.  ``--local`` adds the same campaign in this process (no Ray)
 as a reference.  Every run's results are checked equal to the first's.
 
-Target (issue 30): 2 workers >= 1.7x the throughput of 1 on a 2-core machine.
+Target: 2 workers >= 1.7x the throughput of 1 on a 2-core machine.
 On a machine shared with other work the wall-clock ratio measures the
 neighbours as much as the pool, so the processes' CPU seconds are counted
 too, per thread: on dedicated cores a campaign cannot end before its busiest

@@ -7,7 +7,7 @@ stepped together (``jax.vmap``), ``--steps`` steps per call inside a
 ``lax.scan`` with a random policy whose prediction is the belief it observes
 (so episodes end by declaring as well as by truncation, and auto-reset runs).
 The call is compiled once (timed apart), then the median of ``--repeat`` timed
-calls under ``block_until_ready``.  Target (issue 17): >= 10,000 env steps
+calls under ``block_until_ready``.  Target: >= 10,000 env steps
 per second on the 2-core CPU.  Writes JSON (default out/bench/env.json).
 """
 

@@ -9,7 +9,7 @@ timed in full) and, for the CRLB, against VEGAS at equal error on a small
 problem (both measured: the kernel's samples are raised until its error
 matches VEGAS's).  Writes JSON (default out/bench/kernels.json).
 
-The CRLB estimator comparison (issue 30; ``--crlb-only`` runs it alone):
+The CRLB estimator comparison (``--crlb-only`` runs it alone):
 Monte Carlo and quasi-Monte Carlo at J = 1..16 and the deterministic
 pairwise-distance estimate, each as median ms and worst relative argmax
 regret against a J = 64 Monte Carlo oracle, with ratios against the J = 8
@@ -378,13 +378,13 @@ def accuracy(likelihoods, n_objects, n_poses, rng, repeat=5, oracle_j=32, mi_j=8
     return out
 
 
-#: the CRLB estimators compared by :func:`crlb_estimators` (issue 30)
+#: the CRLB estimators compared by :func:`crlb_estimators`
 CRLB_ESTIMATOR_JS = (1, 2, 4, 8, 16)
 
 
 def crlb_estimators(likelihoods, n_objects, n_poses, beliefs, repeat=5, oracle_j=64, js=CRLB_ESTIMATOR_JS,
                     oracle_noise=True):
-    """Estimator comparison of the smoothed Fisher information (issue 30):
+    """Estimator comparison of the smoothed Fisher information:
     estimator x J -> median time on the ``after_1_update`` belief (224
     configurations, the criterion included) and the relative argmax regret of
     -trace(J_g^-1) against a J = ``oracle_j`` Monte Carlo oracle (tables key
@@ -470,7 +470,7 @@ def main(argv=None):
     ap.add_argument("--accuracy-only", action="store_true",
                     help="only the speed-at-equal-accuracy comparison (MI J=8, pairwise, CRLB vs J=32 oracles)")
     ap.add_argument("--crlb-only", action="store_true",
-                    help="only the CRLB estimator comparison (MC / QMC per J, pairwise; J=64 oracle; issue 30)")
+                    help="only the CRLB estimator comparison (MC / QMC per J, pairwise; J=64 oracle)")
     args = ap.parse_args(argv)
     rng = np.random.default_rng(0)
     n_c, n_l = 32, 6
@@ -502,7 +502,7 @@ def main(argv=None):
     b_rng = copy.deepcopy(rng)  # the accuracy section's beliefs, again for the CRLB estimators below
     out["accuracy"] = accuracy(K.gaussian_likelihoods(graded, vars), 8, 4, rng, repeat=args.repeat)
     out["accuracy"]["model"] = "thesis sizes, means scaled per position by U(0.07, 0.33) (graded separation)"
-    # issue 30: the CRLB estimators against a J = 64 oracle, on the accuracy section's beliefs
+    # the CRLB estimators against a J = 64 oracle, on the accuracy section's beliefs
     g_liks = K.gaussian_likelihoods(graded, vars)
     out["crlb_estimators"] = crlb_estimators(g_liks, 8, 4, accuracy_beliefs(g_liks, 8, 4, b_rng), repeat=args.repeat)
     if args.accuracy_only:

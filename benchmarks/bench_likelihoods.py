@@ -1,5 +1,5 @@
 """A small, cheap comparison of the sensor-model likelihoods off the training
-grid (issue 18): held-out log-likelihood and a short recognition run per
+grid: held-out log-likelihood and a short recognition run per
 likelihood, uncalibrated and calibrated, written as JSON.
 
 The database is the synthetic one of ``tests/builders.py`` (OpenCV shapes,

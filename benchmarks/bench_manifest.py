@@ -1,7 +1,7 @@
-"""Benchmark manifest validation at 100,000 rows (issue 32 finding 4).
+"""Benchmark manifest validation at 100,000 rows.
 
-Target: a 100k-row manifest validates in <= 5 s and <= 500 MB (the red team
-measured ``inspect`` at 25 s and 4 GB, and one mistyped position 999999 made
+Target: a 100k-row manifest validates in <= 5 s and <= 500 MB (an earlier
+version's ``inspect`` took 25 s and 4 GB, and one mistyped position 999999 made
 ``train`` take 54 s and 2.1 GB).  Each case runs in a fresh subprocess so its
 peak resident memory (``ru_maxrss``, the whole process with NumPy/OpenCV
 imported) is its own:

@@ -1,6 +1,6 @@
 """Render throughput of the synthetic rig and time to render the training database.
 
-Targets (issue 4): <= 5 ms a frame, the whole 1248-image database <= 15 s on
+Targets: <= 5 ms a frame, the whole 1248-image database <= 15 s on
 2 cores.  Writes JSON (default out/bench/render.json).
 
     python benchmarks/bench_render.py [--repeats 3] [--out out/bench/render.json]

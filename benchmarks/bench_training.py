@@ -17,7 +17,7 @@ Gaussian's in the same run.  Targets: <= 60 s on 2 cores, <= 2 GB.
     python benchmarks/bench_training.py --out out/bench/training.json
     python benchmarks/bench_training.py --likelihoods gaussian-diag gaussian-lowrank
 
-Objects scaling (issue 30): ``--scale-objects N ...`` trains (DB1, the
+Objects scaling: ``--scale-objects N ...`` trains (DB1, the
 thesis's diagonal Gaussian) and calibrates (``calibrate_model`` on the calib
 split, as the turntable case does) a turntable-shaped synthetic database of
 each ``N`` objects: one camera, ``--positions`` 18 (20° steps), ``--poses`` 4,

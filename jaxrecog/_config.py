@@ -14,7 +14,7 @@ or underscores) as keys, plus an optional ``[global]`` table::
     trials = 24
     planners = ["mi", "crlb", "random"]
 
-One configuration dialect (issue 31): an option whose name differs from the
+One configuration dialect: an option whose name differs from the
 :class:`~jaxrecog.campaigns.Settings` field it sets (:data:`OPTION_FIELDS`,
 e.g. ``trials`` <-> ``trials_per_object``) may be given under either name, here
 and in an experiment file; the same setting under both names is an error naming

@@ -6,7 +6,7 @@ the one-line ``TypeError``-free answer: a :class:`ValueError` ``"FIELD must
 be WHAT, got VALUE"`` for the first field whose value does not fit its
 annotation, before any value is used (a list for ``samples`` failed deep in
 a campaign with ``'<=' not supported between instances of 'int' and
-'list'``; issue 32).  Annotations it does not know are not checked.
+'list'``).  Annotations it does not know are not checked.
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 ``--out`` and work folders.
 
 Two ``experiment`` runs into one ``--out`` (or one work folder) each ran
-every trial and stored each twice (issue 32).  :func:`folder_lock` holds a
+every trial and stored each twice.  :func:`folder_lock` holds a
 ``flock`` on ``FOLDER/.jaxrecog.lock`` for the whole run; the file names the
 holder (PID, host, start time), so a second run is refused with one line
 naming the first.  The kernel drops the lock when its holder dies, however it

@@ -16,7 +16,7 @@ and every count that differs, e.g.::
 A side that does not know a count (a hardware rig does not know how many
 objects it will be shown) is not checked on it.  Without this, a 3 x 2 model
 replayed on a 4-pose database answered "correct, P = 1.000" for the wrong
-pose (issue 32).
+pose.
 """
 
 from __future__ import annotations

@@ -7,22 +7,22 @@ a key to ``[A]`` scores, higher = better, A = prod_i V_i (row-major).  The
 recognizer takes the argmax; it never branches on the planner's kind.
 
 - :class:`MIPlanner` — Mutual Information I(s; g | a) (thesis eq. 5.3-5.13),
-  or I(c; g | a) with ``target="class"`` (see DESIGN.md §3, "Target").
+  or I(c; g | a) with ``target="class"`` (see docs/design.md §3, "Target").
 - :class:`PairwiseMIPlanner` — the deterministic pairwise-distance estimate of
   the same I(s; g | a) or I(c; g | a) (Kolchinsky & Tracey 2017; Bhattacharyya:
-  a lower bound, KL: an upper bound), no samples (DESIGN.md §7).
+  a lower bound, KL: an upper bound), no samples (docs/design.md §7).
 - :class:`LookaheadMIPlanner` — the two-step value of a first configuration:
   its pairwise MI plus the expected pairwise MI of the best second
-  configuration after each sampled outcome (non-myopic; issue 15,
-  :func:`~jaxrecog.kernels.lookahead_information`).
+  configuration after each sampled outcome (non-myopic, where the thesis
+  plans one step ahead; :func:`~jaxrecog.kernels.lookahead_information`).
 - :class:`CRLBPlanner` — minus a criterion of the Cramér-Rao bound J_g(a)^-1
   (eq. 5.14-5.28): trace (A-optimal, default), log-det (D) or the largest
   eigenvalue (E).
 - :class:`PairwiseCRLBPlanner` — the same criterion on a deterministic
-  pairwise-distance estimate of J_g(a) (no samples, issue 30,
+  pairwise-distance estimate of J_g(a) (no samples, no sampling noise;
   :func:`~jaxrecog.kernels.pairwise_fisher_information`).
 - :class:`QMCCRLBPlanner` — the CRLB of the Monte Carlo J_g(a) on randomised
-  scrambled-Sobol draws (quasi-Monte Carlo, issue 30,
+  scrambled-Sobol draws (quasi-Monte Carlo: less variance for as many draws;
   :func:`~jaxrecog.kernels.qmc_fisher_information`).
 - :class:`RandomPlanner` — a uniformly random configuration.
 - :class:`FixedPlanner` — one fixed configuration (the passive baseline).
@@ -207,7 +207,7 @@ class PairwiseMIPlanner(Planner):
 
 class TemperedPairwiseMIPlanner(PairwiseMIPlanner):
     """The pairwise-distance MI under the tempered class belief
-    P_tau(c) ∝ P(c)^tau (:mod:`~jaxrecog.kernels.tempered_mi`, issue 28 item 4):
+    P_tau(c) ∝ P(c)^tau (:mod:`~jaxrecog.kernels.tempered_mi`):
     ``temper = 1`` is :class:`PairwiseMIPlanner`; ``temper = 0`` (default)
     scores I(c; g | a) under the uniform class prior, so the next view is the
     unvisited one the model separates classes best at over all class pairs,
@@ -233,7 +233,7 @@ class TemperedPairwiseMIPlanner(PairwiseMIPlanner):
 class StableViewMIPlanner(TemperedPairwiseMIPlanner):
     """The tempered pairwise MI minus ``stability`` times the expected view
     instability of the configuration under the class belief
-    (:mod:`~jaxrecog.kernels.view_stability`, issue 28)::
+    (:mod:`~jaxrecog.kernels.view_stability`)::
 
         score(a) = I_D^tau(c; g | a) - stability * sum_i E_{c ~ P(c)} d_i[v_i, c]
 
@@ -534,12 +534,12 @@ PLANNERS: dict[str, PlannerSpec] = {
                                         "pairwise-distance I(c; g | a), KL (deterministic; levels marginalised)"),
     "mi-class-pairwise-robust": PlannerSpec(_tempered("class"), "mi",
                                             "pairwise I(c; g | a) under the tempered class belief P(c)^tau (option temper, default 0: "
-                                            "the uniform class prior; does not chase an over-confident belief, issue 28)"),
+                                            "the uniform class prior; does not chase an over-confident belief)"),
     "mi-class-pairwise-stable": PlannerSpec(_stable("class"), "mi",
                                             "pairwise I(c; g | a) under P(c)^tau (option temper, default 1) minus option "
                                             "stability (default: the model's, fitted on held-out captures, else 1) times the expected "
                                             "view instability under the belief: prefers views the likely classes look alike "
-                                            "at from either side (a view-mixture model's interpolated components; issue 28)"),
+                                            "at from either side (a view-mixture model's interpolated components)"),
     "mi-lookahead": PlannerSpec(_lookahead("state"), "mi",
                                 "two-step lookahead: pairwise I(s; g_1 | a_1) + E max_a2 I(s; g_2 | a_2, g_1), top-k first moves (options top_k, outcomes)"),
     "mi-class-lookahead": PlannerSpec(_lookahead("class"), "mi",

@@ -1,6 +1,6 @@
 """Recipes: one named, versioned bundle of how a model is trained and when a
 trial stops, instead of a handful of flags spread over ``train`` and
-``experiment`` (issue 28).
+``experiment``.
 
 A :class:`Recipe` holds the likelihood family and its fit options, the
 interpolated views between training views, the database's view jitter, the

@@ -1,4 +1,4 @@
-"""Should the planner prefer stable views?  A test on held-out captures (issue 28).
+"""Should the planner prefer stable views?  A test on held-out captures.
 
 ``mi-class-pairwise-stable`` scores ``I(c; g | a) - w · E[d]``, the expected
 view instability ``d`` of the configuration (:mod:`jaxrecog.kernels.view_stability`).

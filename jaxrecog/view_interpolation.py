@@ -1,5 +1,5 @@
 """Views between the training views: neighbouring positions and the images
-interpolated between them (issue 28).
+interpolated between them.
 
 A capture is never exactly at a training view.  Murase & Nayar's parametric
 eigenspace (1995) models the appearance between neighbouring views by

@@ -1,5 +1,5 @@
 """Evidence that knows when a capture is unlike every training view: a
-per-capture variance scale chosen by profile likelihood (issue 28).
+per-capture variance scale chosen by profile likelihood.
 
 A sensor model fitted to augmented copies of the training views (eq.
 4.23-4.24), even calibrated on views 5° off the grid, is far too sure on a

@@ -1,6 +1,6 @@
 """Deterministic pairwise-distance estimate of the GM-smoothed Fisher
 information J_g(a) (thesis eq. 5.22-5.28) for every configuration in one
-call: no samples, no key (issue 30; the CRLB counterpart of
+call: no samples, no key (the CRLB counterpart of
 :mod:`.pairwise_mi`).
 
 Identity.  With the score difference of :mod:`.fisher`,

@@ -1,5 +1,5 @@
 """Randomised quasi-Monte Carlo estimate of the GM-smoothed Fisher information
-J_g(a) (thesis eq. 5.22-5.28; issue 30): the Monte Carlo kernel of
+J_g(a) (thesis eq. 5.22-5.28): the Monte Carlo kernel of
 :mod:`.fisher` on low-discrepancy draws instead of pseudo-random ones.
 
 The estimator is unchanged,

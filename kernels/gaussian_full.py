@@ -1,4 +1,4 @@
-"""The full-covariance Gaussian sensor model (DESIGN.md §3, the option beside
+"""The full-covariance Gaussian sensor model (docs/design.md §3, the option beside
 the thesis's diagonal form):
 
     p(g | c, k, v) = N(g; mu[v, c, k], S S^T),   S = chol[v, c, k] lower triangular

@@ -1,5 +1,5 @@
 """A structured-covariance Gaussian sensor model: low rank plus diagonal
-(factor analysis; issue 18), between the thesis's diagonal form and the full one.
+(factor analysis), between the thesis's diagonal form and the full one.
 
     p(g | c, k, v) = N(g; mu, Sigma),   Sigma = W W^T + diag(psi),   W [K, R], R < K
 

@@ -1,5 +1,5 @@
 """Two-step (non-myopic) lookahead on a one-step information score, for all
-configurations in one call (issue 15; thesis ch. 5 plans one step ahead).
+configurations in one call (thesis ch. 5 plans one step ahead).
 
 With a one-step score I(x; g | a, P) of configuration a under the predicted
 prior P (the myopic planner's value: Monte Carlo or pairwise-distance MI, state

@@ -1,6 +1,6 @@
 """Deterministic pairwise-distance Mutual Information for all configurations in
 one call (Kolchinsky & Tracey, "Estimating Mixture Entropy with Pairwise
-Distances", Entropy 19(7):361, 2017; DESIGN.md §7).
+Distances", Entropy 19(7):361, 2017; docs/design.md §7).
 
 For the mixture p(g | a) = sum_s P(s) p(g | s, a) over the states
 s = (c, k_0, k_1, ...) and a divergence D between its components,

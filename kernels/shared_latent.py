@@ -1,5 +1,5 @@
 """A latent shared by every camera and every step: the rendered view of a
-view mixture (issue 18; not in the thesis).
+view mixture (not in the thesis).
 
 A view mixture (:mod:`.view_mixture`) explains a capture by one of ``M``
 components per class and level: ``m = 0`` the training view, ``m = 1 ..``

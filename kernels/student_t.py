@@ -1,5 +1,5 @@
 """A robust sensor model: the multivariate Student-t with a diagonal scale
-(issue 18: likelihoods that stay honest off the training grid).
+(a likelihood that stays honest off the training grid).
 
     p(g | c, k, v) = t_nu(g; mu, diag(s2))
     log p = lgamma((nu + K)/2) - lgamma(nu/2) - K/2 log(nu pi) - 1/2 sum_d log s2_d

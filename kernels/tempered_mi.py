@@ -1,5 +1,5 @@
 """Pairwise-distance MI scored under a tempered class belief: planning that
-does not chase the model's errors (issue 28, item 4).
+does not chase the model's errors.
 
 The one-step planners score I(c; g | a) under the recognizer's belief P(c).
 On real captures between the training views that belief is over-confident

@@ -1,6 +1,5 @@
 """A sensor model that knows the views between its training views: a mixture
-with one component per *rendered view* of a class near the training view
-(issue 18).
+with one component per *rendered view* of a class near the training view.
 
     p(g | c, k, v) = sum_m w[v, c, k, m] p_m(g | c, k, v)
 

@@ -1,5 +1,5 @@
 """How fast a class's appearance changes around a training view: where a
-capture between the training views is modelled worst (issue 28).
+capture between the training views is modelled worst.
 
 With the adaptive scale (:mod:`~jaxrecog.kernels.adaptive_scale`) a capture
 that no class explains weighs little and does not count toward the stop, so

@@ -1,5 +1,5 @@
 #!/usr/bin/env python
-"""Adding objects (``train --add``, issue 31) against training at once, on the real turntable photos.
+"""Adding objects (``train --add``) against training at once, on the real turntable photos.
 
 On one grid (default 30°) the script builds three one-camera turntable
 databases from the photos (:func:`jaxrecog.photo_turntable.build_photo_database`:

@@ -1,5 +1,5 @@
 #!/usr/bin/env python
-"""Difficulty sweep (issue 18, item 6): recognition against occlusion and
+"""Difficulty sweep: recognition against occlusion and
 against off-grid captures, for DB1 vs DB2, one camera vs two, MI vs random.
 
 Two axes, each run for every combination of model (DB1, DB2), cameras

@@ -17,8 +17,8 @@ own file names; the tables then go to the same WORKDIR/results (pass
 another --workdir to keep them apart).  Finished
 trials are kept in WORKDIR/trials, so an interrupted run resumes.
 
---case turntable (or turntable-occluded) runs the turntable set of issue 18
-item 4 instead: --objects N random_urdfs meshes (default 50), one camera
+--case turntable (or turntable-occluded) runs the turntable set (not in the
+thesis) instead: --objects N random_urdfs meshes (default 50), one camera
 (--cameras 2 for two), 18 turntable positions, test views 10 degrees off the
 training grid (with a board in front of each for turntable-occluded), a
 calibrated DB1 (DB2) model, planners mi-class-pairwise and random by default:
@@ -52,7 +52,7 @@ from jaxrecog.campaigns import CASES, Settings, prepare, results_dir, run_case, 
 _CORES = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
 DEFAULT_RENDER_WORKERS = min(_CORES, 4) if _CORES > 1 else 0
 
-#: The turntable cases (issue 18 item 4), run apart from CASES: name -> occluded test views.
+#: The turntable cases (not in the thesis), run apart from CASES: name -> occluded test views.
 TURNTABLE_CASES = {"turntable": False, "turntable-occluded": True}
 from jaxrecog.kernels import DEFAULT_LIKELIHOOD
 from jaxrecog.recipes import RECIPES, get_recipe
@@ -89,7 +89,7 @@ def build_parser() -> argparse.ArgumentParser:
     """The command line of this script (the docs tests parse the docs' commands with it)."""
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--case", default="all", type=_case, help=f"one of {', '.join(CASES)}, 'trace', 'all' (default: all), "
-                        "or turntable / turntable-occluded (issue 18 item 4; not in 'all')")
+                        "or turntable / turntable-occluded (not in the thesis, nor in 'all')")
     p.add_argument("--planners", default=None, help="comma-separated planners (default: the case's own)")
     p.add_argument("--trials", type=int, default=100, help="trials per object (default: 100, as the thesis)")
     p.add_argument("--workdir", default="out/thesis", help="database, models, trials and tables (default: out/thesis)")

@@ -1,7 +1,7 @@
 #!/usr/bin/env python
 """A recipe on a synthetic case, every part of it: the case's model trained by
 the recipe, calibrated on held-out captures of the case, the planner's
-stability weight fitted on them, then the case's trials (issue 28).
+stability weight fitted on them, then the case's trials.
 
 ``jaxrecog experiment CASE`` trains a case's models uncalibrated (the rig
 renders no ``calib`` split), so a recipe's parts that read a ``calib`` split

@@ -1,5 +1,5 @@
 #!/usr/bin/env python
-"""Controls of the 50-object turntable campaign (docs/results.md, issue 18 item 4):
+"""Controls of the 50-object turntable campaign (docs/results.md, "Turntable set"):
 the same objects and model with the test views ON the training grid (offset 0),
 and the uncalibrated model off and on the grid.  Run after
 ``scripts/reproduce_thesis.py --case turntable --objects 50 --workdir out/turntable``."""

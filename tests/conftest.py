@@ -1,4 +1,4 @@
-"""Strict test settings (STYLE.md §11): rank promotion raises, strict dtype
+"""Strict test settings (docs/style.md, item 11): rank promotion raises, strict dtype
 promotion for the numerics modules, a ``getkey`` fixture, an ``x64`` fixture
 for numerics tests that need double precision, and the session's shared
 end-to-end inputs: one trained model of the moving database, one rendered
@@ -115,7 +115,7 @@ def pytest_sessionfinish(session, exitstatus):
 #: - the classic elemental emitters instead of the MLIR fusion emitters
 #:   (``xla_cpu_use_fusion_emitters=false``): tests/test_recognizer.py's
 #:   backend compile 64.5 s -> 24.8 s, the two-step lookahead kernel 1.58 s
-#:   -> 0.64 s a program (stop 25);
+#:   -> 0.64 s a program;
 #: - one LLVM module per program instead of parallel codegen splits
 #:   (``xla_cpu_parallel_codegen_split_count=1``): a further ~15 % on two
 #:   cores, where the test workers already use both.

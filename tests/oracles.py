@@ -318,7 +318,7 @@ def pairwise_mi_ref(mus, covs, log_joint, kind="bhattacharyya", target="state", 
     return out
 
 
-# --- two-step lookahead (issue 15) -----------------------------------------------------------
+# --- two-step lookahead ----------------------------------------------------------------------
 
 
 def lookahead_ref(mus, vars, zs, log_posterior, current, u, js, *, target="state", kind="uniform", rho=0.9,

@@ -1,6 +1,6 @@
 """Plain NumPy references of the low-variance / deterministic CRLB estimators
-(issue 30): brute force over every pair of joint states, one configuration at
-a time, no shared code with the kernels."""
+(pairwise and quasi-Monte Carlo): brute force over every pair of joint
+states, one configuration at a time, no shared code with the kernels."""
 
 from __future__ import annotations
 

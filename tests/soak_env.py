@@ -1,4 +1,4 @@
-"""A soak of the Gymnasium env on the synthetic (pybullet) rig (issue 32):
+"""A soak of the Gymnasium env on the synthetic (pybullet) rig:
 many steps with a random agent and with the MI planner's policy, checking
 that nothing turns NaN, that resident memory stays flat after the warm-up and
 that no pybullet client leaks (one per rig while the env lives, none after

@@ -1,4 +1,4 @@
-"""Adding objects to a trained model (issue 31): ``train --add NEW_DB --to MODEL``
+"""Adding objects to a trained model: ``train --add NEW_DB --to MODEL``
 fits only the new classes, in the model's eigenspaces, by the model's recipe;
 the old classes stay bit for bit; bad input is one line and writes nothing."""
 

@@ -1,4 +1,4 @@
-"""Layering rules that keep the seams cheap to change (issue 14)."""
+"""Layering rules that keep the seams cheap to change."""
 
 from __future__ import annotations
 
@@ -48,7 +48,7 @@ def test_kernels_import_nothing_from_jaxrecog_or_hardware():
                 assert not n.startswith("jaxrecog"), f"{path.name} imports {n}"
 
 
-# ---- layers and import cycles (issue 29: a core that stands alone) ---------------------------
+# ---- layers and import cycles (a core that stands alone) -------------------------------------
 #
 # The import graph of the jaxrecog.* modules, read from the source: every import
 # statement that can run (module level and inside functions; not the ones under
@@ -306,8 +306,8 @@ def test_every_subpackage_is_installed():
 
 
 def test_no_module_is_over_600_lines():
-    """STYLE: one concept per file, none over 600 lines (issue 29: ptu.py was
-    650, experiments.py 929), in the package, its kernels and its hardware."""
+    """docs/style.md: one concept per file, none over 600 lines (ptu.py once
+    was 650, experiments.py 929), in the package, its kernels and its hardware."""
     long = {str(p.relative_to(ROOT)): n for folder in ("jaxrecog", "kernels", "hardware")
             for p in (ROOT / folder).rglob("*.py") if (n := len(p.read_text().splitlines())) > 600}
     assert long == {}

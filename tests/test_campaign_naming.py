@@ -1,7 +1,7 @@
 """The campaigns' cache names are files on disk: existing databases, models
 and trial stores stay valid only while every name is byte-identical.  The
 values below were computed by ``jaxrecog/experiments.py`` on main before the
-campaigns package split it (issue 29); a change here orphans users' caches."""
+campaigns package split it; a change here orphans users' caches."""
 
 from __future__ import annotations
 

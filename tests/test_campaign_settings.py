@@ -1,7 +1,7 @@
-"""``campaigns.Settings`` is a recipe and the run's options (issue 29), while
+"""``campaigns.Settings`` is a recipe and the run's options, while
 every setting keeps its flat name: the configuration dialect, ``--print-config``,
 the reports' JSON and the run ids read the same 36 names as before, and
-``cluster`` (issue 30: where a campaign runs) after ``render_workers``."""
+``cluster`` (where a campaign runs) after ``render_workers``."""
 
 from __future__ import annotations
 

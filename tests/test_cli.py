@@ -529,7 +529,7 @@ def test_recognize_rejects_a_capture_the_belief_cannot_use(tiny, tmp_path, kind)
     p = run("recognize", tiny["model"], "--rig", f"dataset:{db}", "--object", 1, "--pose", 1, "--start", "0,0",
             "--samples", 64)
     assert p.returncode == 1, p.stdout
-    if kind == "wrong size":  # a whole database of another size: the one counts check, before any step (issue 32)
+    if kind == "wrong size":  # a whole database of another size: the one counts check, before any step
         assert p.stderr.splitlines() == [f"jaxrecog: error: rig dataset:{db} does not match model {tiny['model']}: "
                                          "images 20x30 vs the model's 30x40"]
     else:

@@ -205,7 +205,7 @@ def test_json_in_a_settings_file(tiny, tmp_path):
     assert doc["kind"] == "database"
 
 
-# -- small frictions (issue 31 point 5) -------------------------------------------------
+# -- small frictions --------------------------------------------------------------------
 
 
 class _ClosedPipe(io.StringIO):

@@ -1,4 +1,4 @@
-"""Campaigns and renders on Ray (jaxrecog.cluster, issue 30 item 2): the same
+"""Campaigns and renders on Ray (jaxrecog.cluster): the same
 trials and results as in one process, the same database files, a killed
 worker that loses no trial and repeats none, and one clear line for a
 cluster that is not there or runs other versions.

@@ -1,4 +1,4 @@
-"""One configuration dialect (issue 31): experiment files and ``--config``
+"""One configuration dialect: experiment files and ``--config``
 tables take the same keys (option names and Settings field names), an unknown
 key names its near match, a setting given twice is an error naming both, and
 ``--print-config`` / ``OUT/config.toml`` hold the resolved configuration."""

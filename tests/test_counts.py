@@ -1,5 +1,5 @@
-"""One counts check wherever a model meets a database or a rig (issue 32
-finding 3): ``recognize --rig dataset:`` on a 4-pose database with a 3 x 2
+"""One counts check wherever a model meets a database or a rig: without it,
+``recognize --rig dataset:`` on a 4-pose database with a 3 x 2
 model printed "correct, P = 1.000" for the wrong pose."""
 
 from __future__ import annotations

@@ -106,7 +106,7 @@ def test_any_sizes():
     assert db.train_images(2).shape == (3, 3, 16, 20)
 
 
-# ---- long problem lists (issue 16 item 3) ----------------------------------------------
+# ---- long problem lists ----------------------------------------------------------------
 
 def _break_every_row(root):
     rows = _rows(root)
@@ -135,8 +135,8 @@ def test_a_long_problem_list_shows_the_count_and_ten_lines_and_writes_nothing(tm
 
 
 def test_a_read_only_command_never_writes_through_a_link_in_the_database(tmp_path, capsys):
-    """Issue 32 finding 1: ``ln -s ~/victim.txt DB/manifest-errors.txt;
-    jaxrecog inspect DB`` overwrote victim.txt."""
+    """A symlink is not followed: ``ln -s ~/victim.txt DB/manifest-errors.txt;
+    jaxrecog inspect DB`` used to overwrite victim.txt."""
     from jaxrecog import cli
 
     db_dir, victim = tmp_path / "db", tmp_path / "victim.txt"
@@ -218,7 +218,7 @@ def test_the_cli_prints_ten_problems_one_per_line_and_debug_prints_all(tmp_path,
     assert err == [f"row {r}: split 'validate' is not one of train, test, calib, jitter" for r in range(1, n + 1)]
 
 
-# ---- turntable data (issue 16 item 4) ---------------------------------------------------
+# ---- turntable data ---------------------------------------------------------------------
 
 def test_one_file_for_several_views_loads_with_a_note(folder):
     from jaxrecog.database import notes
@@ -289,7 +289,7 @@ def test_the_renderer_and_the_loader_share_one_format(tmp_path):
     assert rig.positions == (2,) and rig.image_shape == (8, 8)
 
 
-# ---- indices form dense ranges, checked before any array is sized (issue 32 finding 4) ---
+# ---- indices form dense ranges, checked before any array is sized ------------------------
 
 def test_one_mistyped_index_names_its_row_at_once(folder):
     """Position 999999 in one row cost a minute and gigabytes (train), and a
@@ -353,7 +353,7 @@ def test_sparse_views_are_listed_without_sizing_their_product():
 
 
 def test_a_colour_image_is_one_warning_line_at_the_cli(folder):
-    """Issue 31: ``jaxrecog inspect`` on a database with a colour image says so
+    """``jaxrecog inspect`` on a database with a colour image says so
     in one line, ``jaxrecog: warning: ...``, not Python's warning with its
     source line and category; the caller's warning display is restored."""
     import subprocess

@@ -1,4 +1,4 @@
-"""Docs are code (issue 31): every code block of README.md and docs/*.md --
+"""Docs are code: every code block of README.md and docs/*.md --
 fenced or indented, inside list items too -- has a check, and a block that
 none of the rules below claims fails :func:`test_every_code_block_has_a_check`,
 so a new block cannot slip in unchecked.

@@ -305,7 +305,7 @@ def test_campaign_steps_skip_the_planner_on_stopping_steps_and_give_the_same_tri
 
 
 def test_a_campaign_step_crosses_between_configuration_and_flat_index_twice(monkeypatch):
-    """Issue 29's target: in one campaign step the configuration crosses
+    """The target: in one campaign step the configuration crosses
     between its tuple and its flat index at most twice (docs/architecture.md,
     "The data path of one campaign step"): inside the compiled step, the
     current configuration's index (the visited set) and the chosen index's

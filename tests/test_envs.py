@@ -1,4 +1,4 @@
-"""The Gymnasium environment (issue 17): gymnasium's own checker, the vector
+"""The Gymnasium environment: gymnasium's own checker, the vector
 env, our planners as policies reproducing run_campaign on the same trials,
 bad input, and the package importing without gymnasium."""
 
@@ -219,7 +219,7 @@ def test_a_model_rig_layout_mismatch_is_named(moving, two_cameras):
 
 def test_bad_reset_option_types_are_named_and_change_nothing(moving, unchecked):
     """Bad ``reset(options=...)`` types gave IndexError / 'dictionary update
-    sequence' messages (issue 32 finding 6)."""
+    sequence' messages."""
     from jaxrecog.driver import TrialSpec
 
     env = make(moving)
@@ -328,7 +328,7 @@ class _FarRig:
 
 
 def test_the_env_belief_is_the_recognizers_with_the_adaptive_scale(moving):
-    """Issue 29: the env's belief update is the recognizer's own, so
+    """The env's belief update is the recognizer's own, so
     ``settings.adaptive_scale`` weakens an unexplained capture's evidence in
     the env as in a campaign (it was ignored: the plain update)."""
     from jaxrecog.recipes import THESIS

@@ -1,4 +1,4 @@
-"""The env with RL libraries (issue 31): ap-gym's active-classification base
+"""The env with RL libraries: ap-gym's active-classification base
 and its wrappers, the flat-action variant ``jaxrecog/ActiveRecognitionFlat-v0``
 that stable-baselines3 and CleanRL take as it is (gymnasium's checker, a
 random rollout, a CleanRL-style vector env), the episode rule (a declaration

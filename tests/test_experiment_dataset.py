@@ -1,5 +1,5 @@
 """``jaxrecog experiment --rig dataset:FOLDER --model MODEL.NPZ``: a campaign on
-a stored image database (issue 6 item 5), through the real command: tables,
+a stored image database, through the real command: tables,
 files, plots, recognition above chance on a database whose objects can only
 be told apart by moving, TOML experiment files, and the exit codes."""
 

@@ -1,5 +1,5 @@
-"""Pairwise-distance estimate of the smoothed Fisher information (issue 30,
-kernels/fisher_pairwise.py): the kernel against its NumPy reference, its exact
+"""Pairwise-distance estimate of the smoothed Fisher information
+(kernels/fisher_pairwise.py): the kernel against its NumPy reference, its exact
 limits, its agreement with a high-J Monte Carlo and with VEGAS on small cases,
 the planner, and no recompilation after warm-up."""
 

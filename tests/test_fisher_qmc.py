@@ -1,4 +1,4 @@
-"""Quasi-Monte Carlo Fisher information (issue 30, kernels/fisher_qmc.py): the
+"""Quasi-Monte Carlo Fisher information (kernels/fisher_qmc.py): the
 Sobol tables and rotated draws against scipy / NumPy, the kernel against the
 NumPy reference on the same points, unbiasedness against a high-J Monte Carlo
 and against VEGAS on small cases, the planner, and no recompilation."""

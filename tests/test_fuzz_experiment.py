@@ -1,4 +1,4 @@
-"""Fuzzed experiment TOML files (issue 32): whatever an experiment file holds,
+"""Fuzzed experiment TOML files: whatever an experiment file holds,
 ``jaxrecog experiment FILE`` either gets through the settings validation (to
 where the campaign would start: stubbed here, no campaign runs) or stops with
 a one-line :class:`UsageError` or :class:`ValueError` (a problem list keeps

@@ -1,4 +1,4 @@
-"""Fuzzed loaders (issue 16 item 6): whatever bytes arrive, the manifest loader
+"""Fuzzed loaders: whatever bytes arrive, the manifest loader
 raises only :class:`DatabaseError` and the model-file loader only a
 :class:`ModelFileError` subclass, each with a short message whose problems are
 one line each, and nothing hangs (every example has a deadline).

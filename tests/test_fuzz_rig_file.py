@@ -1,4 +1,4 @@
-"""Fuzzed rig files (issue 32): whatever a rig TOML holds, :func:`load_config` either
+"""Fuzzed rig files: whatever a rig TOML holds, :func:`load_config` either
 returns a :class:`RigConfig` or raises :class:`ConfigError` -- never another
 exception -- with one line that starts with the file's name; nothing hangs
 (every example has a deadline).

@@ -337,7 +337,7 @@ def write(tmp_path, text):
         ('kind = "simulated"\n[[ptu]]\nbaud = 9600\n[[ptu]]\n', r"\[\[ptu\]\] #1: unknown key\(s\) \['baud'\]"),
         ('kind = "simulated"\nimage_shape = [120]\n', "image_shape"),
         ('kind = "simulated"\n[simulation.faults]\nloss = 2.0\n', "loss = 2.0"),
-        # in the file's units (degrees), naming the entry (issue 32, finding 6: it said radians)
+        # in the file's units (degrees), naming the entry (it once said radians)
         ('kind = "simulated"\n[table]\ncamera1 = [[0, 5]]\n',
          r"\[table\]: camera1\[0\] = \[0, 5\] deg: camera 0 tilt = 5 deg is outside the workspace limits \[10, 89\] deg$"),
         ('kind = "simulated"\n[[camera]]\nkind = "ir"\n', "kind = 'ir'"),

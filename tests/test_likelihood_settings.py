@@ -1,4 +1,4 @@
-"""Issue 18: ``campaigns.Settings`` selects the likelihood and the capture
+"""``campaigns.Settings`` selects the likelihood and the capture
 augmentation that ``prepare`` trains (the defaults keep the old model file
 names, cache keys and run ids), the shared CLI options reach them, and
 ``train_model(view_jitter=True)`` uses a database's ``jitter`` rows."""

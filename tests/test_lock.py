@@ -1,5 +1,5 @@
-"""One campaign per folder (issue 32 finding 7): two ``experiment`` runs into
-one ``--out`` both ran every trial and stored each twice."""
+"""One campaign per folder: two ``experiment`` runs into
+one ``--out`` used to both run every trial and store each twice."""
 
 from __future__ import annotations
 

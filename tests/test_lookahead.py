@@ -1,4 +1,4 @@
-"""Two-step lookahead planner (issue 15): the kernel against a brute-force NumPy
+"""Two-step lookahead planner: the kernel against a brute-force NumPy
 reference on the same draws, pruning, a constructed model where the myopic
 argmax is a dead end, bad input, NaN-freedom, and the planner in the
 recognizer (runs, stops, no recompiles)."""

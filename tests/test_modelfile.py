@@ -169,7 +169,7 @@ def test_killed_writer_leaves_old_file(tmp_path, models):
         assert x.tobytes() == y.tobytes()
 
 
-# ---- litter, modes and an unwritable target (issue 32 findings 6 and 8) ----------------
+# ---- litter, modes and an unwritable target ---------------------------------------------
 
 def test_the_next_save_removes_a_killed_writers_temp_and_keeps_a_live_ones(tmp_path, models):
     """SIGKILL during a model write left a hidden 19 MB ``.m.npz.*.tmp`` for good."""

@@ -1,4 +1,4 @@
-"""Motion-cost-aware planning (issue 15 item 4): the travel-time tables
+"""Motion-cost-aware planning: the travel-time tables
 against a hand computation, the rig file's [motion] speeds, λ = 0 is the plain
 planner, a large λ picks the nearest configuration, λ < 0 is an error, a new λ
 recompiles nothing, and campaigns record the travel time per trial."""

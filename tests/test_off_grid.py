@@ -1,4 +1,4 @@
-"""Off-grid captures (issue 18, item 4): the trial's yaw offset, per-capture
+"""Off-grid captures: the trial's yaw offset, per-capture
 eye and light jitter on the synthetic rig, and the ``jitter`` cases."""
 
 from __future__ import annotations

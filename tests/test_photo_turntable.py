@@ -1,5 +1,5 @@
 """Real turntable photos as an image database, and the interpolated views
-between training views (issue 28): the mapping of data/turntable-photos/README.md,
+between training views: the mapping of data/turntable-photos/README.md,
 that no test photo is fitted or calibrated on, and the interpolated mixture
 components against a NumPy reference."""
 

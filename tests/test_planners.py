@@ -50,7 +50,7 @@ def test_make_planner_builds_tables_with_the_floor(name, moving_model):
     assert make_planner("random", model, key=jr.PRNGKey(0), min_per_stratum=3).n_configs == p.n_configs
 
 
-# -- the registry (issue 14): one mapping feeds make_planner, the CLI, the docs and the thesis lookup
+# -- the registry: one mapping feeds make_planner, the CLI, the docs and the thesis lookup
 
 
 def test_registry_names_are_the_choices_and_every_entry_builds(getkey, moving_model):

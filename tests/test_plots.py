@@ -157,7 +157,7 @@ def test_belief_trace_draws_table_7_8_beside_the_trial_it_traces(tmp_path):
 
 
 def test_the_trace_names_objects_and_cameras_as_the_cli_does(tmp_path, saved_figures):
-    """One numbering (issue 31): the traced trial of object 5 (the thesis's
+    """One numbering: the traced trial of object 5 (the thesis's
     object 6 of Table 7.8) is object 5 in reproduce_thesis's table, its
     decision line and the belief plot's legend and title, and the cameras
     are 0 and 1; only the thesis's own number is named as the thesis's."""

@@ -1,4 +1,4 @@
-"""Every error that lists problems follows one rule (issue 16 item 3): the
+"""Every error that lists problems follows one rule: the
 count, the first ten one per line, and where the rest are
 (:func:`jaxrecog.problems.problem_message`)."""
 

@@ -1,4 +1,4 @@
-"""README.md's tutorial as a user runs it (issue 31, docs that run): steps 1-4
+"""README.md's tutorial as a user runs it (docs that run): steps 1-4
 (render, inspect, train, plan, recognize) run in order in one new folder, in
 this process (``clirun``: the session's imports and compiled programs), and
 the ```text blocks show exactly what they print

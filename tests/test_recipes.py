@@ -1,4 +1,4 @@
-"""Recipes (issue 28): one named, versioned bundle of training and stop rule,
+"""Recipes: one named, versioned bundle of training and stop rule,
 recorded in the model file and read back by recognize and experiment; flags
 override its parts; old model files are 'thesis'; bad input is one line."""
 

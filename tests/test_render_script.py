@@ -1,4 +1,4 @@
-"""scripts/render_database.py (issue 4): a smoke run on a small camera table
+"""scripts/render_database.py: a smoke run on a small camera table
 writes a database the foundation loader accepts, the contact sheet of 8 objects
 x 4 poses and the look-alike table; the script starts as a program."""
 

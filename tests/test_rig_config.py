@@ -1,4 +1,4 @@
-"""Rig files checked when they are loaded (issue 32): two pan-tilt units on one port,
+"""Rig files checked when they are loaded: two pan-tilt units on one port,
 bad numbers naming the key and the file, the file's units, the table against each
 unit's range, the shared key, and pan-tilt drivers found only through registration
 (a rig file imports nothing)."""
@@ -59,7 +59,7 @@ class FlatRenderer:
         return np.full((120, 160), 100 + camera, np.uint8), 0.0
 
 
-# ---------------------------------------------------------------- finding 5: one port, two units
+# ---------------------------------------------------------------- one port, two units
 def test_two_pan_tilt_units_on_one_port_are_refused_naming_both(tmp_path):
     ok = load_config(hardware_file(tmp_path, 'port = "/dev/ttyUSB0"', 'port = "/dev/ttyUSB1"'))
     assert [p.port for p in ok.ptus] == ["/dev/ttyUSB0", "/dev/ttyUSB1"]
@@ -78,7 +78,7 @@ def test_two_names_of_one_device_are_the_same_port(tmp_path):
         load_config(path)
 
 
-# ---------------------------------------------------------------- finding 6: numbers, units, ranges
+# ---------------------------------------------------------------- numbers, units, ranges
 @pytest.mark.parametrize(
     "section,line,match",
     [
@@ -201,7 +201,7 @@ def test_a_bad_key_setting_is_a_clear_error_without_the_key(tmp_path, lines, mat
     assert SECRET not in str(e.value) and "short\n" not in str(e.value)
 
 
-# ---------------------------------------------------------------- finding 9: drivers are registered, not imported
+# ---------------------------------------------------------------- drivers are registered, not imported
 def test_a_module_path_as_driver_imports_nothing(tmp_path, monkeypatch):
     """``driver = "this:Nope"`` used to import the module named (it ran) before the error."""
     marker = tmp_path / "imported"
@@ -259,7 +259,7 @@ def test_the_built_in_driver_works_without_any_metadata(monkeypatch):
 
 
 def test_a_new_pan_tilt_protocol_is_one_module_in_pan_tilt_drivers(tmp_path, monkeypatch):
-    """Issue 29's change cost: a new built-in driver is its module in
+    """The cost of a change: a new built-in driver is its module in
     hardware/devices/pan_tilt_drivers/ (here a folder added to that package's path)
     plus the rig file's driver key; listing imports nothing, naming it imports it."""
     from jaxrecog.hardware.devices import pan_tilt_drivers as package

@@ -218,7 +218,7 @@ source = 1
 
 def test_the_default_driver_is_the_ptu_d46_and_old_files_load_unchanged():
     assert pan_tilt_driver(PTUConfig().driver) is PTU
-    with pytest.raises(KeyError, match="not a module to import"):  # a module path is no driver name (issue 32)
+    with pytest.raises(KeyError, match="not a module to import"):  # a module path is no driver name
         pan_tilt_driver("jaxrecog.hardware.devices.pan_tilt_drivers.ptu_d46:PTU")
     cfg = load_config("examples/simulated_rig.toml")
     assert {p.driver for p in cfg.ptus} == {"ptu-d46"}
@@ -248,7 +248,7 @@ def test_a_bad_driver_or_reconnect_key_is_a_clear_config_error(tmp_path, line, m
         load_config(toml)
 
 
-# ---------------------------------------------------------------- a camera lost during capture (issue 32, finding 10)
+# ---------------------------------------------------------------- a camera lost during capture
 class USBCamera:
     """A video device behind ``VideoCamera(capture_factory=...)``: unplugging it kills every
     capture opened so far (they read nothing for good); while it is away it cannot be

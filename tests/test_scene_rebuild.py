@@ -1,5 +1,5 @@
 """The synthetic scene moves to a fresh pybullet client every
-``REBUILD_AFTER`` bodies (issue 32, found by the env soak: pybullet keeps
+``REBUILD_AFTER`` bodies (found by the env soak: pybullet keeps
 every removed body's data, ~7 kB a reset with boards, so a long env run
 grew without bound).  The images do not change across a rebuild, one client
 is connected at a time, and memory stays flat."""

@@ -1,4 +1,4 @@
-"""Sharded campaigns (issue 15 item 6): the lockstep batch split over devices
+"""Sharded campaigns: the lockstep batch split over devices
 gives the same TrialResults as one device; too many devices is a clear error.
 
 The two-device run needs ``XLA_FLAGS=--xla_force_host_platform_device_count=2``

@@ -166,8 +166,8 @@ def test_steps_stay_finite_and_do_not_recompile(models, name):
 
 
 def test_the_env_keeps_the_shared_view_component(models):
-    """Issue 29: with ``settings.shared_view`` the env's belief is the
-    recognizer's over (c, m, k) (it marginalised m per capture), over an
+    """One belief update for env and recognizer: with ``settings.shared_view``
+    the env's belief is the recognizer's over (c, m, k) (it marginalised m per capture), over an
     episode of two image sets from both cameras."""
     pytest.importorskip("gymnasium")
     from jaxrecog.campaigns import Settings

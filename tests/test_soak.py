@@ -1,4 +1,4 @@
-"""Soak (issue 16 item 7): a long run of the recognizer with bad images mixed
+"""Soak: a long run of the recognizer with bad images mixed
 in, and a campaign killed with SIGKILL and resumed.
 
 1. 10,000 recognizer steps (50 lockstep slots through

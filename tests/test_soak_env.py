@@ -1,4 +1,4 @@
-"""The env soak on the synthetic rig (issue 32), short: ``tests/soak_env.py``
+"""The env soak on the synthetic rig, short: ``tests/soak_env.py``
 for 80 steps with a random agent and 80 with the MI policy (the hand-run
 figures, 10,000 steps each, are in docs/results.md).  No NaN in any reward,
 belief or feature; resident memory flat after the warm-up; one pybullet

@@ -1,4 +1,4 @@
-"""The synthetic rig (issue 4): rendered scene, zoom, look-alike pairs, occluders,
+"""The synthetic rig: rendered scene, zoom, look-alike pairs, occluders,
 the database writer, and the message when pybullet is missing."""
 
 from __future__ import annotations

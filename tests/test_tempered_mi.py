@@ -1,4 +1,4 @@
-"""The tempered pairwise-MI planner (``mi-class-pairwise-robust``, issue 28 item 4):
+"""The tempered pairwise-MI planner (``mi-class-pairwise-robust``):
 the kernel against a NumPy brute force, its limits, and the jitted planner
 inside the recognizer compiles once."""
 

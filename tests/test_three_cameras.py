@@ -1,4 +1,4 @@
-"""A third camera (issue 29): the rig file of docs/hardware.md "A third camera" drives
+"""A third camera: the rig file of docs/hardware.md "A third camera" drives
 the simulated hardware -- three PTU simulators, the controller simulator speaking
 protocol version 3 -- through moves and captures; version 2 keeps the thesis rig's
 two cameras."""

@@ -1,4 +1,4 @@
-"""The turntable set of many objects (issue 18 item 4): random_urdfs objects,
+"""The turntable set of many objects: random_urdfs objects,
 the off-grid test / calib / jitter views, ``render --turntable`` and the
 campaign helpers."""
 

@@ -2,7 +2,7 @@
 live, taken over only after an idle timeout (the displaced client is told and
 re-handshakes), an optional shared key (HMAC-SHA256), versions 1 and 2 still spoken.
 
-Issue 32, finding 2: one HELLO from any address used to open a new session and
+The bug this guards: one HELLO from any address used to open a new session and
 retire the client's; the stranger's MOVE ran and the client then only timed out."""
 
 from __future__ import annotations

@@ -89,7 +89,7 @@ def _check_amounts(obj, names, what: str) -> None:
 
 @dataclasses.dataclass(frozen=True)
 class OffGrid:
-    """Campaign captures off the training grid (issue 18, item 4): the
+    """Campaign captures off the training grid (not in the thesis): the
     :class:`Perturb` departures, but drawn per *trial* (the yaw) and per
     *capture* (camera eye and light) instead of per held-out image.
 

@@ -1,4 +1,4 @@
-"""The thesis's cases (chapter 7, DESIGN.md §4) and what a case fixes: its
+"""The thesis's cases (chapter 7, docs/design.md §4) and what a case fixes: its
 off-grid amounts, its model and its trials.
 
 ============== ======== =========== ======= ======================
@@ -15,7 +15,7 @@ jitter-occluded DB2     occluders,  both    mi-class, mi-class-pairwise, random
                         off-grid
 ============== ======== =========== ======= ======================
 
-Off-grid cases (issue 18, item 4; not in the thesis): every trial's object
+Off-grid cases (not in the thesis): every trial's object
 sits turned ``U(-20°, 20°)`` off its training pose (drawn per trial, the same
 for every planner), and every capture moves each camera's eye and jitters the
 light (:class:`~jaxrecog.hardware.render.synthetic.OffGrid`, :data:`JITTER`), so no

@@ -4,7 +4,7 @@ capture noise per trial), resumable, and one traced trial (Table 7.8).
 
 ``mi`` is the thesis's target I(s; g) over the full state (object, pose and
 both occlusion levels); ``mi-class`` is I(c; g) with the levels marginalised
-(DESIGN.md §3): with six levels per camera the state target is dominated by
+(docs/design.md §3): with six levels per camera the state target is dominated by
 the occlusion levels and can prefer views that reveal occlusion over views
 that reveal identity.
 """

@@ -1,4 +1,4 @@
-"""The turntable campaign (issue 18, item 4): a rendered set of many random
+"""The turntable campaign (not in the thesis): a rendered set of many random
 objects whose test views lie halfway between the training views, its model
 trained and calibrated, then the database campaign on its test split."""
 

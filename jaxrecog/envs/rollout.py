@@ -71,7 +71,7 @@ def run_episodes(env, policy: Callable, specs: Sequence[TrialSpec], *, capture_s
 
 
 def confident_errors(results: Sequence[TrialResult]) -> int:
-    """Trials that stopped at p >= P_th on the wrong answer (DESIGN.md §7)."""
+    """Trials that stopped at p >= P_th on the wrong answer (docs/design.md §7)."""
     return sum(1 for r in results if r.stopped and not r.correct)
 
 
