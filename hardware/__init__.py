@@ -46,6 +46,7 @@ _EXPORTS: dict[str, str] = {
     **dict.fromkeys(["default_objects", "Intrinsics", "Lighting", "ObjectSpec", "Part", "Scene"], "render.scene"),
     **dict.fromkeys(["Noise", "SyntheticRig"], "render.synthetic"),
     **dict.fromkeys(["DatasetRig"], "rigs.dataset_rig"),
+    **dict.fromkeys(["HandheldRig", "Layout", "LayoutError", "load_layout", "open_camera"], "physical.handheld"),
     **dict.fromkeys(["LocalRigs", "ProcessRigs"], "rigs.rig_pool"),
     **dict.fromkeys(["CaptureMemo", "MemoRigs"], "rigs.capture_memo"),
 }
