@@ -35,7 +35,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-__all__ = ["LiveViewError", "RerunRecorder", "RigGeometry", "import_rerun", "occlusion_estimates", "rig_geometry"]
+__all__ = ["CampaignView", "LiveViewError", "RerunRecorder", "RigGeometry", "import_rerun", "occlusion_estimates", "rig_geometry"]
 
 #: what to install for the live view (the one line a missing rerun gives)
 INSTALL_HINT = "pip install 'jaxrecog[rerun]'"
@@ -239,3 +239,29 @@ class RerunRecorder:
         if rec is not None:
             rec.flush()
             rec.disconnect()
+
+
+class CampaignView:
+    """One rerun recording for a whole campaign: ``view(label, model, rig)``
+    is the ``on_step`` observer of one planner's trials (a
+    :class:`RerunRecorder` under ``/<label>``, the 3-D view from ``rig``),
+    the observer factory ``live`` of :func:`jaxrecog.campaigns.run_case` and
+    :func:`jaxrecog.campaigns.run_dataset`.  ``sinks``: ``save``, ``spawn``,
+    ``connect`` as for :class:`RerunRecorder`.  rerun is checked for here,
+    before any trial runs."""
+
+    def __init__(self, **sinks):
+        import_rerun()
+        self.sinks = sinks
+        self._first: RerunRecorder | None = None
+
+    def __call__(self, label: str, model, rig) -> RerunRecorder:
+        if self._first is None:
+            self._first = RerunRecorder(model, geometry=rig_geometry(rig), label=label, **self.sinks)
+            return self._first
+        return self._first.for_label(label)
+
+    def close(self) -> None:
+        """End the recording (idempotent)."""
+        if self._first is not None:
+            self._first.close()

@@ -14,8 +14,8 @@ and the angles it is seen from (:func:`load_layout`)::
       { name = "left", pan_deg = 90, tilt_deg = 45, note = "by the lamp" },
     ]
 
-``pan_deg`` goes round the object (0 = front, 90 = its left seen from the
-front), ``tilt_deg`` is the height above the table (0 = level, 90 = from
+``pan_deg`` goes round the object (0 = front, 90 = the left of someone
+standing at the front and facing it), ``tilt_deg`` is the height above the table (0 = level, 90 = from
 above).  The eye of a position is ``object + d (sin pan cos tilt, cos pan cos
 tilt, sin tilt)``, the appendix-C convention ``tan(pan) = dx / dy``.
 
@@ -158,9 +158,10 @@ def instruction(layout: Layout, step: int, camera: int, position: int) -> str:
 
 
 def draw_layout(layout: Layout, camera: int, position: int, size: int = 480) -> np.ndarray:
-    """A top view of the layout (``uint8 [size, size, 3]``, BGR): the object in
-    the middle, every position a dot at its pan (front down), nearer the
-    middle the higher its tilt; ``position`` of ``camera`` ringed in red."""
+    """A top view of the layout (``uint8 [size, size, 3]``, BGR) as someone
+    at the front sees it from above: the object in the middle, the front
+    down, every position a dot at its pan (positive pans on the left), nearer
+    the middle the higher its tilt; ``position`` of ``camera`` ringed in red."""
     img = np.full((size, size, 3), 255, np.uint8)
     c, r = size // 2, size * 0.38
     cv2.circle(img, (c, c), int(size * 0.03), (60, 60, 60), -1)

@@ -47,6 +47,19 @@ def recorder(args, model, rig=None, label: str = ""):
         raise CLIError(str(e)) from None
 
 
+def campaign_view(args):
+    """The :class:`~jaxrecog.liveview.CampaignView` of ``experiment --rerun``/``--rerun-save``
+    (``None`` without them; one line and nothing run if rerun is missing)."""
+    if not wants_rerun(args):
+        return None
+    from ..liveview import CampaignView, LiveViewError
+
+    try:
+        return CampaignView(save=args.rerun_save, spawn=bool(args.rerun))
+    except LiveViewError as e:
+        raise CLIError(str(e)) from None
+
+
 def check_handheld_flags(args) -> None:
     """The hand-held options need the hand-held rig, and it needs a layout."""
     handheld = str(getattr(args, "rig", "") or "").startswith(HANDHELD)

@@ -177,6 +177,7 @@ def _report(args) -> tuple[dict, str]:
     rig = _make_rig(args, model)
     live = None
     try:
+        live = recorder(args, model, rig)  # a missing rerun: said before the trial
         try:  # cameras, positions, objects, poses, image size: every rig, before any step
             check_counts(model, rig, model_name=args.model, other_name=f"rig {args.rig}")
         except CountsMismatchError as e:
@@ -193,7 +194,6 @@ def _report(args) -> tuple[dict, str]:
                               shared_view=args.shared_view, travel=travel, motion_cost=args.motion_cost)
         state = rec.init(key=None if args.start is not None else k_init, config=args.start)
         start = [int(v) for v in np.asarray(state.config)]
-        live = recorder(args, model, rig)
         steps, dec, res = _trial(args, model, rig, rec, state, k_run, live)
     finally:
         rig.close()
