@@ -62,6 +62,7 @@ def test_a_handheld_trial_from_an_image_sequence(tiny, tmp_path, monkeypatch):
     said = [l.split("press Enter to capture ")[-1] for l in p.stdout.splitlines() if "put the camera at" in l]
     assert said == [instruction(layout, s, i, v) for s, c in enumerate(configs) for i, v in enumerate(c)]
     assert said[0].startswith(f"step 1, camera 1 of 2 'high': put the camera at ") and "tilt 45 deg, 0.4 m" in said[0]
+    assert f"\n> {said[0]}\n" in (ROOT / "docs" / "live.md").read_text()  # the page shows what a trial prints
     # the same recognizer, planner and stop rule as on the replayed database: the same steps and result
     assert _table(p.stdout) == _table(replay.stdout)
     assert "result: object 1, pose 0" in p.stdout and "-- correct" in p.stdout
