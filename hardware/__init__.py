@@ -8,7 +8,7 @@ cameras) with device simulators, in one subpackage per area:
 ``devices``   pan-tilt drivers, cameras, the controller datagrams and link
 ``sim``       the PTU and motion-controller simulators
 ``render``    the pybullet scene, the synthetic rig, rendered databases
-``physical``  the rig file and ``HardwareRig`` / ``SimulatedHardwareRig``
+``physical``  the rig file, ``HardwareRig`` / ``SimulatedHardwareRig``, ``HandheldRig``
 ============  ===============================================================
 
 The package imports its modules lazily (PEP 562): ``from jaxrecog.hardware

@@ -5,6 +5,7 @@ line naming the extra; the occlusion estimate is the belief's expected level."""
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -78,3 +79,28 @@ def test_the_live_view_of_a_campaign_has_each_planners_trials(tiny, tmp_path):
     assert steps and steps.count(1) == 2
     for entity, component in STREAMS:
         assert found[(f"/random{entity}", component)] == steps
+
+
+def test_the_geometry_comes_from_the_rigs_table_or_layout():
+    """The 3-D view's object and eyes: a rig's table (synthetic), a rig file's
+    table (hardware), a layout (hand-held); none for a replayed database."""
+    from types import SimpleNamespace
+
+    from jaxrecog.hardware import load_layout
+    from jaxrecog.hardware.geometry.positions import default_table
+    from jaxrecog.liveview import _look_at, rig_geometry
+
+    table = default_table()
+    for rig in (SimpleNamespace(table=table), SimpleNamespace(config=SimpleNamespace(table=table))):
+        g = rig_geometry(rig)
+        assert [e.shape for e in g.eyes] == [(32, 3), (7, 3)] and g.object_xyz == table.workspace.object_xyz
+        np.testing.assert_allclose(g.eyes[1][3], table.views[1][3].eye)
+    layout = load_layout(Path(__file__).resolve().parent.parent / "examples" / "handheld_layout.toml")
+    g = rig_geometry(SimpleNamespace(geometry=layout.geometry()))
+    np.testing.assert_allclose(g.eyes[0][1], [0.0, 0.4 * np.cos(np.pi / 4), 0.4 * np.sin(np.pi / 4)])  # 'front'
+    assert rig_geometry(SimpleNamespace()) is None
+    eye, target = np.array([0.3, -0.2, 0.5]), np.array([0.0, 0.0, 0.1])
+    r = _look_at(eye, target)  # the camera's z axis points at the object, upright, a rotation
+    np.testing.assert_allclose(r[:, 2], (target - eye) / np.linalg.norm(target - eye))
+    np.testing.assert_allclose(r.T @ r, np.eye(3), atol=1e-12)
+    assert np.linalg.det(r) > 0 and r[2, 1] < 0  # image y (down) points down in the world
