@@ -104,3 +104,18 @@ def test_the_geometry_comes_from_the_rigs_table_or_layout():
     np.testing.assert_allclose(r[:, 2], (target - eye) / np.linalg.norm(target - eye))
     np.testing.assert_allclose(r.T @ r, np.eye(3), atol=1e-12)
     assert np.linalg.det(r) > 0 and r[2, 1] < 0  # image y (down) points down in the world
+
+
+def test_the_live_view_module_imports_rerun_only_when_a_recorder_is_made():
+    """No ``import rerun`` at module level of :mod:`jaxrecog.liveview` (the core
+    imports without the extra; ``import jaxrecog`` loading no rerun is
+    tests/test_boundaries.py's)."""
+    import ast
+
+    import jaxrecog.liveview as live
+
+    tree = ast.parse(Path(live.__file__).read_text())
+    top = [n for n in tree.body if isinstance(n, (ast.Import, ast.ImportFrom))]
+    names = {a.name for n in top if isinstance(n, ast.Import) for a in n.names}
+    names |= {n.module for n in top if isinstance(n, ast.ImportFrom) and n.module}
+    assert not {n for n in names if n.split(".")[0] == "rerun"}, names
