@@ -31,6 +31,10 @@ from __future__ import annotations
 
 import dataclasses
 import importlib
+import os
+import shutil
+import sys
+from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
@@ -96,6 +100,13 @@ def occlusion_estimates(posterior, levels: Sequence[float]) -> np.ndarray:
     return np.asarray(out)
 
 
+def _viewer() -> str | None:
+    """The rerun viewer program: on PATH, or beside this Python (a venv's
+    ``bin/``, where ``pip install rerun-sdk`` puts it, run without activating)."""
+    beside = Path(sys.executable).with_name("rerun")
+    return shutil.which("rerun") or (str(beside) if beside.is_file() else None)
+
+
 def _look_at(eye: np.ndarray, target: np.ndarray) -> np.ndarray:
     """Rotation (columns: camera x right, y down, z forward in the world) of a
     camera at ``eye`` looking at ``target``, upright (world z up)."""
@@ -147,9 +158,17 @@ class RerunRecorder:
         if save is None and not spawn and connect is None:
             raise LiveViewError("a rerun recorder needs somewhere to send the recording: save, spawn or connect")
         recording = rr.RecordingStream("jaxrecog")
+        viewer = _viewer() if spawn else None
+        if spawn and sys.platform.startswith("linux") and not (os.environ.get("DISPLAY")
+                                                               or os.environ.get("WAYLAND_DISPLAY")):
+            raise LiveViewError("rerun: no display here for a viewer (DISPLAY unset); --rerun-save FILE.rrd "
+                                "records without one")
+        if spawn and viewer is None:
+            raise LiveViewError("rerun: no viewer program 'rerun' on PATH or beside this Python (rerun-sdk installs "
+                                "it); --rerun-save FILE.rrd records without one")
         try:
-            if spawn:
-                recording.spawn(connect=False)  # the viewer, listening on its default address
+            if spawn:  # the viewer, listening on its default address
+                rr.spawn(connect=False, executable_path=viewer, recording=recording)
             sinks = [rr.FileSink(str(save))] if save is not None else []
             if spawn or connect is not None:
                 sinks.append(rr.GrpcSink(connect))
@@ -237,8 +256,11 @@ class RerunRecorder:
         """Flush and end the recording (idempotent)."""
         rec, self.recording = self.recording, None
         if rec is not None:
-            rec.flush()
-            rec.disconnect()
+            try:
+                rec.flush()
+                rec.disconnect()
+            except Exception as e:  # noqa: BLE001 - a viewer gone or never reached: one line for the user
+                raise LiveViewError(f"rerun: {' '.join(str(e).split())}") from None
 
 
 class CampaignView:

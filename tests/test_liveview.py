@@ -119,3 +119,14 @@ def test_the_live_view_module_imports_rerun_only_when_a_recorder_is_made():
     names = {a.name for n in top if isinstance(n, ast.Import) for a in n.names}
     names |= {n.module for n in top if isinstance(n, ast.ImportFrom) and n.module}
     assert not {n for n in names if n.split(".")[0] == "rerun"}, names
+
+
+def test_a_viewer_without_a_display_is_one_line(tiny, tmp_path, monkeypatch):
+    """``--rerun`` on a machine without a display says so (and how to record
+    instead) before the trial, rather than failing to reach the viewer after it."""
+    monkeypatch.setattr(sys, "platform", "linux")
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    p = run_cli("recognize", tiny["model"], "--rig", f"dataset:{tiny['db']}", "--rerun")
+    assert p.returncode == 1
+    one_error_line(p, "no display here for a viewer", "--rerun-save FILE.rrd")
