@@ -114,6 +114,10 @@ def test_handheld_failures_are_one_line(tiny, tmp_path, monkeypatch):
     one_error_line(p, "the hand-held camera returned no image for step 1, camera 2")
     p = run_cli(*rig, "--rig", f"handheld:{tmp_path}/nothing.avi", "--layout", LAYOUT, "--no-wait")
     assert p.returncode == 1 and one_error_line(p, "hand-held camera: ", "could not open")
+    one_camera = tmp_path / "one.toml"  # the model has two cameras (3 and 2 positions)
+    one_camera.write_text(LAYOUT.read_text().split("[[cameras]]\nname = \"low\"")[0])
+    p = run_cli(*rig, "--rig", f"handheld:{frames}/%03d.png", "--layout", one_camera, "--no-wait")
+    assert p.returncode == 1 and one_error_line(p, "does not match model")
     monkeypatch.setattr("sys.stdin", io.StringIO(""))  # no one at the keyboard
     p = run_cli(*rig, "--rig", f"handheld:{frames}/%03d.png", "--layout", LAYOUT)
     assert p.returncode == 1 and one_error_line(p, "stdin closed while waiting for Enter (--no-wait")
