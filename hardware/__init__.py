@@ -8,7 +8,7 @@ cameras) with device simulators, in one subpackage per area:
 ``devices``   pan-tilt drivers, cameras, the controller datagrams and link
 ``sim``       the PTU and motion-controller simulators
 ``render``    the pybullet scene, the synthetic rig, rendered databases
-``physical``  the rig file and ``HardwareRig`` / ``SimulatedHardwareRig``
+``physical``  the rig file, ``HardwareRig`` / ``SimulatedHardwareRig``, ``HandheldRig``
 ============  ===============================================================
 
 The package imports its modules lazily (PEP 562): ``from jaxrecog.hardware
@@ -46,6 +46,7 @@ _EXPORTS: dict[str, str] = {
     **dict.fromkeys(["default_objects", "Intrinsics", "Lighting", "ObjectSpec", "Part", "Scene"], "render.scene"),
     **dict.fromkeys(["Noise", "SyntheticRig"], "render.synthetic"),
     **dict.fromkeys(["DatasetRig"], "rigs.dataset_rig"),
+    **dict.fromkeys(["HandheldRig", "Layout", "LayoutError", "load_layout", "open_camera"], "physical.handheld"),
     **dict.fromkeys(["LocalRigs", "ProcessRigs"], "rigs.rig_pool"),
     **dict.fromkeys(["CaptureMemo", "MemoRigs"], "rigs.capture_memo"),
 }

@@ -14,7 +14,7 @@ from typing import Any, Callable, Iterable, Sequence
 
 import numpy as np
 
-from .driver import TrialSpec, batched_step, run_trials
+from .driver import StepRecord, TrialSpec, batched_step, run_trials
 from .hardware.rigs.rig import Rig, RigPool
 from .recognizer import Recognizer
 from .results import TrialResult, TrialStore
@@ -74,6 +74,7 @@ def run_campaign(
     progress: Callable[[int], None] | None = None,
     trace: bool = False,
     devices: int | None = None,
+    on_step: Callable[[StepRecord], None] | None = None,
 ) -> list[TrialResult]:
     """Run the trials (skipping those already in ``store`` with the same object,
     pose and initial configuration) and return every result, old and new,
@@ -98,6 +99,9 @@ def run_campaign(
         trace: keep per-step object probabilities in each result.
         devices: shard the lockstep batch over this many devices
             (:func:`jaxrecog.driver.trial_mesh`; the results are the same as on one).
+        on_step: an observer of every step of the trials run here (e.g. the
+            live view, :class:`jaxrecog.liveview.RerunRecorder`); the steps
+            come traced.  Not with a pool that runs whole trials itself (a cluster).
     """
     ids = [s.trial for s in specs]
     if len(set(ids)) != len(ids):
@@ -119,9 +123,11 @@ def run_campaign(
         if progress is not None:
             progress(len(results))
 
-    kw = dict(key=key, batch=batch, seed=seed, trace=trace, devices=devices)
+    kw = dict(key=key, batch=batch, seed=seed, trace=trace or on_step is not None, devices=devices)
+    if hasattr(rig, "run_trials") and on_step is not None:
+        raise ValueError("a step observer (the live view) needs the trials run here, not on a cluster")
     if hasattr(rig, "run_trials"):  # a pool that runs whole trials itself (a cluster: jaxrecog.ray_rigs)
         rig.run_trials(recognizer, todo, on_results=finished, **kw)  # results in groups, as they come
     else:
-        run_trials(recognizer, rig, todo, on_result=lambda res: finished([res]), **kw)
+        run_trials(recognizer, rig, todo, on_result=lambda res: finished([res]), on_step=on_step, **kw)
     return [done[k] for k in sorted(done) if k in by_id]

@@ -233,3 +233,21 @@ def env_and_recognizer_beliefs(env, recognizer, seed: int = 3, steps: int = 2):
             blind = np.full(env.n_classes, 1.0 / env.n_classes, np.float32)
             obs, *_ = env.step({"action": np.int64(dec.next_index), "prediction": blind})
     return np.array(got), np.array(want)
+
+
+def recorded_steps(path) -> dict[tuple[str, str], list[int]]:
+    """The steps (on the ``step`` timeline) at which a rerun recording holds
+    an entry, per (entity path, component): read back with rerun's own
+    reader (``rerun.chunk.RrdReader``); static entries are left out."""
+    from rerun.chunk import RrdReader
+
+    found: dict[tuple[str, str], list[int]] = {}
+    for chunk in RrdReader(path).stream().to_chunks():
+        if chunk.is_static or "step" not in chunk.timeline_names:
+            continue
+        batch = chunk.to_record_batch()
+        steps = batch.column("step").to_pylist()
+        for name in batch.schema.names:
+            if ":" in name:  # Archetype:component (the rest are row ids and timelines)
+                found.setdefault((chunk.entity_path, name), []).extend(steps)
+    return {k: sorted(v) for k, v in found.items()}

@@ -67,7 +67,7 @@ def test_kernels_import_nothing_from_jaxrecog_or_hardware():
 
 PACKAGE_DIRS = {"jaxrecog": ROOT / "jaxrecog", "jaxrecog.kernels": ROOT / "kernels", "jaxrecog.hardware": ROOT / "hardware"}
 LEAVES = {"jaxrecog.problems", "jaxrecog.dbformat", "jaxrecog.kernels.config_grid"}
-HEAVY = ("cv2", "serial", "pybullet", "matplotlib", "ray")
+HEAVY = ("cv2", "serial", "pybullet", "matplotlib", "ray", "rerun")
 
 
 def _modules() -> dict[str, Path]:

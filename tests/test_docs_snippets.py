@@ -38,6 +38,9 @@ The checks (``check_of``; the blocks each one takes today in brackets):
   also runs in tests/test_three_cameras.py], an experiment
   file resolves with ``jaxrecog experiment FILE --print-config``
   [docs/campaigns.md];
+- ``toml-layout`` (here): a hand-held rig's layout loads through
+  :func:`jaxrecog.hardware.load_layout` and is the shipped example's
+  [docs/live.md];
 - ``envs-example`` (tests/test_envs_synthetic.py): docs/envs.md's python
   blocks run in order in one namespace and print the ```text block after
   each;
@@ -51,9 +54,9 @@ The checks (``check_of``; the blocks each one takes today in brackets):
 - ``math``: a ```math block is a formula (LaTeX), not code: nothing runs
   [docs/campaigns.md (3), docs/results.md (1)].
 
-65 blocks today: 10 cli-reference, 27 commands, 6 envs-example, 4
+69 blocks today: 10 cli-reference, 30 commands, 6 envs-example, 4
 tutorial-run, 3 tutorial-output, 1 manifest-example, 4 math, 1 ppo-output,
-3 protocol-dump, 1 python, 1 schema, 3 toml-rig, 1 toml-experiment.
+3 protocol-dump, 1 python, 1 schema, 3 toml-rig, 1 toml-experiment, 1 toml-layout.
 """
 
 from __future__ import annotations
@@ -166,6 +169,8 @@ def check_of(b) -> str | None:
             return "toml-rig"
         if keys & {"case", "rig", "model", "planners"}:
             return "toml-experiment"
+        if keys & {"cameras"}:
+            return "toml-layout"
         return None
     if b.info == "text":
         prev = _before(b)
@@ -404,6 +409,15 @@ def test_every_rig_file_loads(block, tmp_path):
     path = tmp_path / "rig.toml"
     path.write_text(text)
     load_config(path)
+
+
+@pytest.mark.parametrize("block", blocks_of("toml-layout"), ids=_ids(blocks_of("toml-layout")))
+def test_every_layout_file_loads(block, tmp_path):
+    from jaxrecog.hardware import load_layout
+
+    path = tmp_path / "layout.toml"
+    path.write_text(block.text)
+    assert load_layout(path) == load_layout(ROOT / "examples" / "handheld_layout.toml")
 
 
 @pytest.mark.parametrize("block", blocks_of("toml-experiment"), ids=_ids(blocks_of("toml-experiment")))

@@ -63,6 +63,7 @@ def run_dataset(
     *,
     progress: bool = False,
     on_result: Callable[[str, TrialResult], None] | None = None,
+    live=None,
 ) -> CaseReport:
     """A campaign on a stored image database with a trained model file.
 
@@ -76,7 +77,8 @@ def run_dataset(
     kept in ``workdir/trials`` (named by the settings, the model's and the
     manifest's hashes), so an interrupted campaign resumes.  ``stride``,
     ``capture_noise`` and the training settings do not apply (stored images,
-    a given model); ``stride`` must stay 1.
+    a given model); ``stride`` must stay 1.  ``live``: the live view's
+    observer factory (:func:`~jaxrecog.campaigns.run.compare_planners`).
     """
     from ..hardware import DatasetRig
 
@@ -103,7 +105,7 @@ def run_dataset(
     try:
         return compare_planners(case, model, pool, specs, settings, planners,
                                 lambda planner: f"dataset-{planner}-{rid}-{db_id}", progress=progress,
-                                on_result=on_result, probe=rig)
+                                on_result=on_result, probe=rig, live=live)
     finally:
         if pool is not rig:
             pool.close()

@@ -12,7 +12,7 @@ that reveal identity.
 from __future__ import annotations
 
 import time
-from typing import TYPE_CHECKING, Callable, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Sequence
 
 import jax.random as jr
 
@@ -58,10 +58,13 @@ def compare_planners(
     progress: bool,
     on_result: Callable[[str, TrialResult], None] | None,
     probe,
+    live: Callable[[str, Any, Any], Callable] | None = None,
 ) -> CaseReport:
     """Each planner on the same trials (``specs``) on ``rig``; finished trials
     go to ``workdir/trials/<store_name(planner)>.jsonl`` (resumable).
-    ``probe``: a rig of the same table, whose geometry gives the travel times."""
+    ``probe``: a rig of the same table, whose geometry gives the travel times.
+    ``live(planner, model, probe)``: the step observer of a planner's trials
+    (the live view, :class:`jaxrecog.liveview.CampaignView`), or ``None``."""
     rows, results, seconds = {}, {}, {}
     travel = rig_travel_times(probe)
     for planner in planners:
@@ -72,7 +75,8 @@ def compare_planners(
             already = len(store.load())
             bar.update(min(already, len(specs)))
             res = run_campaign(rec, rig, specs, key=jr.PRNGKey(settings.seed + 1), batch=settings.batch, seed=settings.seed, store=store, progress=bar.update,
-                               devices=settings.devices)
+                               devices=settings.devices,
+                               on_step=None if live is None else live(planner, model, probe))
         seconds[planner] = time.perf_counter() - t0
         results[planner] = res
         rows[planner] = summarize(res, model.n_objects)
@@ -91,6 +95,7 @@ def run_case(
     prepared: Prepared | None = None,
     on_result: Callable[[str, TrialResult], None] | None = None,
     memo: "CaptureMemo | None" = None,
+    live: Callable[[str, Any, Any], Callable] | None = None,
 ) -> CaseReport:
     """Run one thesis case with each planner on the same trials (resumable:
     finished trials are kept in ``workdir/trials``).  The planners share
@@ -99,7 +104,7 @@ def run_case(
     later capture two planners agree on); pass ``memo`` to share them with
     other cases too (``reproduce_thesis.py --case all``: cases (ii) and
     (iii) show the same scenes).  The results are those of rendering every
-    capture."""
+    capture.  ``live``: the live view's observer factory (:func:`compare_planners`)."""
     if name not in CASES:
         raise ValueError(f"unknown case {name!r}; choose one of {', '.join(CASES)}")
     case = CASES[name]
@@ -120,7 +125,7 @@ def run_case(
     with capture_pool(settings, case.cameras, seed=settings.seed, memo=memo) as rigs:
         return compare_planners(case, model, rigs, specs, settings, list(planners or case.planners),
                                 lambda planner: f"case-{name}-{planner}-{rid}", progress=progress,
-                                on_result=on_result, probe=probe)
+                                on_result=on_result, probe=probe, live=live)
 
 
 def run_trace(settings: Settings, *, object: int = 5, planner: str = "mi", case: str = "iii", trial: int = 0, prepared: Prepared | None = None) -> TrialResult:

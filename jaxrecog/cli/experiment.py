@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import json
 import time
@@ -19,6 +20,7 @@ from .._progress import enabled as progress_bars
 from ..problems import one_line
 from ._common import UsageError
 from ._json import SCHEMA_VERSION, json_option, run_reporting
+from ._live import campaign_view, rerun_options, wants_rerun
 from ._options import (PLANNERS, capture_options, capture_params, choice_options, default_likelihood, gray_range,
                        model_recipe, nonneg, probability, sigma_range,
                        given_likelihood_options, likelihood_options, positive, render_jitter_options,
@@ -99,6 +101,7 @@ def add_arguments(p) -> None:
                    help="print the resolved configuration (every Settings field and the planners, an experiment "
                         "file that runs the same campaign) and exit without running")
     json_option(p)
+    rerun_options(p)
 
 
 def _training_values(args, values: dict[str, Any]) -> dict[str, Any]:
@@ -344,22 +347,28 @@ def _report(args) -> tuple[dict, str]:
     r = _resolve(args)
     name, rig, model, folder, settings, planners, out, dataset = (r.name, r.rig, r.model, r.folder, r.settings,
                                                                   r.planners, r.out, r.dataset)
+    if wants_rerun(args) and settings.cluster:
+        raise UsageError("--rerun/--rerun-save show the trials run here; on --cluster they run elsewhere")
+    live = campaign_view(args)  # a missing rerun: one line, before anything runs
     # one run per --out and work folder: a second is refused, naming the first's PID
-    with folder_lock(out, settings.workdir):
+    with folder_lock(out, settings.workdir), contextlib.closing(live) if live else contextlib.nullcontext():
         config = out / "config.toml"  # the resolved configuration beside the results (as hydra does)
         config.write_text(config_text(r))
         t0 = time.perf_counter()
         if dataset:
-            report = campaigns.run_dataset(folder, model, settings, planners=planners, progress=progress_bars())
+            report = campaigns.run_dataset(folder, model, settings, planners=planners, progress=progress_bars(),
+                                           live=live)
             written = write_report(report, "dataset", out, title=f"Database {Path(folder).name}")
             done = f"campaign on {folder}"
         else:
-            report = campaigns.run_case(name, settings, planners=planners, progress=progress_bars())
+            report = campaigns.run_case(name, settings, planners=planners, progress=progress_bars(), live=live)
             written = write_report(report, name, out)
             if args.trace:
                 written += trace_plot(settings, out, planner=(planners or ["mi"])[0], case=name)
             done = f"case {name}"
         written.insert(0, config)
+        if args.rerun_save:
+            written.append(Path(args.rerun_save))
         seconds = time.perf_counter() - t0
     doc = {"command": NAME, "schema_version": SCHEMA_VERSION, "case": "dataset" if dataset else name,
            "title": report.case.title, "rig": str(rig) if dataset else "synthetic",

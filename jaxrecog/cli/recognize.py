@@ -18,6 +18,7 @@ from ..planners import DEFAULT_PLANNER
 from ..recognizer_factory import make_recognizer
 from ._common import CLIError, UsageError, fmt_cfg, format_table, key, model_positions, synthetic_rig
 from ._images import usable
+from ._live import HANDHELD, check_handheld_flags, handheld_options, handheld_rig, recorder, rerun_options
 from ._json import SCHEMA_VERSION, json_option, run_reporting
 from ._options import (PLANNERS, choice_options, model_recipe, config_tuple, nonneg, planner_size_options, positive, probability,
                        skip_invalid_option, table_options)
@@ -32,7 +33,8 @@ DESCRIPTION = ("Place an object, then take image sets and move the cameras where
 def add_arguments(p) -> None:
     p.add_argument("model", metavar="MODEL.NPZ", help="model file")
     p.add_argument("--rig", default="synthetic", metavar="RIG",
-                   help="'synthetic' (pybullet scene), 'dataset:FOLDER' (replay a database's test split) "
+                   help="'synthetic' (pybullet scene), 'dataset:FOLDER' (replay a database's test split), "
+                        "'handheld:DEVICE' (a person moves one camera; with --layout) "
                         "or a rig TOML file (simulated or real hardware)")
     p.add_argument("--object", type=nonneg, default=0, help="object to place (0-based)")
     p.add_argument("--pose", type=nonneg, default=0, help="its pose (0-based)")
@@ -53,6 +55,8 @@ def add_arguments(p) -> None:
     choice_options(p, unset=True)  # the stop rule's parts default to the model's recipe
     table_options(p)
     json_option(p)
+    handheld_options(p)
+    rerun_options(p)
 
 
 def _make_rig(args, model):
@@ -72,11 +76,13 @@ def _make_rig(args, model):
         if not folder:
             raise UsageError("--rig dataset:FOLDER needs a folder")
         return DatasetRig.from_folder(folder, seed=args.seed)
+    if spec.startswith(HANDHELD):
+        return handheld_rig(args, model)
     if spec.endswith(".toml"):
         if not Path(spec).is_file():
             raise CLIError(f"rig file {spec} not found")
         return rig_from_config(spec)
-    raise UsageError(f"--rig {spec!r}: expected 'synthetic', 'dataset:FOLDER' or a .toml rig file")
+    raise UsageError(f"--rig {spec!r}: expected 'synthetic', 'dataset:FOLDER', 'handheld:DEVICE' or a .toml rig file")
 
 
 class _CheckedRig:
@@ -127,7 +133,7 @@ def _step_doc(r: StepRecord, n_poses: int) -> dict:
             "object_probabilities": [float(x) for x in np.asarray(dec.trace.object_probs)]}
 
 
-def _trial(args, model, rig, rec, state, k_run):
+def _trial(args, model, rig, rec, state, k_run, live=None):
     """The trial on ``rig``, through the one trial driver (:func:`jaxrecog.driver.run_trials`).
     Returns the steps (:func:`_step_doc`), the last decision and the trial's result."""
     start = tuple(int(v) for v in np.asarray(state.config))
@@ -137,6 +143,8 @@ def _trial(args, model, rig, rec, state, k_run):
     def row(r: StepRecord) -> None:
         steps.append(_step_doc(r, model.n_poses))
         last[:] = [r.decision]
+        if live is not None:  # --rerun: the live view
+            live(r)
 
     spec = TrialSpec(0, args.object, args.pose, start, occl)
     (res,) = run_trials(rec, _CheckedRig(rig, model.image_shape, args.skip_invalid), [spec], key=k_run, batch=1,
@@ -164,9 +172,12 @@ def _report(args) -> tuple[dict, str]:
         raise UsageError(f"--start {fmt_cfg(args.start)} does not fit the model's positions {positions}")
     if args.occluders and args.rig != "synthetic":
         raise UsageError("--occluders works with --rig synthetic only")
+    check_handheld_flags(args)
     k_plan, k_init, k_run = jr.split(key(args.seed), 3)
     rig = _make_rig(args, model)
+    live = None
     try:
+        live = recorder(args, model, rig)  # a missing rerun: said before the trial
         try:  # cameras, positions, objects, poses, image size: every rig, before any step
             check_counts(model, rig, model_name=args.model, other_name=f"rig {args.rig}")
         except CountsMismatchError as e:
@@ -183,9 +194,11 @@ def _report(args) -> tuple[dict, str]:
                               shared_view=args.shared_view, travel=travel, motion_cost=args.motion_cost)
         state = rec.init(key=None if args.start is not None else k_init, config=args.start)
         start = [int(v) for v in np.asarray(state.config)]
-        steps, dec, res = _trial(args, model, rig, rec, state, k_run)
+        steps, dec, res = _trial(args, model, rig, rec, state, k_run, live)
     finally:
         rig.close()
+        if live is not None:
+            live.close()
     written = []
     if args.plot:
         probs = np.stack([np.full(model.n_objects, 1.0 / model.n_objects)]
@@ -193,6 +206,8 @@ def _report(args) -> tuple[dict, str]:
         written = plots.belief_lines(probs, args.plot, true_object=args.object,
                                      title=f"Belief per step: object {args.object}, "
                                            f"pose {args.pose}, {args.planner.upper()}")
+    if args.rerun_save:
+        written = [*written, args.rerun_save]
     result = {"object": int(dec.object), "pose": int(dec.pose), "probability": float(dec.probability),
               "steps": len(steps), "correct": int(dec.object) == args.object and int(dec.pose) == args.pose,
               "travel_s": float(res.travel_s)}
