@@ -158,8 +158,16 @@ class SharedKey:
 
     @classmethod
     def from_file(cls, path: str | os.PathLike) -> "SharedKey":
-        """The bytes of a file, a trailing newline (LF or CR LF) dropped."""
+        """The bytes of a file, a trailing newline (LF or CR LF) dropped.
+
+        On POSIX the file must be its owner's only (mode 0600 or 0400): one that grants
+        its group or others any access is refused (``ValueError``), since anyone who
+        can read the key can move the rig, and anyone who can write it can lock it out."""
         with open(path, "rb") as f:
+            mode = os.fstat(f.fileno()).st_mode
+            if os.name == "posix" and mode & 0o077:
+                raise ValueError(f"the key file is open to its group or others (mode {mode & 0o777:04o}); "
+                                 f"a shared key must be its owner's only: chmod 600 it")
             data = f.read(4097)
         if len(data) > 4096:
             raise ValueError("a shared key file holds at most 4096 bytes")

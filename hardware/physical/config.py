@@ -21,6 +21,7 @@ import dataclasses
 import math
 import os
 import tomllib
+import urllib.parse
 from typing import Any
 
 from ...problems import one_line
@@ -466,15 +467,38 @@ def _shared_key(c: ControllerConfig, base_dir: str | os.PathLike) -> SharedKey |
     return None
 
 
+#: pyserial URLs that open the port written after them, adding something (a log, another class)
+_WRAPPING_URLS = ("spy", "alt")
+#: pyserial URLs of a serial port served over the network at HOST:PORT
+_NETWORK_URLS = ("rfc2217", "socket")
+
+
 def _device(port: str) -> str:
     """What a serial port names, for comparing two ports: a local path resolved through its
-    links (``/dev/serial/by-id/...`` -> ``/dev/ttyUSB0``), a URL as written."""
-    if "://" in port:
-        return port
-    try:
-        return os.path.realpath(port)
-    except (OSError, ValueError):
-        return port
+    links (``/dev/serial/by-id/...`` -> ``/dev/ttyUSB0``); ``spy://`` and ``alt://`` stripped
+    to the port they wrap (``spy:///dev/ttyUSB0`` is ``/dev/ttyUSB0``); ``rfc2217://`` and
+    ``socket://`` as scheme, lowercased host and port, options dropped (``rfc2217://HOST:7001``
+    is ``rfc2217://host:7001``); any other URL as written, scheme lowercased."""
+    scheme, sep, rest = port.partition("://")
+    if not sep:
+        try:
+            return os.path.realpath(port)
+        except (OSError, ValueError):
+            return port
+    scheme = scheme.lower()
+    rest = rest.split("?", 1)[0]  # pyserial's options (?logging=debug, ?class=...) name no other device
+    if scheme in _WRAPPING_URLS:
+        return _device(rest)
+    if scheme in _NETWORK_URLS:
+        try:
+            parts = urllib.parse.urlsplit("//" + rest.split("/", 1)[0])
+            host, number = parts.hostname, parts.port
+        except ValueError:
+            host = number = None
+        if host:
+            host = host.rstrip(".")
+            return f"{scheme}://{f'[{host}]' if ':' in host else host}:{number}"
+    return f"{scheme}://{rest}"
 
 
 def _ranges(mount: PTUConfig) -> tuple[tuple[float, float], tuple[float, float]] | None:
