@@ -64,7 +64,9 @@ class PTUConfig:
     and every path matching ``reconnect_glob`` (e.g.
     ``"/dev/serial/by-id/usb-FTDI_*"``) with a bounded backoff for
     ``reconnect_s`` seconds (0: fail at once); ``homing_timeout_s`` bounds
-    the wait for a unit that is still homing after a reset or power-up.
+    the wait for a unit that is still homing after a reset or power-up, and
+    ``max_motion_s`` the wait for one motion, whatever distance and speed the
+    unit reports.
     ``pan_range_deg`` / ``tilt_range_deg`` ([min, max], the unit's own angles)
     bound what the table may ask of it, checked when the file is loaded;
     default: the driver's ``nominal_range_deg`` (the PTU-D46-17.5's +/-158.9
@@ -82,6 +84,7 @@ class PTUConfig:
     reconnect_s: float = 10.0
     reconnect_glob: str = ""
     homing_timeout_s: float = 30.0
+    max_motion_s: float = 120.0  # the PTU-D46 driver's MAX_MOTION_S
     pan_range_deg: tuple[float, float] | None = None
     tilt_range_deg: tuple[float, float] | None = None
 
@@ -401,7 +404,7 @@ _RULES: dict[type, dict[str, Any]] = {
         "pan_zero_deg": _Number(-360, 360, unit=" degrees"), "tilt_zero_deg": _Number(-180, 180, unit=" degrees"),
         "pan_sign": _Choice((1, -1)), "speed_deg_s": _Number(0, 100_000, lo_open=True, unit=" degrees/s"),
         "reconnect_s": _Number(0, 86400, unit=_S), "homing_timeout_s": _LONG_SECONDS,
-        "pan_range_deg": _Range(-360, 360, unit=" degrees"), "tilt_range_deg": _Range(-180, 180, unit=" degrees"),
+        "max_motion_s": _SECONDS, "pan_range_deg": _Range(-360, 360, unit=" degrees"), "tilt_range_deg": _Range(-180, 180, unit=" degrees"),
     },
     CameraConfig: {
         "retries": _Number(0, 1000, integer=True), "black_level": _Number(0, 255, integer=True),
