@@ -94,13 +94,15 @@ class CameraConfig:
     """``kind = "video"``: ``source`` is a device index, file, URL or ``%d`` pattern;
     ``kind = "sequence"``: a folder or glob of image files.  A video camera that
     delivers no frame at all during a capture is reopened for up to
-    ``reconnect_s`` seconds (0: fail at once)."""
+    ``reconnect_s`` seconds (0: fail at once); one read that does not return
+    within ``read_timeout_s`` seconds counts as no frame (the device is reopened)."""
 
     source: int | str = 0
     kind: str = "video"
     retries: int = 3
     black_level: int = 0
     reconnect_s: float = 5.0
+    read_timeout_s: float = 5.0  # the camera module's READ_TIMEOUT_S
 
 
 @dataclasses.dataclass(frozen=True)
@@ -408,7 +410,7 @@ _RULES: dict[type, dict[str, Any]] = {
     },
     CameraConfig: {
         "retries": _Number(0, 1000, integer=True), "black_level": _Number(0, 255, integer=True),
-        "reconnect_s": _Number(0, 86400, unit=_S),
+        "reconnect_s": _Number(0, 86400, unit=_S), "read_timeout_s": _SECONDS,
     },
     SimulationConfig: {"seed": _Number(-2**63, 2**63 - 1, integer=True), "time_scale": _Number(0, 1000)},
     LinkFaults: {
