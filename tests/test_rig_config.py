@@ -124,7 +124,7 @@ def test_two_names_of_one_device_are_the_same_port(tmp_path):
         ("[controller]", "max_motion_s = 1e300", r"max_motion_s = 1e\+300 must be a number > 0 and <= 86400 seconds"),
         ("[controller]", "retries = 2.5", "retries = 2.5 must be an integer >= 0 and <= 10000"),
         ("[controller]", "port = 70000", "port = 70000 must be an integer >= 0 and <= 65535"),
-        ("[controller]", "protocol_version = 4", "protocol_version = 4 must be one of 1, 2, 3"),
+        ("[controller]", "protocol_version = 5", "protocol_version = 5 must be one of 1, 2, 3, 4"),
         ("[[ptu]]", "timeout_s = inf", "timeout_s = inf must be a number > 0 and <= 3600 seconds"),
         ("[[ptu]]", "timeout_s = -1", "timeout_s = -1 must be a number > 0 and <= 3600 seconds"),
         ("[[ptu]]", "speed_deg_s = -5", "speed_deg_s = -5 must be a number > 0 and <= 100000 degrees/s"),
@@ -356,5 +356,5 @@ def test_the_rig_file_of_docs_hardware_md_loads(tmp_path):
     text = (Path(__file__).parents[1] / "docs" / "hardware.md").read_text(encoding="utf-8")
     block = text[text.index("## The TOML file"):].split("```toml\n", 1)[1].split("```", 1)[0]
     cfg = load_config(write(tmp_path, block))
-    assert cfg.kind == "hardware" and cfg.controller.protocol_version == 3 and cfg.controller.key is None
+    assert cfg.kind == "hardware" and cfg.controller.protocol_version == 4 and cfg.controller.key is None
     assert [p.port for p in cfg.ptus] == ["/dev/ttyUSB0", "/dev/ttyUSB1"] and cfg.cameras[0].reconnect_s == 5.0

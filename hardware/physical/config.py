@@ -109,8 +109,8 @@ class CameraConfig:
 class ControllerConfig:
     """``max_motion_s`` bounds how long ``MOVING`` replies may extend the wait for one move.
 
-    ``protocol_version``: 3 (``docs/protocol.md``), or 2 / 1 for a controller
-    that speaks only that version (the thesis rig's two cameras).  A shared key (HMAC over every datagram) is read
+    ``protocol_version``: 4 (``docs/protocol.md``), or 3 / 2 / 1 for a controller
+    that speaks only that version (2 and 1: the thesis rig's two cameras).  A shared key (HMAC over every datagram) is read
     from the file ``key_file`` (relative to the rig file) or the environment
     variable ``key_env``, when the rig file is loaded, into ``key`` (hidden
     from ``repr``; never a key in the rig file itself)."""
@@ -197,7 +197,7 @@ class RigConfig:
         if not self.controller.max_motion_s > 0:
             raise ConfigError(f"[controller] max_motion_s = {self.controller.max_motion_s!r} must be > 0 seconds")
         if self.controller.key is not None and self.controller.protocol_version == 1:
-            raise ConfigError("[controller]: a shared key (key_file / key_env) needs protocol_version = 2 or 3: "
+            raise ConfigError("[controller]: a shared key (key_file / key_env) needs protocol_version = 2 or later: "
                               "version 1 carries no HMAC tag")
         if not 1 <= n <= MAX_CAMERAS:
             raise ConfigError(f"[table] describes {n} cameras; the controller protocol drives 1 to {MAX_CAMERAS}")
@@ -205,7 +205,7 @@ class RigConfig:
         if version <= 2 and [type(c) for c in self.table.carriers] != [Gantry, Track][:n]:
             kinds = ", ".join(c.kind for c in self.table.carriers)
             raise ConfigError(f"[controller] protocol_version = {version} moves camera 1 on a gantry and camera 2 on a "
-                              f"track; this table's cameras ride {kinds}: set protocol_version = 3")
+                              f"track; this table's cameras ride {kinds}: set protocol_version = 3 or 4")
         if self.kind == "hardware":
             if len(self.ptus) != n:
                 raise ConfigError(f"{len(self.ptus)} [[ptu]] entries for {n} cameras: give one per camera")
@@ -399,7 +399,7 @@ _PROBABILITY = _Number(0, 1)
 _RULES: dict[type, dict[str, Any]] = {
     ControllerConfig: {
         "port": _Number(0, 65535, integer=True), "timeout_s": _SECONDS, "retries": _Number(0, 10_000, integer=True),
-        "max_motion_s": _LONG_SECONDS, "protocol_version": _Choice((1, 2, 3)),
+        "max_motion_s": _LONG_SECONDS, "protocol_version": _Choice((1, 2, 3, 4)),
     },
     PTUConfig: {
         "baudrate": _Number(0, 10_000_000, lo_open=True, integer=True), "timeout_s": _SECONDS,
