@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import threading
+import time
+
 import cv2
 import numpy as np
 import pytest
 
-from jaxrecog.hardware.devices.camera import CameraError, ImageSequenceCamera, VideoCamera, to_gray
+from jaxrecog.hardware.devices.camera import CameraError, CameraLostError, ImageSequenceCamera, VideoCamera, to_gray
 
 H, W = 120, 160
 
@@ -138,6 +141,73 @@ def test_persistent_failure_is_a_clear_error():
     assert fake.released
     with pytest.raises(CameraError, match="closed"):
         cam.read()
+
+
+class HangingCapture:
+    """A capture whose read blocks until ``go`` is set (a driver stuck in the device)."""
+
+    def __init__(self):
+        self.go, self.released = threading.Event(), threading.Event()
+
+    def isOpened(self):
+        return True
+
+    def read(self):
+        self.go.wait(10.0)
+        return True, np.full((H, W), 100, np.uint8)
+
+    def release(self):
+        self.released.set()
+
+
+def test_a_read_that_blocks_is_given_up_after_read_timeout_s_in_one_line():
+    """A camera whose read blocked used to block ``read()`` (and the rig's ``capture()``)
+    with no bound.  Now the read is waited for read_timeout_s, the capture is abandoned
+    (released once the read returns) and the device can be reopened."""
+    stuck, good = HangingCapture(), FakeCapture([(True, np.full((H, W), 90, np.uint8))])
+    captures = iter([stuck, good])
+    cam = VideoCamera(4, capture_factory=lambda s: next(captures), retries=3, read_timeout_s=0.2)
+    t0 = time.monotonic()
+    with pytest.raises(CameraLostError) as e:
+        cam.read()
+    assert time.monotonic() - t0 < 0.2 + 0.5  # one timeout, no retries of a read still in progress
+    assert str(e.value) == ("video source 4: VideoCapture.read did not return within read_timeout_s = 0.2 s; "
+                            "the capture was abandoned")
+    assert not stuck.released.is_set()  # (never released under a read that is still running)
+    stuck.go.set()
+    assert stuck.released.wait(2.0)  # released once its read returned
+    cam.reconnect()
+    assert int(cam.read().max()) == 90
+    with pytest.raises(ValueError, match="read_timeout_s must be > 0 seconds"):
+        VideoCamera(0, capture_factory=lambda s: good, read_timeout_s=0)
+
+
+class Odd(FakeCapture):
+    def __init__(self, answer):
+        super().__init__([])
+        self.answer = answer
+
+    def read(self):
+        self.reads += 1
+        if isinstance(self.answer, BaseException):
+            raise self.answer
+        return self.answer
+
+
+@pytest.mark.parametrize("answer,why", [
+    (None, "VideoCapture.read returned NoneType, not (ok, frame)"),
+    ((True, np.zeros((0, 0, 3), np.uint8)), r"VideoCapture.read returned an empty frame ((0, 0, 3))"),
+    ((True, None), "VideoCapture.read returned no frame"),
+    (RuntimeError("backend failure\n  at line 3 of the driver"), "VideoCapture.read raised RuntimeError: backend failure"),
+], ids=["None", "empty frame", "no frame", "raises"])
+def test_a_camera_that_returns_nothing_is_one_clear_line(answer, why):
+    """A read that returned None (no pair) or raised something other than cv2.error
+    used to escape as a traceback; an empty frame was a conversion error, not a lost camera."""
+    fake = Odd(answer)
+    cam = VideoCamera("usb", capture_factory=lambda s: fake, retries=1)
+    with pytest.raises(CameraLostError) as e:
+        cam.read()
+    assert str(e.value) == f"source 'usb': no usable frame after 2 attempts: {why}" and fake.reads == 2
 
 
 def test_camera_that_does_not_open():

@@ -1,4 +1,4 @@
-"""The controller datagram codec: documented layout (versions 1, 2 and 3), round trips,
+"""The controller datagram codec: documented layout (versions 1 to 4), round trips,
 corruption, HMAC tags, fuzz."""
 
 from __future__ import annotations
@@ -34,12 +34,19 @@ from jaxrecog.hardware.devices.datagram import (
     Welcome,
     decode,
     encode,
+    session_boot,
 )
 
 KEY = SharedKey(b"jaxrecog example key")  # the key of the documented example
 
 finite = st.floats(allow_nan=False, allow_infinity=False)
 u32 = st.integers(0, 2**32 - 1)
+u64 = st.integers(0, 2**64 - 1)
+
+
+def ids(version: int):
+    """Session ids and nonces a version carries: u64 from version 4 on, u32 before."""
+    return u64 if version >= 4 else u32
 pairs = st.tuples(finite, finite)
 
 
@@ -67,22 +74,24 @@ def payloads(t: MsgType, version: int):
         MsgType.REJECTED: st.builds(Rejected, moves(version), st.integers(0, 65535), st.text(max_size=50)),
         MsgType.PING: st.none(),
         MsgType.PONG: st.none(),
-        MsgType.HELLO: st.builds(Hello, u32),
-        MsgType.WELCOME: st.builds(Welcome, u32, u32),
-        MsgType.REFUSED: st.builds(Refused, u32, st.integers(0, 65535), st.text(max_size=50)),
+        MsgType.HELLO: st.builds(Hello, ids(version)),
+        MsgType.WELCOME: st.builds(Welcome, ids(version), u32),
+        MsgType.REFUSED: st.builds(Refused, ids(version), st.integers(0, 65535), st.text(max_size=50)),
     }[t]
 
 
-datagrams = st.tuples(st.sampled_from(list(MsgType)), st.sampled_from([1, 2, 3])).filter(
+datagrams = st.tuples(st.sampled_from(list(MsgType)), st.sampled_from([1, 2, 3, 4])).filter(
     lambda tv: not (tv[0] == MsgType.REFUSED and tv[1] == 1)).flatmap(
-    lambda tv: st.builds(Datagram, st.just(tv[0]), u32, u32, payloads(*tv), st.just(tv[1])))
+    lambda tv: st.builds(Datagram, st.just(tv[0]), ids(tv[1]), u32, payloads(*tv), st.just(tv[1])))
 
 
 def by_hand(mtype: int, session: int, seq: int, payload: bytes, version: int = VERSION, magic: bytes = MAGIC,
             flags: int | None = None, key: bytes | None = None) -> bytes:
     """The layout of docs/protocol.md, written out independently of the codec: version 1
-    without, versions 2 and 3 with the flags byte (and, with ``key``, the HMAC-SHA256 tag)."""
-    body = magic + bytes([version, mtype]) + session.to_bytes(4, "big") + seq.to_bytes(4, "big")
+    without, versions 2 to 4 with the flags byte (and, with ``key``, the HMAC-SHA256 tag);
+    version 4 with an 8-byte session."""
+    width = 8 if version >= 4 else 4
+    body = magic + bytes([version, mtype]) + session.to_bytes(width, "big") + seq.to_bytes(4, "big")
     body += len(payload).to_bytes(2, "big")
     if version >= 2:
         body += bytes([(1 if key is not None else 0) if flags is None else flags])
@@ -110,8 +119,8 @@ def documented_examples() -> list[bytes]:
 
 def test_move_layout_matches_the_documented_bytes():
     """The examples of docs/protocol.md: a two-camera MOVE in version 1 and in version 2
-    with the documented key, and a three-camera MOVE in version 3 with the key; the codec
-    makes them and decodes them."""
+    with the documented key, and a three-camera MOVE in version 3 and in version 4 with the
+    key; the codec makes them and decodes them."""
     m = Move(((0.1, 0.5), (-0.3, 0.0)), math.pi)
     angles = struct.pack(">4d", 0.1, 0.5, -0.3, math.pi)
     v1 = encode(Datagram(MsgType.MOVE, 0xDEADBEEF, 7, m, version=1))
@@ -122,14 +131,18 @@ def test_move_layout_matches_the_documented_bytes():
     assert len(v2) == 15 + 32 + 32 + 4
     m3 = Move(((0.1, 0.5), (-0.3, 0.25), (0.3, 0.25)), math.pi)
     cameras = bytes([3]) + struct.pack(">7d", 0.1, 0.5, -0.3, 0.25, 0.3, 0.25, math.pi)
-    v3 = encode(Datagram(MsgType.MOVE, 0xDEADBEEF, 7, m3), KEY)
+    v3 = encode(Datagram(MsgType.MOVE, 0xDEADBEEF, 7, m3, version=3), KEY)
     assert v3 == by_hand(1, 0xDEADBEEF, 7, cameras, version=3, key=b"jaxrecog example key")
     assert len(v3) == 15 + 57 + 32 + 4
-    assert documented_examples() == [v1, v2, v3]
+    v4 = encode(Datagram(MsgType.MOVE, 0xB0070001DEADBEEF, 7, m3), KEY)
+    assert v4 == by_hand(1, 0xB0070001DEADBEEF, 7, cameras, version=4, key=b"jaxrecog example key")
+    assert len(v4) == 19 + 57 + 32 + 4
+    assert documented_examples() == [v1, v2, v3, v4]
     assert decode(v1) == Datagram(MsgType.MOVE, 0xDEADBEEF, 7, m, version=1)
     assert decode(v2, KEY) == Datagram(MsgType.MOVE, 0xDEADBEEF, 7, m, version=2)
     assert decode(v3, KEY) == Datagram(MsgType.MOVE, 0xDEADBEEF, 7, m3, version=3)
-    plain = encode(Datagram(MsgType.MOVE, 0xDEADBEEF, 7, m3))
+    assert decode(v4, KEY) == Datagram(MsgType.MOVE, 0xB0070001DEADBEEF, 7, m3, version=4)
+    plain = encode(Datagram(MsgType.MOVE, 0xDEADBEEF, 7, m3, version=3))
     assert plain == by_hand(1, 0xDEADBEEF, 7, cameras, version=3) and len(plain) == 15 + 57 + 4
 
 
@@ -218,9 +231,11 @@ def test_hmac_tag_is_required_checked_and_never_shown():
 
 
 def test_refused_layout():
-    raw = encode(Datagram(MsgType.REFUSED, 0, 0, Refused(0x01020304, 6, "busy")))
+    raw = encode(Datagram(MsgType.REFUSED, 0, 0, Refused(0x01020304, 6, "busy"), version=3))
     assert raw == by_hand(9, 0, 0, bytes([1, 2, 3, 4, 0, 6]) + b"busy", version=3)
     assert decode(raw).payload == Refused(0x01020304, 6, "busy")
+    raw = encode(Datagram(MsgType.REFUSED, 0, 0, Refused(0x0102030405060708, 6, "busy")))
+    assert raw == by_hand(9, 0, 0, bytes([1, 2, 3, 4, 5, 6, 7, 8, 0, 6]) + b"busy", version=4)
 
 
 def test_hello_and_welcome_layout():
@@ -228,14 +243,23 @@ def test_hello_and_welcome_layout():
     with the issued session in the header (docs/protocol.md)."""
     hello = encode(Datagram(MsgType.HELLO, 0, 0, Hello(0x01020304), version=1))
     assert hello == by_hand(7, 0, 0, bytes([1, 2, 3, 4]), version=1)
-    assert encode(Datagram(MsgType.HELLO, 0, 0, Hello(0x01020304))) == by_hand(7, 0, 0, bytes([1, 2, 3, 4]))
-    welcome = encode(Datagram(MsgType.WELCOME, 0xCAFEF00D, 0, Welcome(0x01020304, 0xB0070001)))
-    assert welcome == by_hand(8, 0xCAFEF00D, 0, bytes([1, 2, 3, 4, 0xB0, 0x07, 0x00, 0x01]))
+    assert encode(Datagram(MsgType.HELLO, 0, 0, Hello(0x01020304), version=3)) == \
+        by_hand(7, 0, 0, bytes([1, 2, 3, 4]), version=3)
+    welcome = encode(Datagram(MsgType.WELCOME, 0xCAFEF00D, 0, Welcome(0x01020304, 0xB0070001), version=3))
+    assert welcome == by_hand(8, 0xCAFEF00D, 0, bytes([1, 2, 3, 4, 0xB0, 0x07, 0x00, 0x01]), version=3)
     assert decode(welcome).payload == Welcome(0x01020304, 0xB0070001)
+    # version 4: a u64 nonce, and a session id whose high half is the boot id
+    nonce = bytes([1, 2, 3, 4, 5, 6, 7, 8])
+    assert encode(Datagram(MsgType.HELLO, 0, 0, Hello(0x0102030405060708))) == by_hand(7, 0, 0, nonce, version=4)
+    welcome = encode(Datagram(MsgType.WELCOME, 0xB0070001CAFEF00D, 0, Welcome(0x0102030405060708, 0xB0070001)))
+    assert welcome == by_hand(8, 0xB0070001CAFEF00D, 0, nonce + bytes([0xB0, 0x07, 0x00, 0x01]), version=4)
+    assert session_boot(decode(welcome).session) == decode(welcome).payload.boot == 0xB0070001
     with pytest.raises(DatagramError, match="HELLO payload is 3 bytes"):
         decode(by_hand(7, 0, 0, b"abc"))
     with pytest.raises(DatagramError, match="u32"):
         encode(Datagram(MsgType.WELCOME, 1, 0, Welcome(1, 2**32)))
+    with pytest.raises(DatagramError, match="HELLO nonce 4294967296 does not fit in u32"):
+        encode(Datagram(MsgType.HELLO, 0, 0, Hello(2**32), version=3))
 
 
 def test_in_position_layout_of_version_2():
@@ -260,8 +284,8 @@ def test_round_trip(dg):
             assert out == dg
 
 
-@pytest.mark.parametrize("version,key", [(1, None), (2, None), (2, KEY), (3, None), (3, KEY)],
-                         ids=["v1", "v2", "v2-hmac", "v3", "v3-hmac"])
+@pytest.mark.parametrize("version,key", [(1, None), (2, None), (2, KEY), (3, None), (3, KEY), (4, None), (4, KEY)],
+                         ids=["v1", "v2", "v2-hmac", "v3", "v3-hmac", "v4", "v4-hmac"])
 def test_every_single_bit_flip_is_detected(version, key):
     m = Move(((1, 2), (3, 0)), 4)
     p = InPosition(m, ((5, 6), (7,)), 8) if version <= 2 else InPosition(m, ((5, 6, 7), (8, 9, 10)), 11)
@@ -277,7 +301,7 @@ def test_every_single_bit_flip_is_detected(version, key):
     "raw,match",
     [
         (b"", "shorter"),
-        (by_hand(1, 1, 1, struct.pack(">4d", 0, 0, 0, 0), version=4), "version 4"),
+        (by_hand(1, 1, 1, struct.pack(">4d", 0, 0, 0, 0), version=5), "version 5"),
         (by_hand(1, 1, 1, struct.pack(">4d", 0, 0, 0, 0), flags=0x02), "unknown flags"),
         (by_hand(1, 1, 1, struct.pack(">4d", 0, 0, 0, 0), flags=0x01), "length"),  # flag set, no tag
         (by_hand(1, 1, 1, struct.pack(">4d", 0, 0, 0, 0), version=1)[:15] + b"\x00" * 3, "payload_len"),
@@ -309,8 +333,11 @@ def test_malformed_datagrams_are_rejected_with_a_reason(raw, match):
 def test_encode_refuses_what_it_could_not_decode():
     with pytest.raises(DatagramError, match="non-finite"):
         encode(Datagram(MsgType.MOVE, 1, 1, Move(((0, math.inf),), 0)))
-    with pytest.raises(DatagramError, match="u32"):
-        encode(Datagram(MsgType.PING, 2**32, 1))
+    with pytest.raises(DatagramError, match="version-3 session 4294967296 does not fit in u32"):
+        encode(Datagram(MsgType.PING, 2**32, 1, version=3))
+    assert decode(encode(Datagram(MsgType.PING, 2**32, 1))).session == 2**32  # version 4: a u64
+    with pytest.raises(DatagramError, match="version-4 session .* does not fit in u64"):
+        encode(Datagram(MsgType.PING, 2**64, 1))
     with pytest.raises(DatagramError, match="payload"):
         encode(Datagram(MsgType.MOVE, 1, 1, None))
 
@@ -326,7 +353,7 @@ def test_fuzz_decode_random_bytes(raw):
 
 
 @settings(max_examples=300, deadline=None)
-@given(st.integers(0, 255), u32, u32, st.binary(max_size=80), st.sampled_from([1, 2, 3]))
+@given(st.integers(0, 255), u32, u32, st.binary(max_size=80), st.sampled_from([1, 2, 3, 4]))
 def test_fuzz_decode_valid_envelopes(mtype, session, seq, payload, version):
     # a correct header and CRC around arbitrary payload bytes reaches the payload parsers
     raw = by_hand(mtype, session, seq, payload, version=version)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import math
 import time
 
 import pytest
@@ -427,6 +428,45 @@ def test_await_on_a_stalled_axis_is_bounded_and_the_next_move_reads_the_unit_bac
         # (PO is relative in the unit, so the motor lands right either way; the
         # driver's limit checks and await estimates need its own idea to be right too)
         assert sim.position()[0] == stopped + pos(1.0) == ptu.target[0]
+
+
+def test_a_position_outside_the_units_limits_is_a_clear_error_and_never_a_target(sim, ptu):
+    """A unit of +/-3090 positions answering ``PP`` with ``* 99999999`` (a garbled line)
+    used to be believed: after a failed move it became the target, and the next ``A``
+    waited about 10^5 s for the motion back."""
+    sim.answer("* 99999999")
+    with pytest.raises(PTUGarbageError, match=r"^PTU command 'PP': pan position 99999999 is outside the unit's "
+                                              r"limits \[-3090, 3090\]; got b'\* 99999999'$"):
+        ptu.position()
+    assert ptu.position() == (0.0, 0.0)  # the next query is in step
+    sim.inject("drop")  # the move's PP is lost: the driver must read the axes back before the next move
+    with pytest.raises(PTUTimeoutError):
+        ptu.move_to(pan=5.0)
+    sim.answer("* -99999999", after=1)  # the read-back's A passes, its PP is garbled
+    with pytest.raises(PTUGarbageError, match="pan position -99999999 is outside"):
+        ptu.move_to(pan=10.0)
+    assert all(abs(t) <= 3090 for t in ptu.target)
+    ptu.move_to(pan=10.0)  # read back again, properly this time, then moved
+    assert sim.position()[0] == pos(10.0) == ptu.target[0]
+    sim.answer("* 6000")  # a speed above the unit's own upper limit (5833)
+    with pytest.raises(PTUGarbageError, match=r"pan speed 6000 is outside the unit's limits \[0, 5833\]"):
+        ptu.speed()
+
+
+def test_the_wait_for_a_motion_is_bounded_by_max_motion_s_whatever_the_estimate():
+    """At 1 position/s a 1000-position move is estimated at 1000 s; on a stalled axis the
+    driver waits max_motion_s, not the estimate."""
+    with PTUSimulator(time_scale=1.0) as sim, \
+            PTU(sim.port, timeout=0.15, await_margin=0.1, max_motion_s=0.5) as ptu:
+        ptu.set_speed(pan=deg(1))
+        ptu.move_to(pan=deg(1000), wait=False)
+        sim.inject("stall")
+        t0 = time.monotonic()
+        with pytest.raises(PTUTimeoutError, match=r"'A'.*within 0.5 s"):
+            ptu.await_motion()
+        assert time.monotonic() - t0 < 0.5 + 1.5  # max_motion_s, plus the drain after a timeout
+    with pytest.raises(ValueError, match="max_motion_s must be > 0 seconds"):
+        PTU("loop://", max_motion_s=math.inf, connect=False)
 
 
 # ---------------------------------------------------------------- the device disappears

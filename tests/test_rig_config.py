@@ -69,6 +69,42 @@ def test_two_pan_tilt_units_on_one_port_are_refused_naming_both(tmp_path):
         load_config(path)
 
 
+@pytest.mark.parametrize("first,second", [
+    ("spy:///dev/ttyUSB0", "/dev/ttyUSB0"),
+    ("spy:///dev/ttyUSB0?file=spy.log", "alt:///dev/ttyUSB0?class=PosixPollSerial"),
+    ("rfc2217://HOST:7001", "rfc2217://host:7001"),
+    ("socket://Rig.Local.:7001?logging=debug", "socket://rig.local:7001"),
+    ("rfc2217://[::1]:7001", "RFC2217://[::1]:7001/"),
+])
+def test_a_url_and_the_port_it_names_are_the_same_port(tmp_path, first, second):
+    """A spy:// (or alt://) URL opens the port after it; a network port is its scheme, host
+    (case-free) and port: both used to pass the duplicate check beside the plain name."""
+    path = hardware_file(tmp_path, f'port = "{first}"', f'port = "{second}"')
+    with pytest.raises(ConfigError, match=rf"\[\[ptu\]\] #1 and \[\[ptu\]\] #2 both have ports "
+                                          rf"{re.escape(repr(first))} and {re.escape(repr(second))} \(the same "
+                                          rf"device\): each pan-tilt unit needs its own serial port$"):
+        load_config(path)
+
+
+def test_a_spy_url_of_a_link_is_the_device_behind_the_link(tmp_path):
+    dev = tmp_path / "ttyUSB7"
+    dev.write_text("")
+    os.symlink(dev, tmp_path / "usb-FTDI_cam1")
+    path = hardware_file(tmp_path, f'port = "spy://{tmp_path / "usb-FTDI_cam1"}"', f'port = "{dev}"')
+    with pytest.raises(ConfigError, match=r"\(the same device\)"):
+        load_config(path)
+
+
+@pytest.mark.parametrize("first,second", [
+    ("rfc2217://host:7001", "rfc2217://host:7002"),
+    ("rfc2217://host:7001", "socket://host:7001"),
+    ("spy:///dev/ttyUSB0", "/dev/ttyUSB1"),
+])
+def test_different_devices_stay_different(tmp_path, first, second):
+    assert [p.port for p in load_config(hardware_file(tmp_path, f'port = "{first}"', f'port = "{second}"')).ptus] == \
+        [first, second]
+
+
 def test_two_names_of_one_device_are_the_same_port(tmp_path):
     dev = tmp_path / "ttyUSB7"
     dev.write_text("")
@@ -88,7 +124,7 @@ def test_two_names_of_one_device_are_the_same_port(tmp_path):
         ("[controller]", "max_motion_s = 1e300", r"max_motion_s = 1e\+300 must be a number > 0 and <= 86400 seconds"),
         ("[controller]", "retries = 2.5", "retries = 2.5 must be an integer >= 0 and <= 10000"),
         ("[controller]", "port = 70000", "port = 70000 must be an integer >= 0 and <= 65535"),
-        ("[controller]", "protocol_version = 4", "protocol_version = 4 must be one of 1, 2, 3"),
+        ("[controller]", "protocol_version = 5", "protocol_version = 5 must be one of 1, 2, 3, 4"),
         ("[[ptu]]", "timeout_s = inf", "timeout_s = inf must be a number > 0 and <= 3600 seconds"),
         ("[[ptu]]", "timeout_s = -1", "timeout_s = -1 must be a number > 0 and <= 3600 seconds"),
         ("[[ptu]]", "speed_deg_s = -5", "speed_deg_s = -5 must be a number > 0 and <= 100000 degrees/s"),
@@ -167,8 +203,32 @@ def test_the_default_table_and_the_example_fit_their_units():
 SECRET = "the rig's shared key, 30 bytes"
 
 
+def private(path: Path, text: str) -> Path:
+    """A key file as the docs ask for it: its owner's only (mode 0600)."""
+    path.write_text(text)
+    path.chmod(0o600)
+    return path
+
+
+@pytest.mark.skipif(os.name != "posix", reason="file modes are POSIX")
+@pytest.mark.parametrize("mode", [0o644, 0o640, 0o604, 0o620], ids=lambda m: f"{m:04o}")
+def test_a_key_file_others_may_open_is_refused_in_one_line(tmp_path, mode):
+    """docs/hardware.md: the key file must be its owner's only.  A key file of mode 0644
+    was read without a word."""
+    (tmp_path / "rig.key").write_text(SECRET)
+    (tmp_path / "rig.key").chmod(mode)
+    path = write(tmp_path, 'kind = "simulated"\n[controller]\nkey_file = "rig.key"\n')
+    with pytest.raises(ConfigError) as e:
+        load_config(path)
+    assert str(e.value) == (f"{path}: [controller]: key_file = 'rig.key': the key file is open to its group or "
+                            f"others (mode {mode:04o}); a shared key must be its owner's only: chmod 600 it")
+    assert SECRET not in str(e.value)
+    (tmp_path / "rig.key").chmod(0o400)  # read-only for its owner is fine too
+    assert load_config(path).controller.key is not None
+
+
 def test_the_shared_key_comes_from_a_file_or_the_environment_and_is_never_shown(tmp_path, monkeypatch):
-    (tmp_path / "rig.key").write_text(SECRET + "\n")
+    private(tmp_path / "rig.key", SECRET + "\n")
     cfg = load_config(write(tmp_path, 'kind = "simulated"\n[controller]\nkey_file = "rig.key"\n'))
     assert cfg.controller.key is not None and SECRET not in repr(cfg) and SECRET not in str(cfg)
     monkeypatch.setenv("JAXRECOG_TEST_RIG_KEY", SECRET)
@@ -193,8 +253,8 @@ def test_the_shared_key_comes_from_a_file_or_the_environment_and_is_never_shown(
     ],
 )
 def test_a_bad_key_setting_is_a_clear_error_without_the_key(tmp_path, lines, match):
-    (tmp_path / "rig.key").write_text(SECRET)
-    (tmp_path / "short.key").write_text("short")
+    private(tmp_path / "rig.key", SECRET)
+    private(tmp_path / "short.key", "short")
     path = write(tmp_path, f'kind = "simulated"\n[controller]\n{lines}\n')
     with pytest.raises(ConfigError, match=rf"^{re.escape(str(path))}: \[controller\]: {match}") as e:
         load_config(path)
@@ -296,5 +356,5 @@ def test_the_rig_file_of_docs_hardware_md_loads(tmp_path):
     text = (Path(__file__).parents[1] / "docs" / "hardware.md").read_text(encoding="utf-8")
     block = text[text.index("## The TOML file"):].split("```toml\n", 1)[1].split("```", 1)[0]
     cfg = load_config(write(tmp_path, block))
-    assert cfg.kind == "hardware" and cfg.controller.protocol_version == 3 and cfg.controller.key is None
+    assert cfg.kind == "hardware" and cfg.controller.protocol_version == 4 and cfg.controller.key is None
     assert [p.port for p in cfg.ptus] == ["/dev/ttyUSB0", "/dev/ttyUSB1"] and cfg.cameras[0].reconnect_s == 5.0

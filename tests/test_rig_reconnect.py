@@ -256,6 +256,8 @@ class USBCamera:
 
     def __init__(self, value=120):
         self.plugged, self.generation, self.opens, self.value, self.black = True, 0, 0, value, False
+        self.unstuck = threading.Event()  # cleared: every read blocks until it is set
+        self.unstuck.set()
 
     def factory(self, source):
         self.opens += 1
@@ -266,6 +268,7 @@ class USBCamera:
                 return cam.plugged
 
             def read(self):
+                cam.unstuck.wait(10.0)
                 if not (cam.plugged and cam.generation == gen):
                     return False, None
                 return True, np.full((H, W), 0 if cam.black else cam.value, np.uint8)
@@ -340,3 +343,21 @@ def test_black_frames_are_not_a_lost_camera(usb_rig):
     assert d1.opens == opens and not rig.reconnects  # a black frame is not a lost device: nothing reopened
     d1.black = False
     assert len(rig.capture().images) == 2
+
+
+def test_a_camera_whose_reads_hang_is_one_rig_error_within_its_bounds(usb_rig):
+    """A device whose every read blocks used to hang capture() for good; now each read is
+    given up after read_timeout_s, the device reopened for reconnect_s, then one RigError."""
+    rig, (d1, _) = usb_rig
+    rig.cameras[0].read_timeout_s = 0.1
+    d1.unstuck.clear()
+    t0 = time.monotonic()
+    try:
+        with pytest.raises(RigError, match=r"^camera 0: lost its device and it did not come back within reconnect_s = "
+                                           r"0.4 s \(\d+ attempts\); last error: video source 0: VideoCapture.read "
+                                           r"did not return within read_timeout_s = 0.1 s; the capture was abandoned$"):
+            rig.capture()
+        assert time.monotonic() - t0 < 0.1 + 0.4 + 0.1 + 1.0  # first read, reconnect_s, one last read; slack
+    finally:
+        d1.unstuck.set()
+    assert [int(im.max()) for im in rig.capture().images] == [120, 130]

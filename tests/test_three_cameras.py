@@ -50,7 +50,7 @@ def doc_rig_file(tmp_path, extra: str = "") -> Path:
 def test_three_cameras_move_and_capture_on_the_simulated_hardware(tmp_path):
     cfg = load_config(doc_rig_file(tmp_path))
     table = cfg.table
-    assert table.positions == (4, 3, 3) and cfg.controller.protocol_version == 3
+    assert table.positions == (4, 3, 3) and cfg.controller.protocol_version == 4
     assert [type(c) for c in table.carriers] == [Gantry, Track, Track]
     configs = [(0, 0, 2), (3, 1, 0), (1, 2, 1)]
     with SimulatedHardwareRig(EyeRenderer(), cfg) as rig:

@@ -1,4 +1,4 @@
-"""Protocol sessions (versions 2 and 3): bound to the client's address, refused to strangers while
+"""Protocol sessions (versions 2 to 4): bound to the client's address, refused to strangers while
 live, taken over only after an idle timeout (the displaced client is told and
 re-handshakes), an optional shared key (HMAC-SHA256), versions 1 and 2 still spoken.
 
@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 import socket
+import threading
 import time
 
 import pytest
@@ -26,7 +27,14 @@ from jaxrecog.hardware.devices.datagram import (
     encode,
 )
 from jaxrecog.hardware.geometry.positions import default_table
-from jaxrecog.hardware.devices.udp_link import ControllerLink, LinkError, LinkTimeoutError, SessionClosed, SessionRefused
+from jaxrecog.hardware.devices.udp_link import (
+    ControllerLink,
+    ControllerRestarted,
+    LinkError,
+    LinkTimeoutError,
+    SessionClosed,
+    SessionRefused,
+)
 
 TABLE = default_table()
 KEY = SharedKey(b"a shared key of the rig, 32 byte")
@@ -147,8 +155,9 @@ def test_with_a_shared_key_nobody_without_it_gets_an_answer_or_the_session(who):
         evil = Stranger(sim.address)
         try:
             v = 1 if who == "version 1" else 2
+            sniffed = session & 0xFFFFFFFF  # (what of it a version-1/2 header can carry)
             evil.send(Datagram(MsgType.HELLO, 0, 0, Hello(99), version=v), other)
-            evil.send(Datagram(MsgType.MOVE, session, link._seq + 1, move_of(5).for_version(v), version=v), other)
+            evil.send(Datagram(MsgType.MOVE, sniffed, link._seq + 1, move_of(5).for_version(v), version=v), other)
             evil.send(Datagram(MsgType.MOVE, 12345, 1, move_of(5).for_version(v), version=v), other)
             assert evil.replies() == []
         finally:
@@ -170,8 +179,8 @@ def test_a_client_without_the_key_times_out_and_moves_nothing(key):
 def test_the_key_is_never_in_a_message_or_a_repr():
     secret = b"a shared key of the rig, 32 byte"
     with ControllerSimulator(time_scale=0.001, key=secret) as sim, \
-            ControllerLink(sim.address, timeout=0.03, retries=0, key=secret) as link:
-        link.move(move_of(0))
+            ControllerLink(sim.address, timeout=0.25, retries=0, key=secret) as link:
+        link.move(move_of(0))  # (a timeout that a loaded machine's scheduler cannot beat)
         texts = [repr(link.key), repr(sim.key), str(link.__dict__), str(sim.__dict__)]
     with ControllerLink(sim.address, timeout=0.02, retries=0, key=secret) as link:
         with pytest.raises(LinkTimeoutError) as e:
@@ -195,8 +204,22 @@ def test_a_version_1_client_is_answered_in_version_1():
             finally:
                 raw.close()
     assert [e.move for e in sim.executed] == [move_of(0).for_version(1)] == [res.move]
-    with pytest.raises(ValueError, match="needs protocol version 2 or 3"):
+    with pytest.raises(ValueError, match="needs protocol version 2 or later"):
         ControllerLink(("127.0.0.1", 9), key=KEY, version=1)
+
+
+def test_a_version_3_client_moves_with_a_u32_session():
+    """A version-4 controller answers a version-3 client in version 3: a u32 session id
+    (no boot in it), u32 nonces, the n-camera moves."""
+    with ControllerSimulator(time_scale=0.001, key=KEY) as sim, \
+            ControllerLink(sim.address, timeout=0.1, retries=3, key=KEY, version=3) as link:
+        res = link.move(move_of(3))
+        assert res.version == 3 and 0 < link.session < 2**32 and link.boot == sim.boot
+        sim.restart()
+        with pytest.raises(ControllerRestarted):  # its old session is unknown to the new boot: unrun
+            link.move(move_of(4))
+        assert link.move(move_of(5)).seq == 1
+    assert [e.move for e in sim.executed] == [move_of(3), move_of(5)]
 
 
 def test_a_version_2_client_moves_the_thesis_rig_as_before():
@@ -214,3 +237,104 @@ def test_a_version_2_client_moves_the_thesis_rig_as_before():
         with pytest.raises(ValueError, match="protocol version 2 moves at most 2 cameras"):
             link.move(Move(move_of(2).cameras * 2, 0.0))
     assert [e.move for e in sim.executed] == [res.move] and sim.executed[0].reply.reached == res.reached
+
+
+# ---------------------------------------------------------------- replays
+class Recorder:
+    """A UDP relay between one client and the controller that keeps every datagram the
+    client sent: what anyone on the network path could record."""
+
+    def __init__(self, controller):
+        self.controller, self.sent = controller, []
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.settimeout(0.05)
+        self.address, self.client = self.sock.getsockname(), None
+        self.stop = threading.Event()
+        self.thread = threading.Thread(target=self.relay, daemon=True)
+        self.thread.start()
+
+    def relay(self):
+        while not self.stop.is_set():
+            try:
+                data, peer = self.sock.recvfrom(2048)
+            except (socket.timeout, OSError):
+                continue
+            if peer == self.controller:
+                self.sock.sendto(data, self.client)
+            else:
+                self.client = peer
+                self.sent.append(data)
+                self.sock.sendto(data, self.controller)
+
+    def close(self):
+        self.stop.set()
+        self.thread.join(timeout=2.0)
+        self.sock.close()
+
+
+def replay(address, recorded):
+    """Send recorded datagrams from a new address, one at a time; the answers to each."""
+    other = Stranger(address)
+    try:
+        answers = []
+        for data in recorded:
+            other.sock.sendto(data, address)
+            answers.append(other.replies(0.1, KEY))
+        return answers
+    finally:
+        other.close()
+
+
+def test_a_recorded_keyed_session_replayed_after_a_restart_moves_nothing_and_is_refused_with_the_reason():
+    """A keyed client's HELLO and two MOVEs, recorded, then replayed from another address to
+    the controller restarted (a new process, same seed, same key).  The session ids repeated
+    across restarts and the tag covered no boot: WELCOME, then both moves ran again."""
+    with ControllerSimulator(time_scale=0.001, key=KEY, seed=5) as sim:
+        relay = Recorder(sim.address)
+        try:
+            with ControllerLink(relay.address, timeout=0.1, retries=3, key=KEY) as link:
+                link.move(move_of(1))
+                link.move(move_of(2))
+                session, boot = link.session, link.boot
+        finally:
+            relay.close()
+        recorded = list(relay.sent)
+    assert len(recorded) == 3 and [e.move for e in sim.executed] == [move_of(1), move_of(2)]
+    with ControllerSimulator(time_scale=0.001, key=KEY, seed=5) as again:
+        (welcome,), *moves = replay(again.address, recorded)
+        assert welcome.type == MsgType.WELCOME and welcome.session != session  # ids are never issued again
+        for (rejected,) in moves:
+            assert rejected.type == MsgType.REJECTED and rejected.payload.code == RejectCode.UNKNOWN_SESSION
+            assert rejected.payload.reason == (
+                f"session {session:016x} is of boot {boot:08x}; this controller booted as {again.boot:08x} "
+                f"(it restarted since, or the request is a replay): not executed")
+        assert again.executed == [] and again.stats["other_boot"] == 2
+        # restarted in place, too: the old session's requests are refused the same way
+        again.restart()
+        for (rejected,) in replay(again.address, recorded[1:]):
+            assert rejected.payload.code == RejectCode.UNKNOWN_SESSION and "replay" in rejected.payload.reason
+        assert again.executed == []
+
+
+def test_a_replayed_hello_within_a_boot_is_dropped_and_takes_no_session():
+    """Within a boot a recorded version-4 HELLO is a used nonce: from another address it is
+    dropped, unanswered, though the client's session is idle (idle timeout 0); from the
+    client's own address it is the retransmission of the last HELLO and gets the same
+    WELCOME (the same session: nothing changes).  The recorded MOVE from another address
+    is ignored (the session is bound to the client's)."""
+    with ControllerSimulator(time_scale=0.001, key=KEY, session_idle_s=0.0) as sim:
+        relay = Recorder(sim.address)
+        try:
+            with ControllerLink(relay.address, timeout=0.1, retries=3, key=KEY) as link:
+                link.move(move_of(1))
+                hello, move = relay.sent
+                assert replay(sim.address, [hello, move]) == [[], []]
+                relay.sock.sendto(hello, sim.address)  # from the client's own address (the relay's)
+                time.sleep(0.1)
+                assert link.move(move_of(2)).seq == 2 and link.stats["session_closed"] == 0
+        finally:
+            relay.close()
+    assert [e.move for e in sim.executed] == [move_of(1), move_of(2)]
+    assert sim.stats["hello_replay"] == 1 and sim.stats["hello_repeat"] == 1 and sim.stats["hello"] == 1
+    assert sim.stats["wrong_address"] == 1

@@ -24,12 +24,24 @@ lens cap, camera still starting), is retried up to ``retries`` times; then a
 stream dropped) the error is a :class:`CameraLostError`, and
 :meth:`VideoCamera.reconnect` reopens the device (``HardwareRig.capture``
 does so with a bounded backoff, ``[[camera]] reconnect_s``).
+
+Every read of a :class:`VideoCamera` is bounded: ``VideoCapture.read`` runs on
+a thread of its own and is waited for at most ``read_timeout_s`` seconds
+(:data:`READ_TIMEOUT_S`, 5 s; ``[[camera]] read_timeout_s``).  A read that
+does not return in time is abandoned with its capture (released once it
+returns, if ever) and is a :class:`CameraLostError` naming the source and the
+timeout, so the rig reopens the device.  A read that raises (whatever the
+exception), returns no ``(ok, frame)`` pair, returns ``ok`` false, no frame or
+an empty one is *no frame*: retried, then one :class:`CameraLostError` line
+naming the source and what the last read returned.
 """
 
 from __future__ import annotations
 
 import glob
+import math
 import os
+import threading
 from typing import Any, Callable, Protocol, runtime_checkable
 
 import cv2
@@ -43,7 +55,12 @@ __all__ = [
     "ImageSequenceCamera",
     "to_gray",
     "IMAGE_SUFFIXES",
+    "READ_TIMEOUT_S",
 ]
+
+#: Default bound (seconds) on one ``VideoCapture.read`` (a camera delivers a frame in
+#: well under a second; a network stream may take a few)
+READ_TIMEOUT_S = 5.0
 
 IMAGE_SUFFIXES = (".png", ".pgm", ".ppm", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 
@@ -135,6 +152,50 @@ class _Retrying:
         raise error(f"source {self._name()}: no usable frame after {self.retries + 1} attempts: {why}")
 
 
+class _Read:
+    """One ``capture.read()`` on a daemon thread of its own, so that the caller can wait
+    for it a bounded time; a read given up on releases its capture when it returns."""
+
+    def __init__(self, capture: Any):
+        self.capture = capture
+        self.value: Any = None
+        self.error: BaseException | None = None
+        self.finished = threading.Event()
+        self._lock = threading.Lock()
+        self._abandoned = False
+        threading.Thread(target=self._run, name="camera-read", daemon=True).start()
+
+    def _run(self) -> None:
+        try:
+            self.value = self.capture.read()
+        except BaseException as e:  # noqa: BLE001 - reported to the caller as no frame
+            self.error = e
+        with self._lock:
+            self.finished.set()
+            abandoned = self._abandoned
+        if abandoned:
+            _release_quietly(self.capture)
+
+    def abandon(self) -> None:
+        """Nobody waits any more: release the capture now if the read is over, else when it returns."""
+        with self._lock:
+            self._abandoned = not self.finished.is_set()
+        if not self._abandoned:
+            _release_quietly(self.capture)
+
+
+def _release_quietly(capture: Any) -> None:
+    try:
+        capture.release()
+    except Exception:  # noqa: BLE001 - a capture given up on: nothing left to report to
+        pass
+
+
+def _first_line(e: BaseException) -> str:
+    text = (str(e).strip().splitlines() or [""])[0][:200]
+    return f"{type(e).__name__}: {text}" if text else type(e).__name__
+
+
 class VideoCamera(_Retrying):
     """An OpenCV ``VideoCapture`` camera.
 
@@ -143,6 +204,7 @@ class VideoCamera(_Retrying):
         image_shape: (H, W) of the images returned.
         retries: extra attempts after a failed or black frame.
         black_level: a frame whose maximum is at or below this is "black".
+        read_timeout_s: the longest one ``VideoCapture.read`` is waited for.
         capture_factory: builds the capture object (tests pass a fake).
     """
 
@@ -153,10 +215,14 @@ class VideoCamera(_Retrying):
         image_shape: tuple[int, int] = (120, 160),
         retries: int = 3,
         black_level: int = 0,
+        read_timeout_s: float = READ_TIMEOUT_S,
         capture_factory: Callable[[Any], Any] = cv2.VideoCapture,
     ):
         if retries < 0:
             raise ValueError(f"retries must be >= 0, got {retries}")
+        if not (read_timeout_s > 0 and math.isfinite(read_timeout_s)):
+            raise ValueError(f"read_timeout_s must be > 0 seconds, got {read_timeout_s}")
+        self.read_timeout_s = float(read_timeout_s)
         self.source = source
         self.image_shape = _check_shape(image_shape)
         self.retries = int(retries)
@@ -188,12 +254,22 @@ class VideoCamera(_Retrying):
             if self._closed:
                 raise CameraError(f"video source {self.source!r} is closed")
             raise CameraLostError(f"video source {self.source!r} is not open (the last reopen failed)")
-        try:
-            ok, frame = self._cap.read()
-        except cv2.error as e:
-            return None, f"VideoCapture.read raised {e}"
+        read = _Read(self._cap)
+        if not read.finished.wait(self.read_timeout_s):
+            self._cap = None  # it may never return: the capture goes with it, reopen the device
+            read.abandon()
+            raise CameraLostError(f"video source {self.source!r}: VideoCapture.read did not return within "
+                                  f"read_timeout_s = {self.read_timeout_s:g} s; the capture was abandoned")
+        if read.error is not None:
+            return None, f"VideoCapture.read raised {_first_line(read.error)}"
+        value = read.value
+        if not (isinstance(value, (tuple, list)) and len(value) == 2):
+            return None, f"VideoCapture.read returned {type(value).__name__}, not (ok, frame)"
+        ok, frame = value
         if not ok or frame is None:
             return None, "VideoCapture.read returned no frame"
+        if not isinstance(frame, np.ndarray) or frame.size == 0:
+            return None, f"VideoCapture.read returned an empty frame ({getattr(frame, 'shape', type(frame).__name__)})"
         return frame, ""
 
     def _release(self) -> None:

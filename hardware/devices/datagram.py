@@ -1,24 +1,28 @@
 """Versioned binary datagrams between the vision PC and the motion controller (thesis §6.6).
 
 Wire format (network byte order; full description in ``docs/protocol.md``),
-version 3::
+version 4::
 
     offset size field
     0      2    magic          b"JR"
-    2      1    version        3
+    2      1    version        4
     3      1    type           MsgType
-    4      4    session        u32, issued by the controller (WELCOME)
-    8      4    seq            u32, one per move; retransmissions reuse it
-    12     2    payload_len    u16
-    14     1    flags          bit 0: an HMAC-SHA256 tag follows the payload
-    15     n    payload        depends on type
-    15+n   t    tag            t = 32 with flag bit 0 (HMAC-SHA256 of bytes 0 .. 14+n
+    4      8    session        u64, issued by the controller (WELCOME): the
+                               controller's boot id (u32, random per start) in the
+                               high half, a random u32 in the low half
+    12     4    seq            u32, one per move; retransmissions reuse it
+    16     2    payload_len    u16
+    18     1    flags          bit 0: an HMAC-SHA256 tag follows the payload
+    19     n    payload        depends on type
+    19+n   t    tag            t = 32 with flag bit 0 (HMAC-SHA256 of bytes 0 .. 18+n
                                under the shared key), else 0
-    15+n+t 4    crc32          zlib.crc32 of every byte before it
+    19+n+t 4    crc32          zlib.crc32 of every byte before it
 
-Version 2 (still decoded, and encoded for a ``Datagram`` of version 2) has the
-same envelope and the thesis rig's two-camera moves; version 1 in addition has
-no flags byte and no tag: the payload starts at offset 14.
+Versions 1-3 are still decoded (and encoded for a ``Datagram`` of that
+version): version 3 has a u32 session (offsets 4-7; seq at 8, payload_len at
+12, flags at 14, payload from 15) and u32 nonces; version 2 in addition the
+thesis rig's two-camera moves; version 1 in addition no flags byte and no tag:
+the payload starts at offset 14.
 
 Payloads (IEEE-754 doubles, radians and metres).  A *move* is, in version 3,
 the camera count n (u8, at most :data:`MAX_CAMERAS`), then (pan, tilt) of
@@ -33,12 +37,14 @@ pan and tilt, camera-2 pan and the turn-table angle (4 d).
   capture signal
 * ``REJECTED``    controller -> client: the move echoed, code (u16), UTF-8 reason
 * ``PING`` / ``PONG``: empty
-* ``HELLO``       client -> controller: nonce (u32); header session 0, seq 0
-* ``WELCOME``     controller -> client: the nonce echoed (u32), the controller's
-  boot id (u32); the header's session is the new session id the controller
-  issued, seq 0
+* ``HELLO``       client -> controller: nonce (u64; u32 before version 4);
+  header session 0, seq 0
+* ``WELCOME``     controller -> client: the nonce echoed (u64; u32 before
+  version 4), the controller's boot id (u32); the header's session is the new
+  session id the controller issued, seq 0
 * ``REFUSED``     controller -> client (version 2 and later): the HELLO's nonce
-  echoed (u32), code (u16), UTF-8 reason -- no session was opened
+  echoed (u64; u32 before version 4), code (u16), UTF-8 reason -- no session
+  was opened
 
 A :class:`SharedKey` given to :func:`encode` tags the datagram; given to
 :func:`decode`, only datagrams with the right tag decode
@@ -46,7 +52,7 @@ A :class:`SharedKey` given to :func:`encode` tags the datagram; given to
 key never appears in a ``repr``, a message or a log line.
 
 :func:`decode` raises :class:`DatagramError` -- and nothing else -- for any
-input that is not a well-formed datagram of version 1, 2 or 3.
+input that is not a well-formed datagram of version 1, 2, 3 or 4.
 """
 
 from __future__ import annotations
@@ -85,11 +91,12 @@ __all__ = [
     "Refused",
     "encode",
     "decode",
+    "session_boot",
 ]
 
 MAGIC = b"JR"
-VERSION = 3  # what this end sends
-VERSIONS = (1, 2, 3)  # what it decodes
+VERSION = 4  # what this end sends
+VERSIONS = (1, 2, 3, 4)  # what it decodes
 MAX_DATAGRAM = 512
 MAX_CAMERAS = 8  # cameras of a version-3 move (an IN_POSITION of 8 is 388 bytes with a tag)
 FLAG_HMAC = 0x01
@@ -97,14 +104,16 @@ TAG_SIZE = 32  # HMAC-SHA256
 
 _HEADER_V1 = struct.Struct("!2sBBIIH")
 _HEADER_V2 = struct.Struct("!2sBBIIHB")  # + flags
-_HEADERS = {1: _HEADER_V1, 2: _HEADER_V2, 3: _HEADER_V2}
+_HEADER_V4 = struct.Struct("!2sBBQIHB")  # u64 session
+_HEADERS = {1: _HEADER_V1, 2: _HEADER_V2, 3: _HEADER_V2, 4: _HEADER_V4}
 _CRC = struct.Struct("!I")
 _MOVE_V2 = struct.Struct("!4d")  # camera-1 pan, tilt, camera-2 pan, turn-table
 _D = struct.Struct("!d")
 _CODE = struct.Struct("!H")
-_HELLO = struct.Struct("!I")
-_WELCOME = struct.Struct("!II")
-_REFUSED = struct.Struct("!IH")
+# HELLO, WELCOME, REFUSED: before version 4 (u32 nonce), from version 4 on (u64 nonce)
+_HELLO = {3: struct.Struct("!I"), 4: struct.Struct("!Q")}
+_WELCOME = {3: struct.Struct("!II"), 4: struct.Struct("!QI")}
+_REFUSED = {3: struct.Struct("!IH"), 4: struct.Struct("!QH")}
 _MAX_REASON = 200
 
 
@@ -158,8 +167,16 @@ class SharedKey:
 
     @classmethod
     def from_file(cls, path: str | os.PathLike) -> "SharedKey":
-        """The bytes of a file, a trailing newline (LF or CR LF) dropped."""
+        """The bytes of a file, a trailing newline (LF or CR LF) dropped.
+
+        On POSIX the file must be its owner's only (mode 0600 or 0400): one that grants
+        its group or others any access is refused (``ValueError``), since anyone who
+        can read the key can move the rig, and anyone who can write it can lock it out."""
         with open(path, "rb") as f:
+            mode = os.fstat(f.fileno()).st_mode
+            if os.name == "posix" and mode & 0o077:
+                raise ValueError(f"the key file is open to its group or others (mode {mode & 0o777:04o}); "
+                                 f"a shared key must be its owner's only: chmod 600 it")
             data = f.read(4097)
         if len(data) > 4096:
             raise ValueError("a shared key file holds at most 4096 bytes")
@@ -347,18 +364,18 @@ def _pack_payload(dg: Datagram) -> bytes:
         raise DatagramError(f"{dg.type.name} needs a {_PAYLOAD_TYPE[dg.type].__name__} payload, got {type(p).__name__}")
     if p is None:
         return b""
+    wide = 4 if dg.version >= 4 else 3
+    if isinstance(p, (Hello, Welcome, Refused)):
+        _uint(p.nonce, _nonce_bits(dg.version), f"{dg.type.name} nonce")
     if isinstance(p, Hello):
-        _u32(p.nonce, "HELLO nonce")
-        return _HELLO.pack(p.nonce)
+        return _HELLO[wide].pack(p.nonce)
     if isinstance(p, Welcome):
-        _u32(p.nonce, "WELCOME nonce")
-        _u32(p.boot, "WELCOME boot")
-        return _WELCOME.pack(p.nonce, p.boot)
+        _uint(p.boot, 32, "WELCOME boot")
+        return _WELCOME[wide].pack(p.nonce, p.boot)
     if isinstance(p, Refused):
-        _u32(p.nonce, "REFUSED nonce")
         if not 0 <= p.code <= 0xFFFF:
             raise DatagramError(f"REFUSED code {p.code} does not fit in u16")
-        return _REFUSED.pack(p.nonce, p.code) + _reason(p.reason)
+        return _REFUSED[wide].pack(p.nonce, p.code) + _reason(p.reason)
     name = dg.type.name
     if isinstance(p, Move):
         return _pack_move(p, dg.version, name)
@@ -378,29 +395,45 @@ def _reason(text: str) -> bytes:
     return text.encode("utf-8")[:_MAX_REASON].decode("utf-8", "ignore").encode("utf-8")
 
 
-def _u32(v: int, what: str) -> None:
-    if not 0 <= v <= 0xFFFFFFFF:
-        raise DatagramError(f"{what} {v} does not fit in u32")
+def _uint(v: int, bits: int, what: str) -> None:
+    if not 0 <= v < 1 << bits:
+        raise DatagramError(f"{what} {v} does not fit in u{bits}")
+
+
+def _session_bits(version: int) -> int:
+    """Bits of the header's session: 64 from version 4 on, 32 before."""
+    return 64 if version >= 4 else 32
+
+
+def _nonce_bits(version: int) -> int:
+    """Bits of a HELLO's nonce: 64 from version 4 on, 32 before."""
+    return 64 if version >= 4 else 32
+
+
+def session_boot(session: int) -> int:
+    """The boot id a version-4 session id carries (its high 32 bits)."""
+    return session >> 32
 
 
 def encode(dg: Datagram, key: SharedKey | None = None) -> bytes:
     """Datagram -> bytes (header, payload, [HMAC tag,] CRC32) in ``dg.version``.
 
     With ``key`` the datagram carries an HMAC-SHA256 tag (version 2 and later)."""
-    for name in ("session", "seq"):
-        _u32(getattr(dg, name), name)
     if dg.version not in VERSIONS:
         raise DatagramError(f"unsupported protocol version {dg.version} (this end speaks {VERSIONS})")
+    _uint(dg.session, _session_bits(dg.version), f"version-{dg.version} session")
+    _uint(dg.seq, 32, "seq")
     if dg.version == 1 and dg.type not in _V1_TYPES:
         raise DatagramError(f"{dg.type.name} does not exist in protocol version 1")
     payload = _pack_payload(dg)
     if dg.version == 1:
         if key is not None:
-            raise DatagramError("protocol version 1 carries no HMAC tag: an authenticated link needs version 2 or 3")
+            raise DatagramError("protocol version 1 carries no HMAC tag: an authenticated link needs version 2 or later")
         body = _HEADER_V1.pack(MAGIC, 1, int(dg.type), dg.session, dg.seq, len(payload)) + payload
     else:
         flags = FLAG_HMAC if key is not None else 0
-        body = _HEADER_V2.pack(MAGIC, dg.version, int(dg.type), dg.session, dg.seq, len(payload), flags) + payload
+        header = _HEADERS[dg.version]
+        body = header.pack(MAGIC, dg.version, int(dg.type), dg.session, dg.seq, len(payload), flags) + payload
         if key is not None:
             body += key.tag(body)
     if len(body) + _CRC.size > MAX_DATAGRAM:
@@ -455,13 +488,14 @@ def _unpack_payload(t: MsgType, raw: bytes, version: int) -> Payload:
         if raw:
             raise DatagramError(f"{t.name} carries no payload, got {len(raw)} bytes")
         return None
+    wide = 4 if version >= 4 else 3
     if t == MsgType.HELLO:
-        return Hello(*need(_HELLO))
+        return Hello(*need(_HELLO[wide]))
     if t == MsgType.WELCOME:
-        return Welcome(*need(_WELCOME))
+        return Welcome(*need(_WELCOME[wide]))
     if t == MsgType.REFUSED:
-        nonce, code = need(_REFUSED, exact=False)
-        return Refused(nonce, code, _unpack_reason(t, raw[_REFUSED.size:]))
+        nonce, code = need(_REFUSED[wide], exact=False)
+        return Refused(nonce, code, _unpack_reason(t, raw[_REFUSED[wide].size:]))
     if t == MsgType.MOVE:
         return _unpack_move(t, raw, version, (0, 0))[0]
     if t == MsgType.MOVING:
@@ -488,7 +522,7 @@ def _unpack_reason(t: MsgType, raw: bytes) -> str:
 
 
 def decode(data: bytes, key: SharedKey | None = None) -> Datagram:
-    """bytes -> Datagram (version 1, 2 or 3); raises :class:`DatagramError` for anything malformed.
+    """bytes -> Datagram (version 1, 2, 3 or 4); raises :class:`DatagramError` for anything malformed.
 
     With ``key`` only a version-2 datagram carrying the right HMAC tag decodes;
     without, a tagged one does not (:class:`DatagramAuthError` for both)."""

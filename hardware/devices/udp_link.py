@@ -45,9 +45,18 @@ Shared key.  With ``key`` (a :class:`.datagram.SharedKey`) every datagram the
 link sends carries an HMAC-SHA256 tag and every reply without the right tag
 is dropped and counted (``stats["unauthenticated"]``); a controller with the
 same key does the same, so nobody without the key can move the rig or take
-its session.  The key is never logged.  ``version=2`` talks to a controller
-that speaks only protocol version 2 (the thesis rig's two cameras), ``version=1``
-to one of version 1 (no sessions bound to addresses, no key).
+its session.  The key is never logged.  ``version=3`` talks to a controller
+that speaks only protocol version 3, ``version=2`` to one of version 2 (the
+thesis rig's two cameras), ``version=1`` to one of version 1 (no sessions
+bound to addresses, no key).
+
+Replays (protocol version 4).  The controller's session ids carry its boot id
+(random per start) in their high 32 bits, under the HMAC tag with every
+request, and are never issued twice; the HELLO nonce is a random u64.  A
+recorded datagram replayed after a controller restart names a session of
+another boot and is rejected unrun; replayed within a boot it is a stale seq
+or a session bound to another address (ignored), and a replayed HELLO is
+dropped (its nonce was used).
 """
 
 from __future__ import annotations
@@ -56,7 +65,7 @@ import collections
 import dataclasses
 import logging
 import math
-import random
+import secrets
 import socket
 import time
 from typing import Callable, Sequence
@@ -171,7 +180,7 @@ class ControllerLink:
         max_motion_s: the most seconds ``MOVING`` replies may add to one move's wait.
         key: a :class:`.datagram.SharedKey` (or its bytes): tag every datagram, accept
             only tagged replies.
-        version: the protocol version to speak (3; 2 or 1 for a controller of that version).
+        version: the protocol version to speak (4; 3, 2 or 1 for a controller of that version).
 
     Attributes:
         session: the session id the controller issued (``None`` before the first
@@ -201,7 +210,7 @@ class ControllerLink:
         if isinstance(key, (bytes, bytearray)):
             key = SharedKey(bytes(key))
         if key is not None and version == 1:
-            raise ValueError("a shared key needs protocol version 2 or 3 (version 1 carries no HMAC tag)")
+            raise ValueError("a shared key needs protocol version 2 or later (version 1 carries no HMAC tag)")
         self.key: SharedKey | None = key
         self.version = int(version)
         self.address = (str(address[0]), int(address[1]))
@@ -288,7 +297,7 @@ class ControllerLink:
 
     def _handshake(self) -> None:
         """HELLO -> WELCOME: a new session issued by the controller; seq starts over."""
-        nonce = random.getrandbits(32)
+        nonce = secrets.randbits(64 if self.version >= 4 else 32)
         packet = self._encode(Datagram(MsgType.HELLO, 0, 0, Hello(nonce)))
         dg, _, _ = self._exchange(packet, lambda data: self._classify_welcome(data, nonce), "WELCOME for HELLO")
         if dg.type == MsgType.REFUSED:

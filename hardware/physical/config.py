@@ -21,6 +21,7 @@ import dataclasses
 import math
 import os
 import tomllib
+import urllib.parse
 from typing import Any
 
 from ...problems import one_line
@@ -63,7 +64,9 @@ class PTUConfig:
     and every path matching ``reconnect_glob`` (e.g.
     ``"/dev/serial/by-id/usb-FTDI_*"``) with a bounded backoff for
     ``reconnect_s`` seconds (0: fail at once); ``homing_timeout_s`` bounds
-    the wait for a unit that is still homing after a reset or power-up.
+    the wait for a unit that is still homing after a reset or power-up, and
+    ``max_motion_s`` the wait for one motion, whatever distance and speed the
+    unit reports.
     ``pan_range_deg`` / ``tilt_range_deg`` ([min, max], the unit's own angles)
     bound what the table may ask of it, checked when the file is loaded;
     default: the driver's ``nominal_range_deg`` (the PTU-D46-17.5's +/-158.9
@@ -81,6 +84,7 @@ class PTUConfig:
     reconnect_s: float = 10.0
     reconnect_glob: str = ""
     homing_timeout_s: float = 30.0
+    max_motion_s: float = 120.0  # the PTU-D46 driver's MAX_MOTION_S
     pan_range_deg: tuple[float, float] | None = None
     tilt_range_deg: tuple[float, float] | None = None
 
@@ -90,21 +94,23 @@ class CameraConfig:
     """``kind = "video"``: ``source`` is a device index, file, URL or ``%d`` pattern;
     ``kind = "sequence"``: a folder or glob of image files.  A video camera that
     delivers no frame at all during a capture is reopened for up to
-    ``reconnect_s`` seconds (0: fail at once)."""
+    ``reconnect_s`` seconds (0: fail at once); one read that does not return
+    within ``read_timeout_s`` seconds counts as no frame (the device is reopened)."""
 
     source: int | str = 0
     kind: str = "video"
     retries: int = 3
     black_level: int = 0
     reconnect_s: float = 5.0
+    read_timeout_s: float = 5.0  # the camera module's READ_TIMEOUT_S
 
 
 @dataclasses.dataclass(frozen=True)
 class ControllerConfig:
     """``max_motion_s`` bounds how long ``MOVING`` replies may extend the wait for one move.
 
-    ``protocol_version``: 3 (``docs/protocol.md``), or 2 / 1 for a controller
-    that speaks only that version (the thesis rig's two cameras).  A shared key (HMAC over every datagram) is read
+    ``protocol_version``: 4 (``docs/protocol.md``), or 3 / 2 / 1 for a controller
+    that speaks only that version (2 and 1: the thesis rig's two cameras).  A shared key (HMAC over every datagram) is read
     from the file ``key_file`` (relative to the rig file) or the environment
     variable ``key_env``, when the rig file is loaded, into ``key`` (hidden
     from ``repr``; never a key in the rig file itself)."""
@@ -191,7 +197,7 @@ class RigConfig:
         if not self.controller.max_motion_s > 0:
             raise ConfigError(f"[controller] max_motion_s = {self.controller.max_motion_s!r} must be > 0 seconds")
         if self.controller.key is not None and self.controller.protocol_version == 1:
-            raise ConfigError("[controller]: a shared key (key_file / key_env) needs protocol_version = 2 or 3: "
+            raise ConfigError("[controller]: a shared key (key_file / key_env) needs protocol_version = 2 or later: "
                               "version 1 carries no HMAC tag")
         if not 1 <= n <= MAX_CAMERAS:
             raise ConfigError(f"[table] describes {n} cameras; the controller protocol drives 1 to {MAX_CAMERAS}")
@@ -199,7 +205,7 @@ class RigConfig:
         if version <= 2 and [type(c) for c in self.table.carriers] != [Gantry, Track][:n]:
             kinds = ", ".join(c.kind for c in self.table.carriers)
             raise ConfigError(f"[controller] protocol_version = {version} moves camera 1 on a gantry and camera 2 on a "
-                              f"track; this table's cameras ride {kinds}: set protocol_version = 3")
+                              f"track; this table's cameras ride {kinds}: set protocol_version = 3 or 4")
         if self.kind == "hardware":
             if len(self.ptus) != n:
                 raise ConfigError(f"{len(self.ptus)} [[ptu]] entries for {n} cameras: give one per camera")
@@ -393,18 +399,18 @@ _PROBABILITY = _Number(0, 1)
 _RULES: dict[type, dict[str, Any]] = {
     ControllerConfig: {
         "port": _Number(0, 65535, integer=True), "timeout_s": _SECONDS, "retries": _Number(0, 10_000, integer=True),
-        "max_motion_s": _LONG_SECONDS, "protocol_version": _Choice((1, 2, 3)),
+        "max_motion_s": _LONG_SECONDS, "protocol_version": _Choice((1, 2, 3, 4)),
     },
     PTUConfig: {
         "baudrate": _Number(0, 10_000_000, lo_open=True, integer=True), "timeout_s": _SECONDS,
         "pan_zero_deg": _Number(-360, 360, unit=" degrees"), "tilt_zero_deg": _Number(-180, 180, unit=" degrees"),
         "pan_sign": _Choice((1, -1)), "speed_deg_s": _Number(0, 100_000, lo_open=True, unit=" degrees/s"),
         "reconnect_s": _Number(0, 86400, unit=_S), "homing_timeout_s": _LONG_SECONDS,
-        "pan_range_deg": _Range(-360, 360, unit=" degrees"), "tilt_range_deg": _Range(-180, 180, unit=" degrees"),
+        "max_motion_s": _SECONDS, "pan_range_deg": _Range(-360, 360, unit=" degrees"), "tilt_range_deg": _Range(-180, 180, unit=" degrees"),
     },
     CameraConfig: {
         "retries": _Number(0, 1000, integer=True), "black_level": _Number(0, 255, integer=True),
-        "reconnect_s": _Number(0, 86400, unit=_S),
+        "reconnect_s": _Number(0, 86400, unit=_S), "read_timeout_s": _SECONDS,
     },
     SimulationConfig: {"seed": _Number(-2**63, 2**63 - 1, integer=True), "time_scale": _Number(0, 1000)},
     LinkFaults: {
@@ -466,15 +472,38 @@ def _shared_key(c: ControllerConfig, base_dir: str | os.PathLike) -> SharedKey |
     return None
 
 
+#: pyserial URLs that open the port written after them, adding something (a log, another class)
+_WRAPPING_URLS = ("spy", "alt")
+#: pyserial URLs of a serial port served over the network at HOST:PORT
+_NETWORK_URLS = ("rfc2217", "socket")
+
+
 def _device(port: str) -> str:
     """What a serial port names, for comparing two ports: a local path resolved through its
-    links (``/dev/serial/by-id/...`` -> ``/dev/ttyUSB0``), a URL as written."""
-    if "://" in port:
-        return port
-    try:
-        return os.path.realpath(port)
-    except (OSError, ValueError):
-        return port
+    links (``/dev/serial/by-id/...`` -> ``/dev/ttyUSB0``); ``spy://`` and ``alt://`` stripped
+    to the port they wrap (``spy:///dev/ttyUSB0`` is ``/dev/ttyUSB0``); ``rfc2217://`` and
+    ``socket://`` as scheme, lowercased host and port, options dropped (``rfc2217://HOST:7001``
+    is ``rfc2217://host:7001``); any other URL as written, scheme lowercased."""
+    scheme, sep, rest = port.partition("://")
+    if not sep:
+        try:
+            return os.path.realpath(port)
+        except (OSError, ValueError):
+            return port
+    scheme = scheme.lower()
+    rest = rest.split("?", 1)[0]  # pyserial's options (?logging=debug, ?class=...) name no other device
+    if scheme in _WRAPPING_URLS:
+        return _device(rest)
+    if scheme in _NETWORK_URLS:
+        try:
+            parts = urllib.parse.urlsplit("//" + rest.split("/", 1)[0])
+            host, number = parts.hostname, parts.port
+        except ValueError:
+            host = number = None
+        if host:
+            host = host.rstrip(".")
+            return f"{scheme}://{f'[{host}]' if ':' in host else host}:{number}"
+    return f"{scheme}://{rest}"
 
 
 def _ranges(mount: PTUConfig) -> tuple[tuple[float, float], tuple[float, float]] | None:

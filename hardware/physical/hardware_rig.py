@@ -160,8 +160,11 @@ class HardwareRig:
             if cameras is None:
                 cameras = []
                 for c in config.cameras:
-                    cls = VideoCamera if c.kind == "video" else ImageSequenceCamera
-                    cam = cls(c.source, image_shape=config.image_shape, retries=c.retries, black_level=c.black_level)
+                    common = dict(image_shape=config.image_shape, retries=c.retries, black_level=c.black_level)
+                    if c.kind == "video":
+                        cam = VideoCamera(c.source, read_timeout_s=c.read_timeout_s, **common)
+                    else:
+                        cam = ImageSequenceCamera(c.source, **common)
                     self._opened.append(cam)
                     cameras.append(cam)
             self.cameras = list(cameras)

@@ -12,21 +12,28 @@ sends ``IN_POSITION`` with the achieved positions (quantised to the encoders:
 track's y in versions 1-2.  Moves that take longer than ``moving_after_s``
 are first acknowledged with ``MOVING``.
 
-Sessions (protocol version 2, ``docs/protocol.md``).  A ``HELLO`` opens a
-session bound to the address (host, port) it came from: the controller issues
-a new session id (answering a repeated HELLO -- same nonce, same address --
-with the same ``WELCOME``) and retires the one before.  While a session is
-*live* -- a request of it arrived, or its move ran, less than
-``session_idle_s`` ago -- a HELLO from any other address is answered
-``REFUSED(SESSION_BUSY)`` and changes nothing; after that a new client may
-take over.  Requests of a session from any address but its own are ignored.
+Sessions (protocol version 2 and later, ``docs/protocol.md``).  A ``HELLO``
+opens a session bound to the address (host, port) it came from: the
+controller issues a new session id (answering a repeated HELLO -- same nonce,
+same address -- with the same ``WELCOME``) and retires the one before.  Boot
+ids and session ids come from the operating system's random source
+(:mod:`secrets`), never from ``seed``: a controller that restarts must not
+issue an id again.  A version-4 session id is the boot id (high 32 bits) and
+a random u32; a version-1-3 one a random u32.  While a session is *live* -- a
+request of it arrived, or its move ran, less than ``session_idle_s`` ago; a
+session nobody has used yet is not live -- a HELLO from any other address is
+answered ``REFUSED(SESSION_BUSY)`` and changes nothing; after that a new
+client may take over.  A version-4 HELLO whose nonce already opened a session
+since this boot (other than a retransmission of the last one) is a replay:
+dropped unanswered (``hello_replay``).  Requests of a session from any address but its own are ignored.
 Per session, a MOVE with the sequence number already executed is answered
 from a cache (idempotent), an older one is ignored (it must never move the
 rig backwards), and a newer one is a new move.  A MOVE (or PING) of a retired
 session, from its address, is answered ``REJECTED(SESSION_CLOSED)`` and not
 executed, so its client knows to open a new session; one of a session this
 controller never issued is answered ``REJECTED(UNKNOWN_SESSION)`` and not
-executed.  With ``key`` every datagram without the right HMAC tag (version-1
+executed -- for a version-4 session of another boot, with a reason naming
+both boot ids (``other_boot``: a request from before a restart, or a replay).  With ``key`` every datagram without the right HMAC tag (version-1
 ones included) is dropped unanswered (``unauthenticated``).  Replies go out
 in the protocol version of the request; a version-1 HELLO that is refused
 gets no answer (version 1 has no ``REFUSED``).
@@ -62,8 +69,10 @@ executed or rejected), ``repeat`` (the seq just executed: answered from the
 cache), ``stale`` (an older seq: ignored), ``retired`` (a retired session:
 ignored), ``unknown_session`` (rejected, not executed), ``hello`` /
 ``hello_repeat`` (sessions opened / WELCOMEs resent), ``hello_refused``
-(another address's session was live), ``takeover`` (a session opened from a
-new address after the last one went idle), ``wrong_address`` (a request of a
+(another address's session was live), ``hello_replay`` (a version-4 HELLO
+whose nonce was used before, dropped), ``takeover`` (a session opened from a
+new address after the last one went idle), ``other_boot`` (a version-4
+request of a session of another boot; also counted ``unknown_session``), ``wrong_address`` (a request of a
 session from another address: ignored), ``unauthenticated``, ``restart``,
 ``request_down`` (arrived while restarting: lost), ``duplicate_copy`` (the
 extra copy of a duplicated request, handled like any other).
@@ -77,16 +86,19 @@ import heapq
 import ipaddress
 import math
 import random
+import secrets
 import socket
 import threading
 import time
 
 from ..devices.datagram import VERSION, Datagram, DatagramAuthError, DatagramError, Hello, InPosition, Move, Moving
 from ..devices.datagram import MsgType, Refused, Rejected, RejectCode, SharedKey, Welcome, decode, encode, no_move
+from ..devices.datagram import session_boot
 from ..geometry.kinematics import Gantry, Track, Workspace, WorkspaceError
 
 __all__ = ["LinkFaults", "ControllerSimulator", "ExecutedMove"]
 
+NONCE_WINDOW = 4096  # version-4 HELLO nonces remembered per boot (replays of them are dropped)
 TURNTABLE_COUNTS = 20000  # encoder counts per revolution (thesis §6.3)
 LINEAR_RESOLUTION_M = 1e-5
 
@@ -179,8 +191,8 @@ class ControllerSimulator:
         self.executed: list[ExecutedMove] = []
         self.received = 0
         self.boots = 0  # restarts so far
-        self._draws: collections.Counter[str] = collections.Counter()
-        self.boot = self._draw("boot")
+        self.boot = self._new_boot()
+        self._nonces: collections.OrderedDict[int, None] = collections.OrderedDict()  # version-4 HELLOs this boot
         self._session: int | None = None
         self._issued: dict[int, tuple] = {}  # session -> its client's address, issued since this boot
         self._welcome: tuple[int, tuple, Datagram] | None = None  # (nonce, address, WELCOME) of the last HELLO
@@ -214,11 +226,19 @@ class ControllerSimulator:
     def __exit__(self, *exc) -> None:
         self.close()
 
-    def _draw(self, what: str) -> int:
-        """A seeded u32 (boot ids, session ids) that is never 0."""
-        n = self._draws[what]
-        self._draws[what] += 1
-        return random.Random(f"{self.seed}|{what}|{self.boots}|{n}").getrandbits(32) or 1
+    @staticmethod
+    def _new_boot() -> int:
+        """A boot id: a random u32, never 0, from the OS (not the seed: it must differ after a restart)."""
+        return secrets.randbits(32) or 1
+
+    def _new_session(self, version: int) -> int:
+        """A session id never issued before: version 4, this boot's id and a random u32;
+        versions 1-3, a random u32 (never 0, none issued since this boot)."""
+        while True:
+            low = secrets.randbits(32)
+            session = (self.boot << 32 | low) if version >= 4 else low
+            if low and session not in self._issued:
+                return session
 
     def restart(self, down_s: float = 0.0) -> None:
         """Reboot now: new boot id; sessions, cache and queued datagrams are lost; deaf for ``down_s`` s."""
@@ -227,8 +247,11 @@ class ControllerSimulator:
 
     def _restart(self, down_s: float) -> None:
         self.boots += 1
-        self.boot = self._draw("boot")
+        old, self.boot = self.boot, self._new_boot()
+        while self.boot == old:
+            self.boot = self._new_boot()
         self._session, self._issued, self._welcome = None, {}, None
+        self._nonces.clear()
         self._last_seq, self._cache = 0, None
         self._queue.clear()
         self._inbox.clear()
@@ -256,7 +279,8 @@ class ControllerSimulator:
     def _fault_rng(self, direction: str, data: bytes) -> random.Random:
         """The generator deciding the fate of this copy of ``data``: seeded with
         (seed, direction, type, seq, how many copies of that type and seq came before)."""
-        ident = data[3:4] + data[8:12] if len(data) >= 12 else data
+        at = 12 if len(data) > 2 and data[2] >= 4 else 8  # where seq starts (version 4: after a u64 session)
+        ident = data[3:4] + data[at:at + 4] if len(data) >= at + 4 else data
         key = (direction, ident)
         if len(self._occurrences) > 100_000:  # bound the memory of a long run
             self._occurrences.clear()
@@ -363,9 +387,10 @@ class ControllerSimulator:
     _version = VERSION  # the version of the request being answered
 
     def _live(self) -> bool:
-        """A session is open and was used (or its move ran) less than ``session_idle_s`` ago."""
-        last = max(self._active, self._busy_until)
-        return self._session is not None and time.monotonic() - last < self.session_idle_s
+        """A session is open, has been used, and was used (or its move ran) less than ``session_idle_s`` ago."""
+        if self._session is None or self._active == -math.inf:  # never used: holds nothing
+            return False
+        return time.monotonic() - max(self._active, self._busy_until) < self.session_idle_s
 
     def _session_reject(self, dg: Datagram, peer: tuple) -> bool:
         """Deal with a request that is not of the current session from its own address.
@@ -388,6 +413,10 @@ class ControllerSimulator:
             return True
         self.stats["unknown_session"] += 1  # issued before a restart, or never: do not run it
         reason = "unknown session (the controller restarted, or no HELLO)"
+        if dg.version >= 4 and session_boot(dg.session) != self.boot:
+            self.stats["other_boot"] += 1
+            reason = (f"session {dg.session:016x} is of boot {session_boot(dg.session):08x}; this controller booted "
+                      f"as {self.boot:08x} (it restarted since, or the request is a replay): not executed")
         self._send(Datagram(MsgType.REJECTED, dg.session, dg.seq,
                             Rejected(move, RejectCode.UNKNOWN_SESSION, reason)), peer)
         return True
@@ -445,6 +474,9 @@ class ControllerSimulator:
             self.stats["hello_repeat"] += 1  # a retransmitted HELLO: the same session, not another
             self._send(self._welcome[2], peer)
             return
+        if dg.version >= 4 and hello.nonce in self._nonces:
+            self.stats["hello_replay"] += 1  # its nonce opened a session before: a replay, never a new one
+            return
         holder = self._issued.get(self._session) if self._session is not None else None
         if holder is not None and holder != peer:
             if self._live():
@@ -456,12 +488,14 @@ class ControllerSimulator:
                                peer)
                 return
             self.stats["takeover"] += 1
-        session = self._draw("session")
-        while session in self._issued:
-            session = self._draw("session")
+        session = self._new_session(dg.version)
         self._issued[session] = peer
         self._session, self._last_seq, self._cache = session, 0, None  # the one before is retired
-        self._active = time.monotonic()
+        self._active = -math.inf  # live only once a request of it arrives (a replayed HELLO holds nothing)
+        if dg.version >= 4:
+            self._nonces[hello.nonce] = None
+            while len(self._nonces) > NONCE_WINDOW:
+                self._nonces.popitem(last=False)
         welcome = Datagram(MsgType.WELCOME, session, 0, Welcome(hello.nonce, self.boot))
         self._welcome = (hello.nonce, peer, welcome)
         self.stats["hello"] += 1

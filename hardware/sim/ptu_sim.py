@@ -34,7 +34,9 @@ Faults (:meth:`PTUSimulator.inject`), each applied to the next reply:
 * ``"silent"`` (attribute ``silent = True``) -- ignore all input until cleared.
 
 ``inject(fault, count, after=n)`` lets ``n`` replies through first (e.g. the
-``PP`` of a pan+tilt move, so the fault hits its ``TP``).
+``PP`` of a pan+tilt move, so the fault hits its ``TP``).  :meth:`PTUSimulator.answer`
+sends a line of the caller's instead of a reply (``"* 99999999"``: a position
+outside the unit's own limits, as a garbled line can read).
 
 Homing.  A reset (``R``) or a power-up makes the unit calibrate for
 ``homing_s`` simulated seconds (0 = at once, the default): the motors sweep
@@ -138,7 +140,7 @@ class PTUSimulator:
         self.back_new_path = False
         self.back_homing_s = 0.0
         self.stats: collections.Counter[str] = collections.Counter()  # what the faults did
-        self._faults: collections.deque[str | None] = collections.deque()
+        self._faults: collections.deque[str | tuple[str, str] | None] = collections.deque()
         self.log: list[str] = []  # commands received (tests read it)
         self._lock = threading.Lock()
         self._origin = time.monotonic()
@@ -167,6 +169,15 @@ class PTUSimulator:
             raise ValueError(f"count must be >= 1 and after >= 0, got {count}, {after}")
         with self._lock:
             self._faults.extend([None] * after + [fault] * count)
+
+    def answer(self, text: str, count: int = 1, *, after: int = 0) -> None:
+        """Send the line ``text`` (e.g. ``"* 99999999"``, a garbled position) instead of the
+        reply to ``count`` commands, after letting ``after`` replies through; the commands
+        still execute."""
+        if count < 1 or after < 0:
+            raise ValueError(f"count must be >= 1 and after >= 0, got {count}, {after}")
+        with self._lock:
+            self._faults.extend([None] * after + [("answer", str(text))] * count)
 
     @property
     def plugged(self) -> bool:
@@ -371,6 +382,10 @@ class PTUSimulator:
             self.stats["stalled"] += 1
             return
         text = self._execute(m.group(1), m.group(2))
+        if isinstance(fault, tuple):  # answer(): another line instead of the reply
+            self.stats["answered"] += 1
+            self._write(fault[1].encode("ascii", "replace") + b"\r\n")
+            return
         if fault == "unplug":
             self._close_pty()
             self._outbox.clear()

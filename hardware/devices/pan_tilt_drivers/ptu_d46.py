@@ -18,14 +18,18 @@ answers once every motion, the sweep included, is over) before anything
 else, with the timeout ``homing_timeout``; :meth:`PTU.reset` waits for the
 reset's ``*`` as long; if either gives up, the next move waits again first.
 Every wait in the driver is bounded: a reply line by ``timeout``, ``A`` by
-the motion time plus ``await_margin`` (or ``homing_timeout``), a drain by a
-fixed number of timeouts, a write by ``timeout`` (``write_timeout``; the driver
+the motion time plus ``await_margin`` but never more than ``max_motion_s``
+(:data:`MAX_MOTION_S`, 120 s, whatever distance and speed the unit reports),
+or by ``homing_timeout``, a drain by a fixed number of timeouts, a write by ``timeout`` (``write_timeout``; the driver
 never calls ``flush()``, whose ``tcdrain`` has no timeout); after a failed
 ``A`` the axes are read back before the next move.
 
 Angles in this module's public API are **degrees**; the unit works in
 **positions**, ``positions = round(degrees * 3600 / resolution_arcsec)``.
-Limits are queried from the unit on connect and checked before sending.
+Limits are queried from the unit on connect and checked before sending; every
+position and speed the unit reports is checked against them too (a reply of
+``* 99999999`` to ``PP`` on a unit of +/-3090 positions is a
+:class:`..ptu_protocol.PTUGarbageError`, never a target 10^5 s away).
 
 After any failure (a :class:`PTUError`) the input buffer is drained and
 flushed, so the next command starts on a clean line; after a timeout the
@@ -74,7 +78,11 @@ _IO_ERRORS: tuple[type[BaseException], ...] = (serial.SerialException, OSError) 
     (termios.error,) if termios is not None else ()
 )
 
-__all__ = ["PTU", "DRIVER"]
+__all__ = ["PTU", "DRIVER", "MAX_MOTION_S"]
+
+#: Default bound (seconds) on the wait for one motion (``A``): a full +/-3090 pan
+#: sweep at 50 positions/s, far below any speed the unit is set to in practice.
+MAX_MOTION_S = 120.0
 
 log = logging.getLogger(__name__)
 
@@ -90,6 +98,8 @@ class PTU:
             estimated from distance / speed.
         homing_timeout: seconds to wait for a unit that is homing (after a reset
             or a power-up) before giving up with :class:`PTUHomingTimeout`.
+        max_motion_s: the longest wait for one motion (``A``), whatever the
+            estimate from the distance and speed the unit reports.
         connect: open and initialise now (``ED``, ``FT``, ``I``, ``A``,
             resolution and limit queries).
 
@@ -115,12 +125,13 @@ class PTU:
         timeout: float = 0.5,
         await_margin: float = 2.0,
         homing_timeout: float = 30.0,
+        max_motion_s: float = MAX_MOTION_S,
         connect: bool = True,
     ):
-        if timeout <= 0:
-            raise ValueError(f"timeout must be > 0 seconds, got {timeout}")
-        if homing_timeout <= 0:
-            raise ValueError(f"homing_timeout must be > 0 seconds, got {homing_timeout}")
+        for name, value in (("timeout", timeout), ("homing_timeout", homing_timeout), ("max_motion_s", max_motion_s)):
+            if not (value > 0 and math.isfinite(value)):
+                raise ValueError(f"{name} must be > 0 seconds, got {value}")
+        self.max_motion_s = float(max_motion_s)
         self.url = url
         self.baudrate = int(baudrate)
         self.timeout = float(timeout)
@@ -148,6 +159,7 @@ class PTU:
             baudrate=config.baudrate,
             timeout=config.timeout_s,
             homing_timeout=config.homing_timeout_s,
+            max_motion_s=config.max_motion_s,
         )
 
     # ------------------------------------------------------------ connection
@@ -220,9 +232,13 @@ class PTU:
         for name, (lo, hi) in (("pan", pan), ("tilt", tilt)):
             if lo >= hi:
                 raise PTUGarbageError(name, f"{lo} {hi}".encode(), "minimum limit not below maximum")
-        self.limits = PTULimits(pan, tilt, self.query_int("PU"), self.query_int("TU"))
-        self._speed = (self.query_int("PS"), self.query_int("TS"))
-        self._target = (self.query_int("PP"), self.query_int("TP"))
+        tops = (self.query_int("PU"), self.query_int("TU"))
+        for axis, top in zip("PT", tops):
+            if top < 1:
+                raise PTUGarbageError(f"{axis}U", f"* {top}".encode(), "upper speed limit below 1 position/s")
+        self.limits = PTULimits(pan, tilt, *tops)
+        self._speed = self._speed_counts()
+        self._target = self.position_counts()
         self._unsure = [False, False]
         self._move_start = None
 
@@ -429,7 +445,7 @@ class PTU:
         assert self.limits is not None
         span = max(self.limits.pan[1] - self.limits.pan[0], self.limits.tilt[1] - self.limits.tilt[0])
         longest = span / max(min(self._speed), 1)
-        self.command("A", timeout=self.timeout + longest + self.await_margin)
+        self.command("A", timeout=self._motion_wait(longest))
         self._target = self.position_counts()
         self._unsure = [False, False]
 
@@ -453,7 +469,7 @@ class PTU:
                 speed = max(self._speed[i], 1)
                 est = max(est, abs(self._target[i] - start[i]) / speed)
         try:
-            self.command("A", timeout=self.timeout + est + self.await_margin)
+            self.command("A", timeout=self._motion_wait(est))
         except PTUError:
             self._unsure = [True, True]  # where did the motors stop? resync() finds out
             raise
@@ -465,7 +481,30 @@ class PTU:
         return self.to_degrees("P", p), self.to_degrees("T", t)
 
     def position_counts(self) -> tuple[int, int]:
-        return self.query_int("PP"), self.query_int("TP")
+        """(pan, tilt) in positions, queried; each within the unit's limits."""
+        assert self.limits is not None
+        return (self._query_within("PP", *self.limits.pan, "pan position"),
+                self._query_within("TP", *self.limits.tilt, "tilt position"))
+
+    def _speed_counts(self) -> tuple[int, int]:
+        """(pan, tilt) speeds in positions/s, queried; each within [0, the unit's upper limit]."""
+        assert self.limits is not None
+        return (self._query_within("PS", 0, self.limits.pan_speed_max, "pan speed"),
+                self._query_within("TS", 0, self.limits.tilt_speed_max, "tilt speed"))
+
+    def _query_within(self, command: str, lo: int, hi: int, what: str) -> int:
+        """``query_int``, refusing a number outside ``[lo, hi]`` (a garbled reply): what a
+        unit cannot hold must not become a target or a wait."""
+        value = self.query_int(command)
+        if not lo <= value <= hi:
+            raise PTUGarbageError(command, f"* {value}".encode(),
+                                  f"{what} {value} is outside the unit's limits [{lo}, {hi}]")
+        return value
+
+    def _motion_wait(self, estimate_s: float) -> float:
+        """Seconds to wait for ``A``: reply timeout + motion estimate + ``await_margin``,
+        at most ``max_motion_s``."""
+        return min(self.timeout + estimate_s + self.await_margin, self.max_motion_s)
 
     def set_speed(self, pan: float | None = None, tilt: float | None = None) -> None:
         """Set the speed (``PS`` / ``TS``) in degrees/s, checked against ``PU`` / ``TU``."""
@@ -487,8 +526,7 @@ class PTU:
 
     def speed(self) -> tuple[float, float]:
         """Current speeds (pan, tilt) in degrees/s, queried (``PS``, ``TS``)."""
-        p, t = self.query_int("PS"), self.query_int("TS")
-        self._speed = (p, t)
+        p, t = self._speed = self._speed_counts()
         return self.to_degrees("P", p), self.to_degrees("T", t)
 
     def set_mode(self, mode: str) -> None:
