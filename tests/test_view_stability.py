@@ -87,3 +87,25 @@ def test_runs_in_the_recognizer_with_the_adaptive_scale_without_recompiling(getk
     rec = Recognizer(model, make_planner("mi-class-pairwise-stable", model, key=getkey()), p_threshold=0.96781,
                      min_views=2, exclude_visited_positions=True, adaptive_scale=32.0)
     assert_steps_never_recompile(rec, getkey, n_configs=12)
+
+
+def test_component_offsets_at_rounding_level_are_no_instability():
+    """A position without neighbouring views (camera 1 here has one) repeats
+    its training view in every interpolated slot; the slots' fitted means then
+    differ from the training view's only by float32 rounding, and how BLAS
+    rounds the same image at different rows of a product depends on its kernel
+    and the CPU.  ``d`` is 0 there either way, not rounding normalised to mean 1
+    (which moved the planner's score of every configuration by the same 1.0)."""
+    model = _mixture_model(positions=(4, 1))
+    lik = model.cameras[1].likelihood
+    exact = np.repeat(np.asarray(lik.mu)[:, :, :, :1], lik.mu.shape[3], axis=3)
+    rounded = exact.copy()
+    rounded[:, :, :, 1:] = np.nextafter(np.nextafter(exact[:, :, :, 1:], np.inf), np.inf)   # two ulps off
+    assert np.any(rounded != exact)
+    d0 = view_instability(model.cameras[0].likelihood)
+    uniform = jnp.zeros(model.n_classes, jnp.float32)
+    for mu in (exact, rounded):
+        d1 = view_instability(eqx.tree_at(lambda x: x.mu, lik, jnp.asarray(mu)))
+        assert np.all(np.asarray(d1) == 0.0)
+        np.testing.assert_allclose(np.asarray(expected_instability((d0, d1), uniform)),
+                                   np.asarray(d0).mean(axis=1), rtol=1e-6)
