@@ -27,6 +27,7 @@ only, a full disk) costs one warning and the command runs on, compiling.
 
 from __future__ import annotations
 
+import functools
 import os
 import tempfile
 import warnings
@@ -154,15 +155,32 @@ def _install_atomic_writes() -> None:
     if getattr(cc.get_file_cache, "_jaxrecog_atomic", False) or not hasattr(lru_cache, "LRUCache"):
         return
     base_get_file_cache = cc.get_file_cache
+
+    def get_file_cache(path: str):
+        found = base_get_file_cache(path)
+        if found is None or type(found[0]) is not lru_cache.LRUCache or found[0].eviction_enabled \
+                or "://" in str(path):
+            return found  # a size cap (JAX's locked cache), a verifying cache, a remote folder
+        return atomic_file_cache()(path, max_size=-1), found[1]
+
+    get_file_cache._jaxrecog_atomic = True  # type: ignore[attr-defined]
+    cc.get_file_cache = get_file_cache
+
+
+@functools.cache
+def atomic_file_cache() -> type:
+    """JAX's unbounded file cache (``LRUCache`` without a size cap) with
+    whole-file writes: temporary file, then ``os.replace``; a failed write
+    warns once per process and turns writing off."""
+    from jax._src import lru_cache
+
     suffix = getattr(lru_cache, "_CACHE_SUFFIX", "-cache")
 
     class AtomicFileCache(lru_cache.LRUCache):
-        """JAX's unbounded file cache with whole-file writes."""
-
         failed = False
 
         def put(self, key: str, value: bytes) -> None:
-            if self.failed:
+            if AtomicFileCache.failed:
                 return
             final = self.path / f"{key}{suffix}"
             try:
@@ -177,16 +195,8 @@ def _install_atomic_writes() -> None:
                     Path(tmp).unlink(missing_ok=True)
                     raise
             except OSError as e:
-                type(self).failed = True
+                AtomicFileCache.failed = True
                 warnings.warn(f"compilation cache {self.path}: cannot write ({e.strerror or e}); "
                               "compiled programs are no longer saved in this process", CompileCacheWarning)
 
-    def get_file_cache(path: str):
-        found = base_get_file_cache(path)
-        if found is None or type(found[0]) is not lru_cache.LRUCache or found[0].eviction_enabled \
-                or "://" in str(path):
-            return found  # a size cap (JAX's locked cache), a verifying cache, a remote folder
-        return AtomicFileCache(path, max_size=-1), found[1]
-
-    get_file_cache._jaxrecog_atomic = True  # type: ignore[attr-defined]
-    cc.get_file_cache = get_file_cache
+    return AtomicFileCache
