@@ -7,7 +7,7 @@ level per camera), and view planning over all camera configurations by Mutual
 Information or a Cramér-Rao bound.
 """
 
-__version__ = "0.1.0"
+from ._version import __version__
 
 # The names below are imported on first use (PEP 562), not here: ``import
 # jaxrecog`` (and with it the CLI's ``--help``) does not import JAX, ~1.5 s.

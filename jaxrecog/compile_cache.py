@@ -49,7 +49,7 @@ def version_tag() -> str:
     import jax
     import jaxlib
 
-    from . import __version__
+    from ._version import __version__
     return f"jaxrecog-{__version__}-jax-{jax.__version__}-jaxlib-{jaxlib.__version__}"
 
 

@@ -322,9 +322,14 @@ def _compile_cache(args: argparse.Namespace, glob: dict[str, Any]) -> None:
         compile_cache.configure(False)
         return
     given = glob.get("compile_cache")
-    if given is not None and not isinstance(given, (bool, str)):
+    if given is None or given is True:
+        compile_cache.configure()
+    elif given is False:
+        compile_cache.configure(False)
+    elif isinstance(given, str):  # as JAXRECOG_COMPILE_CACHE: a folder (its version folder inside), or "0"
+        compile_cache.configure(compile_cache.default_folder({compile_cache.ENV: given}) or False)
+    else:
         raise UsageError(f"settings file [global] compile_cache: expected true, false or a folder, got {given!r}")
-    compile_cache.configure(given if given is not True else None)
 
 
 def _write_problems(e: BaseException, path: str | None) -> None:

@@ -38,4 +38,4 @@ def global_options(parser: argparse.ArgumentParser, suppress: bool) -> None:
                         default=d if suppress else True,
                         help="compile every program afresh instead of loading it from the persistent compilation "
                              "cache (default folder ~/.cache/jaxrecog/jax; JAXRECOG_COMPILE_CACHE=0 or =FOLDER "
-                             "turns it off or moves it; docs/cli.md, 'Compilation cache')")
+                             "turns it off or moves it; README, 'Compilation cache')")
