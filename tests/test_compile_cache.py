@@ -207,3 +207,17 @@ def test_plan_compiles_its_scores_as_one_program_and_loading_a_model_compiles_no
         p = run_cli("plan", tiny["model"], "--planner", "mi-class-pairwise", "--top", "2")
     assert p.returncode == 0, p.stderr
     assert sum(planning.values()) <= 12, dict(planning)
+
+
+def test_a_settings_file_turns_it_off_or_moves_it(tiny, tmp_path, moved_cache):
+    settings = tmp_path / "run.toml"
+    settings.write_text("[global]\ncompile_cache = false\n")
+    assert run_cli("--config", settings, "inspect", tiny["model"]).returncode == 0
+    assert jax.config.jax_enable_compilation_cache is False
+    settings.write_text(f"[global]\ncompile_cache = {str(tmp_path / 'mine')!r}\n")
+    assert run_cli("--config", settings, "inspect", tiny["model"]).returncode == 0
+    assert jax.config.jax_enable_compilation_cache is True
+    assert jax.config.jax_compilation_cache_dir == str(tmp_path / "mine" / version_tag())
+    settings.write_text("[global]\ncompile_cache = 3\n")
+    p = run_cli("--config", settings, "inspect", tiny["model"])
+    assert p.returncode == 2 and "compile_cache: expected true, false or a folder, got 3" in p.stderr
