@@ -31,6 +31,7 @@ import functools
 import os
 import tempfile
 import warnings
+from collections.abc import Mapping
 from pathlib import Path
 
 __all__ = ["ENV", "CompileCacheWarning", "configure", "default_folder", "ensure", "version_tag"]
@@ -53,7 +54,7 @@ def version_tag() -> str:
     return f"jaxrecog-{__version__}-jax-{jax.__version__}-jaxlib-{jaxlib.__version__}"
 
 
-def default_folder(env: dict[str, str] | None = None) -> Path | None:
+def default_folder(env: Mapping[str, str] | None = None) -> Path | None:
     """The cache folder the settings give (``None``: off): ``$JAXRECOG_COMPILE_CACHE``
     (a path, or ``0`` for off), else ``$XDG_CACHE_HOME/jaxrecog/jax``, else
     ``~/.cache/jaxrecog/jax``; with :func:`version_tag` appended."""

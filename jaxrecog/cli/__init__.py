@@ -32,6 +32,7 @@ import sys
 import types
 import warnings
 from pathlib import Path
+from collections.abc import MutableMapping
 from typing import Any, Callable, NamedTuple, Sequence
 
 from .. import __version__
@@ -101,13 +102,44 @@ def _discover() -> tuple[_Command, ...]:
 _COMMANDS = _discover()
 
 
+class _Commands(MutableMapping):
+    """Subcommand name -> its ``run(args)``, in ``--help`` order; a module is
+    imported when its entry is first read (an entry set here, e.g. by a test,
+    replaces the module's ``run`` until deleted)."""
+
+    def __init__(self) -> None:
+        self._runs: dict[str, Callable[[argparse.Namespace], int]] = {}
+
+    def __getitem__(self, name: str) -> Callable[[argparse.Namespace], int]:
+        if name not in self._runs:
+            cmd = next((c for c in _COMMANDS if c.name == name), None)
+            if cmd is None:
+                raise KeyError(name)
+            self._runs[name] = _load(cmd.module).run
+        return self._runs[name]
+
+    def __setitem__(self, name: str, run: Callable[[argparse.Namespace], int]) -> None:
+        self._runs[name] = run
+
+    def __delitem__(self, name: str) -> None:
+        del self._runs[name]
+
+    def __iter__(self):
+        return iter([c.name for c in _COMMANDS])
+
+    def __len__(self) -> int:
+        return len(_COMMANDS)
+
+
+#: Subcommand name -> its ``run(args)``.
+COMMANDS = _Commands()
+
+
 def __getattr__(name: str) -> Any:
-    """``SUBCOMMANDS`` (the modules, in ``--help`` order), ``COMMANDS`` (name ->
-    ``run``), ``CLIError``, ``UsageError``: imported when first asked for."""
+    """``SUBCOMMANDS`` (the modules, in ``--help`` order), ``CLIError``,
+    ``UsageError``: imported when first asked for."""
     if name == "SUBCOMMANDS":
         return tuple(_load(c.module) for c in _COMMANDS)
-    if name == "COMMANDS":
-        return {c.name: _load(c.module).run for c in _COMMANDS}
     if name in ("CLIError", "UsageError"):
         from . import _common
         return getattr(_common, name)
@@ -283,7 +315,7 @@ def _main(argv: Sequence[str] | None) -> int:
     from ._common import CLIError, UsageError   # the command's module imports it in any case
     try:
         _compile_cache(args, glob)
-        return int(_load(next(c.module for c in _COMMANDS if c.name == args.command)).run(args) or 0)
+        return int(COMMANDS[args.command](args) or 0)
     except UsageError as e:
         if args.debug:
             raise
