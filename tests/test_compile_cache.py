@@ -221,3 +221,19 @@ def test_a_settings_file_turns_it_off_or_moves_it(tiny, tmp_path, moved_cache):
     settings.write_text("[global]\ncompile_cache = 3\n")
     p = run_cli("--config", settings, "inspect", tiny["model"])
     assert p.returncode == 2 and "compile_cache: expected true, false or a folder, got 3" in p.stderr
+
+
+def test_the_package_names_resolve_on_first_use():
+    """``import jaxrecog`` imports no submodule; each name of ``__all__`` comes
+    from its module when first used, and an unknown name is an AttributeError."""
+    import importlib
+
+    import jaxrecog
+
+    for name in jaxrecog.__all__:
+        value = getattr(jaxrecog, name)
+        assert getattr(importlib.import_module(f"jaxrecog.{jaxrecog._WHERE[name]}"), name) is value, name
+    assert set(jaxrecog.__all__) <= set(dir(jaxrecog))
+    assert jaxrecog.kernels is importlib.import_module("jaxrecog.kernels")
+    with pytest.raises(AttributeError, match="no attribute 'nope'"):
+        jaxrecog.nope  # noqa: B018
