@@ -7,30 +7,51 @@ level per camera), and view planning over all camera configurations by Mutual
 Information or a Cramér-Rao bound.
 """
 
-__version__ = "0.1.0"
+from ._version import __version__
 
-from .augment import DB1_LEVELS, DB2_LEVELS, SHAPES, AugmentParams, augment_images
-from .database import DatabaseError, ImageDatabase, NonGrayImageWarning, load_database, write_database
-from .features import ImageError, project, project_batch, project_camera
-from .modelfile import (
-    FORMAT_VERSION,
-    ModelFileContentError,
-    ModelFileCorruptError,
-    ModelFileError,
-    ModelFileMissingError,
-    ModelFileTruncatedError,
-    ModelFileVersionError,
-    load_model,
-    save_model,
-)
-from .sensor_model import CameraModel, SensorModel
-from .train import TrainingInfo, train_model
-from .kernels import Belief
-from .planners import PLANNERS, Planner, PlannerSpec, make_planner, planner_names
-from .recognizer import Decision, Recognizer, RecognizerState, StepTrace, restrict_cameras
-from .results import TrialResult, TrialStore
-from .driver import StepRecord, TrialSpec, run_trials
-from .campaign import plan_trials, run_campaign
+# The names below are imported on first use (PEP 562), not here: ``import
+# jaxrecog`` (and with it the CLI's ``--help``) does not import JAX, ~1.5 s.
+# Using one of them also sets up the persistent compilation cache
+# (:mod:`jaxrecog.compile_cache`) unless it is switched off.
+_SOURCES = {
+    "augment": ("DB1_LEVELS", "DB2_LEVELS", "SHAPES", "AugmentParams", "augment_images"),
+    "database": ("DatabaseError", "ImageDatabase", "NonGrayImageWarning", "load_database", "write_database"),
+    "features": ("ImageError", "project", "project_batch", "project_camera"),
+    "modelfile": ("FORMAT_VERSION", "ModelFileContentError", "ModelFileCorruptError", "ModelFileError", "ModelFileMissingError", "ModelFileTruncatedError", "ModelFileVersionError", "load_model", "save_model"),
+    "sensor_model": ("CameraModel", "SensorModel"),
+    "train": ("TrainingInfo", "train_model"),
+    "kernels": ("Belief",),
+    "planners": ("PLANNERS", "Planner", "PlannerSpec", "make_planner", "planner_names"),
+    "recognizer": ("Decision", "Recognizer", "RecognizerState", "StepTrace", "restrict_cameras"),
+    "results": ("TrialResult", "TrialStore"),
+    "driver": ("StepRecord", "TrialSpec", "run_trials"),
+    "campaign": ("plan_trials", "run_campaign"),
+}
+_WHERE = {name: module for module, names in _SOURCES.items() for name in names}
+
+
+def __getattr__(name: str):
+    """A public name (imported from its module on first use) or a submodule."""
+    import importlib
+
+    module = _WHERE.get(name)
+    if module is None:
+        try:
+            return importlib.import_module(f"{__name__}.{name}")
+        except ModuleNotFoundError as e:
+            if e.name != f"{__name__}.{name}":
+                raise
+            raise AttributeError(f"module {__name__!r} has no attribute {name!r}") from None
+    from . import compile_cache
+    compile_cache.ensure()
+    value = getattr(importlib.import_module(f"{__name__}.{module}"), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))
+
 
 __all__ = [
     # recognition: what a control loop or a script uses

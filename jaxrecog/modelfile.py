@@ -55,7 +55,7 @@ import zipfile
 import zlib
 from pathlib import Path
 
-import jax.numpy as jnp
+import jax
 import numpy as np
 
 from .problems import one_line, problem_message
@@ -405,13 +405,15 @@ def load_model(path: str | os.PathLike) -> SensorModel:
         sizes = {"V": V, "C": C, "L": L, "K": K, "D": H * W}
         fields = {f: _checked(arrays, f"camera{i}.{f}", spec, sizes, bad) for f, spec in specs.items()}
         known |= {f"camera{i}.{f}" for f in specs}
-        lik = family.from_arrays({f: jnp.asarray(fields[f]) for f in family.field_shapes})
+        # device_put, not jnp.asarray: jax (0.10) compiles a program per array shape for
+        # asarray of a NumPy array, eight per camera here, where device_put only copies
+        lik = family.from_arrays({f: jax.device_put(fields[f]) for f in family.field_shapes})
         for f, problem in lik.problems():
             raise bad(f"camera{i}.{f} {problem}")
         if "calibration" in fields and np.any(fields["calibration"] <= 0):
             raise bad(f"camera{i}.calibration has non-positive factors")
-        cal = jnp.asarray(fields["calibration"]) if "calibration" in fields else None
-        cameras.append(CameraModel(*(jnp.asarray(fields[f]) for f in _EIGEN), calibration=cal, likelihood=lik))
+        cal = jax.device_put(fields["calibration"]) if "calibration" in fields else None
+        cameras.append(CameraModel(*(jax.device_put(fields[f]) for f in _EIGEN), calibration=cal, likelihood=lik))
     extra = set(arrays) - known
     if extra:
         names = [one_line(k) for k in sorted(extra)]

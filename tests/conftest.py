@@ -37,12 +37,15 @@ def _share_compilations() -> None:
     starts cold), which the in-memory cache cannot see.  A hit costs ~10 ms.
     The folder is new for every run (nothing carries over from an earlier run,
     as on a fresh clone) unless ``JAXRECOG_TEST_JAX_CACHE`` names one (``off``:
-    no cache).  Results
+    no cache).  jaxrecog's own cache (``jaxrecog.compile_cache``, on by
+    default in the CLI and the package's names) keeps a folder that JAX's
+    settings name, so no test writes into the user's cache folder.  Results
     are unchanged (the cached executable is the compiled one) and
     ``tests/compiles.py`` still counts every compilation (jax logs it before it
     looks the program up)."""
     folder = os.environ.get("JAXRECOG_TEST_JAX_CACHE")
     if folder == "off":  # to measure what the cache saves
+        os.environ["JAXRECOG_COMPILE_CACHE"] = "0"  # nor jaxrecog's own (the user's folder: never from a test)
         return
     if not folder:
         folder = tempfile.mkdtemp(prefix="jaxrecog-xla-cache-")
@@ -51,6 +54,7 @@ def _share_compilations() -> None:
     settings = {"JAX_COMPILATION_CACHE_DIR": folder, "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS": "0",
                 "JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES": "0"}
     os.environ.update(settings)  # subprocesses
+    os.environ.pop("JAXRECOG_COMPILE_CACHE", None)  # a folder of the user's would win over JAX's setting
     jax.config.update("jax_compilation_cache_dir", folder)
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)

@@ -27,7 +27,7 @@ The checks (``check_of``; the blocks each one takes today in brackets):
   (scripts/gen_readme_outputs.py writes them); the manifest example's rows
   are rows of the database the tutorial renders;
 - ``python`` (here): the block runs as printed, in a new folder that links
-  ``examples/`` [docs/hardware.md ``rig_from_config``];
+  ``examples/`` [docs/hardware.md ``rig_from_config``, README.md compilation cache];
 - ``schema`` (here): a block of class definitions with annotated fields is
   run, and each class has the fields, in order and with the types, of the
   class of that name in the module the section's heading names
@@ -54,9 +54,9 @@ The checks (``check_of``; the blocks each one takes today in brackets):
 - ``math``: a ```math block is a formula (LaTeX), not code: nothing runs
   [docs/campaigns.md (3), docs/results.md (1)].
 
-69 blocks today: 10 cli-reference, 30 commands, 6 envs-example, 4
+71 blocks today: 10 cli-reference, 30 commands, 6 envs-example, 4
 tutorial-run, 3 tutorial-output, 1 manifest-example, 4 math, 1 ppo-output,
-3 protocol-dump, 1 python, 1 schema, 3 toml-rig, 1 toml-experiment, 1 toml-layout.
+4 protocol-dump, 2 python, 1 schema, 3 toml-rig, 1 toml-experiment, 1 toml-layout.
 """
 
 from __future__ import annotations
@@ -445,4 +445,4 @@ def test_the_claims_of_the_other_test_modules_hold():
 
     envs = [b.text for b in blocks_of("envs-example")]
     assert envs == [x for pair in test_envs_synthetic.docs_blocks() for x in pair if x is not None]
-    assert len(blocks_of("protocol-dump")) == len(test_datagram.documented_examples()) == 3
+    assert len(blocks_of("protocol-dump")) == len(test_datagram.documented_examples()) == 4

@@ -13,12 +13,17 @@ Indices (objects, poses, positions) are 0-based everywhere.
 # one, exposing NAME, ORDER (its place in --help), HELP, DESCRIPTION,
 # add_arguments(parser) and run(args) -> exit code.  A new subcommand is one
 # new module here and nothing else; what several share lives in the private
-# modules (_options: argparse types and option groups; _common: errors,
-# printing, rigs; _images, _reports, _bench_runner).
+# modules (_globals: the main parser's options; _options: argparse types and
+# option groups; _common: errors, printing, rigs; _images, _reports,
+# _bench_runner).  The main parser reads NAME, ORDER and HELP from the
+# modules' source (literals) and imports a module, and with it JAX (~1.5 s),
+# only when its command runs or its own help or options are asked for:
+# ``jaxrecog --help`` and a mistyped command answer without JAX.
 
 from __future__ import annotations
 
 import argparse
+import ast
 import importlib
 import os
 import pkgutil
@@ -26,49 +31,163 @@ import select
 import sys
 import types
 import warnings
-from typing import Any, Callable, Sequence
+from pathlib import Path
+from collections.abc import MutableMapping
+from typing import Any, Callable, NamedTuple, Sequence
 
 from .. import __version__
 from .._config import OPTION_FIELDS, ConfigFileError, load_settings, section
 from ..problems import one_line, problem_message, write_problem_list
 from .._progress import set_quiet
-from ._common import CLIError, UsageError
-from ._options import Formatter, global_options
+from ._globals import Formatter, global_options
 
 __all__ = ["main", "build_parser", "subparsers", "CLIError", "UsageError", "COMMANDS", "SUBCOMMANDS"]
 
 _INTERFACE = ("NAME", "ORDER", "HELP", "DESCRIPTION", "add_arguments", "run")
+_LISTED = ("NAME", "ORDER", "HELP")   # what the main --help shows: literals in each module's source
 
 
-def _discover() -> tuple[types.ModuleType, ...]:
-    """The subcommand modules of this package (public names), in ``ORDER``."""
+class _Command(NamedTuple):
+    """A subcommand as the main parser lists it, before its module is imported."""
+    name: str
+    order: int
+    help: str
+    module: str
+
+
+def _listed(module: str, path: Path) -> _Command | None:
+    """NAME, ORDER, HELP of a subcommand module, read from its
+    source (``None`` where one is not a literal: then it is imported)."""
+    try:
+        tree = ast.parse(path.read_text(encoding="utf-8"))
+    except (OSError, SyntaxError, ValueError):
+        return None
+    found: dict[str, Any] = {}
+    for node in tree.body:
+        if isinstance(node, ast.Assign) and len(node.targets) == 1 and isinstance(node.targets[0], ast.Name) \
+                and node.targets[0].id in _LISTED:
+            try:
+                found[node.targets[0].id] = ast.literal_eval(node.value)
+            except ValueError:
+                return None
+    if set(found) != set(_LISTED):
+        return None
+    return _Command(found["NAME"], found["ORDER"], found["HELP"], module)
+
+
+def _load(module: str) -> types.ModuleType:
+    """Import a subcommand module and check that it has the whole interface."""
+    mod = importlib.import_module(module)
+    missing = [a for a in _INTERFACE if not hasattr(mod, a)]
+    if missing:
+        raise ImportError(f"subcommand module {mod.__name__} lacks {', '.join(missing)}")
+    return mod
+
+
+def _discover() -> tuple[_Command, ...]:
+    """The subcommands of this package (its public modules), in ``ORDER``."""
     found = []
     for info in pkgutil.iter_modules(__path__):
         if info.name.startswith("_"):
             continue
-        mod = importlib.import_module(f"{__name__}.{info.name}")
-        missing = [a for a in _INTERFACE if not hasattr(mod, a)]
-        if missing:
-            raise ImportError(f"subcommand module {mod.__name__} lacks {', '.join(missing)}")
-        found.append(mod)
-    return tuple(sorted(found, key=lambda m: (m.ORDER, m.NAME)))
+        module = f"{__name__}.{info.name}"
+        cmd = _listed(module, Path(__path__[0]) / f"{info.name}.py")
+        if cmd is None:
+            mod = _load(module)
+            cmd = _Command(mod.NAME, mod.ORDER, mod.HELP, module)
+        found.append(cmd)
+    return tuple(sorted(found, key=lambda c: (c.order, c.name)))
 
 
-#: The subcommand modules, in the order ``--help`` lists them.
-SUBCOMMANDS = _discover()
+_COMMANDS = _discover()
+
+
+class _Commands(MutableMapping):
+    """Subcommand name -> its ``run(args)``, in ``--help`` order; a module is
+    imported when its entry is first read (an entry set here, e.g. by a test,
+    replaces the module's ``run`` until deleted)."""
+
+    def __init__(self) -> None:
+        self._runs: dict[str, Callable[[argparse.Namespace], int]] = {}
+
+    def __getitem__(self, name: str) -> Callable[[argparse.Namespace], int]:
+        if name not in self._runs:
+            cmd = next((c for c in _COMMANDS if c.name == name), None)
+            if cmd is None:
+                raise KeyError(name)
+            self._runs[name] = _load(cmd.module).run
+        return self._runs[name]
+
+    def __setitem__(self, name: str, run: Callable[[argparse.Namespace], int]) -> None:
+        self._runs[name] = run
+
+    def __delitem__(self, name: str) -> None:
+        del self._runs[name]
+
+    def __iter__(self):
+        return iter([c.name for c in _COMMANDS])
+
+    def __len__(self) -> int:
+        return len(_COMMANDS)
+
+
 #: Subcommand name -> its ``run(args)``.
-COMMANDS: dict[str, Callable[[argparse.Namespace], int]] = {m.NAME: m.run for m in SUBCOMMANDS}
+COMMANDS = _Commands()
 
 
-def build_parser() -> argparse.ArgumentParser:
+def __getattr__(name: str) -> Any:
+    """``SUBCOMMANDS`` (the modules, in ``--help`` order), ``CLIError``,
+    ``UsageError``: imported when first asked for."""
+    if name == "SUBCOMMANDS":
+        return tuple(_load(c.module) for c in _COMMANDS)
+    if name in ("CLIError", "UsageError"):
+        from . import _common
+        return getattr(_common, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+class _SubcommandParser(argparse.ArgumentParser):
+    """A subcommand's parser that adds the subcommand's description and own
+    options (importing its module) the first time it parses or prints its help
+    or usage."""
+
+    def __init__(self, *args: Any, command: _Command | None = None, **kwargs: Any):
+        super().__init__(*args, **kwargs)
+        self._command = command
+
+    def load(self) -> "_SubcommandParser":
+        if self._command is not None:
+            command, self._command = self._command, None
+            mod = _load(command.module)
+            self.description = mod.DESCRIPTION
+            mod.add_arguments(self)
+        return self
+
+    def parse_known_args(self, args=None, namespace=None):
+        self.load()
+        return super().parse_known_args(args, namespace)
+
+    def format_usage(self) -> str:
+        self.load()
+        return super().format_usage()
+
+    def format_help(self) -> str:
+        self.load()
+        return super().format_help()
+
+
+def build_parser(lazy: bool = False) -> argparse.ArgumentParser:
+    """The whole parser (``lazy``: each subcommand's options are added when
+    that subcommand is parsed or its help shown, as :func:`main` does)."""
     parser = argparse.ArgumentParser(prog="jaxrecog", description=__doc__, formatter_class=Formatter)
     global_options(parser, suppress=False)
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    for mod in SUBCOMMANDS:
-        p = sub.add_parser(mod.NAME, help=mod.HELP, description=mod.DESCRIPTION, formatter_class=Formatter)
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True, parser_class=_SubcommandParser)
+    for cmd in _COMMANDS:
+        p = sub.add_parser(cmd.name, help=cmd.help, formatter_class=Formatter, command=cmd)
         global_options(p, suppress=True)
-        mod.add_arguments(p)
+        if not lazy:
+            p.load()
     return parser
 
 
@@ -83,23 +202,25 @@ def subparsers(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentPa
 def _apply_config(parser: argparse.ArgumentParser, path: str) -> dict[str, Any]:
     """Set option defaults from the TOML file (command line still wins)."""
     data = load_settings(path)
-    known_global = {"quiet", "debug"}
+    known_global = {"quiet", "debug", "compile_cache"}
     glob = section(data, "global", known_global, path)
     subs = subparsers(parser)
     unknown = sorted(set(data) - set(subs) - {"global"})
     if unknown:
         raise ConfigFileError(problem_message(f"settings file {path}: unknown table(s) "
                                               f"(known: global, {', '.join(subs)})", unknown))
-    modules = {m.NAME: m for m in SUBCOMMANDS}
     for name, sp in subs.items():
         if name not in data:
             continue
+        if isinstance(sp, _SubcommandParser):
+            sp.load()
         dests = {a.dest for a in sp._actions if a.option_strings and a.dest not in ("help", "config")}
         # one dialect: an option's Settings field name too; a subcommand's CONFIG_FIELDS (Settings
         # fields without an option) arrive together as args.config_fields
         names = {d: d for d in dests}
         names.update({f: o for o, f in OPTION_FIELDS.items() if o in dests and f not in dests})
-        extra = [f for f in getattr(modules.get(name), "CONFIG_FIELDS", ()) if f not in names]
+        module = next(c.module for c in _COMMANDS if c.name == name)
+        extra = [f for f in getattr(_load(module), "CONFIG_FIELDS", ()) if f not in names]
         names.update({f: f for f in extra})
         values = section(data, name, names, path)
         fields = {k: values.pop(k) for k in extra if k in values}
@@ -172,7 +293,7 @@ def _quiet_after_broken_pipe() -> int:
 
 def _main(argv: Sequence[str] | None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
-    parser = build_parser()
+    parser = build_parser(lazy=True)
     debug = "--debug" in argv
     try:
         pre = argparse.ArgumentParser(add_help=False)
@@ -191,7 +312,9 @@ def _main(argv: Sequence[str] | None) -> int:
     args.quiet = bool(getattr(args, "quiet", False) or glob.get("quiet", False))
     args.debug = bool(getattr(args, "debug", False) or glob.get("debug", False) or debug)
     set_quiet(args.quiet)
+    from ._common import CLIError, UsageError   # the command's module imports it in any case
     try:
+        _compile_cache(args, glob)
         return int(COMMANDS[args.command](args) or 0)
     except UsageError as e:
         if args.debug:
@@ -217,6 +340,28 @@ def _main(argv: Sequence[str] | None) -> int:
         print(f"jaxrecog: error: {msg}", file=sys.stderr)
         _write_problems(e, getattr(args, "problems_out", None))
         return 1
+
+
+def _compile_cache(args: argparse.Namespace, glob: dict[str, Any]) -> None:
+    """The persistent compilation cache for this command (:mod:`jaxrecog.compile_cache`):
+    off with ``--no-compile-cache``; else the settings file's ``[global]``
+    ``compile_cache`` (``false``, ``true`` or a folder); else the environment's
+    and the default folder."""
+    from .. import compile_cache
+    from ._common import UsageError
+
+    if not getattr(args, "compile_cache", True):
+        compile_cache.configure(False)
+        return
+    given = glob.get("compile_cache")
+    if given is None or given is True:
+        compile_cache.configure()
+    elif given is False:
+        compile_cache.configure(False)
+    elif isinstance(given, str):  # as JAXRECOG_COMPILE_CACHE: a folder (its version folder inside), or "0"
+        compile_cache.configure(compile_cache.default_folder({compile_cache.ENV: given}) or False)
+    else:
+        raise UsageError(f"settings file [global] compile_cache: expected true, false or a folder, got {given!r}")
 
 
 def _write_problems(e: BaseException, path: str | None) -> None:

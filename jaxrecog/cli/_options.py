@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 
 from ..planners import DEFAULT_MIN_PER_STRATUM, planner_names
+from ._globals import Formatter, global_options  # the main parser's, here for the subcommands
 
 __all__ = [
     "PLANNERS", "Formatter", "config_tuple", "int_at_least", "positive", "nonneg", "object_choice", "probability",
@@ -18,18 +19,6 @@ __all__ = [
 #: The choices of ``--planner`` / ``--planners``: the planner registry's names
 #: (``planners.PLANNERS``), the one place the CLI takes them from.
 PLANNERS = planner_names()
-
-
-class Formatter(argparse.RawDescriptionHelpFormatter):
-    """Raw descriptions; ``(default: X)`` after each help where a default means something."""
-
-    def _get_help_string(self, action):
-        text = action.help or ""
-        d = action.default
-        if "%(default)" in text or d is None or d is False or d is argparse.SUPPRESS or not action.option_strings:
-            return text
-        shown = " ".join(map(str, d)) if isinstance(d, (list, tuple)) else d
-        return f"{text} (default: {shown})"
 
 
 def config_tuple(text: str) -> tuple[int, ...]:
@@ -170,21 +159,6 @@ def cluster_option(p: argparse.ArgumentParser, what: str) -> None:
     p.add_argument("--cluster", type=cluster_spec, metavar="SPEC", default=None,
                    help=f"{what} on Ray: 'ray' starts a local Ray instance, 'ray://HOST:PORT' joins a running "
                         "cluster (docs/cluster.md; needs the 'cluster' extra); the results are the same as here")
-
-
-def global_options(parser: argparse.ArgumentParser, suppress: bool) -> None:
-    """``--quiet``, ``--debug``, ``--config``, ``--problems-out`` on the main parser and (``suppress``:
-    without overriding the main parser's values) on every subcommand."""
-    d = argparse.SUPPRESS if suppress else None
-    parser.add_argument("--quiet", "-q", action="store_true", default=d if suppress else False,
-                        help="no progress bars (they are also off when output is not a terminal)")
-    parser.add_argument("--debug", action="store_true", default=d if suppress else False,
-                        help="show the full traceback on errors")
-    parser.add_argument("--config", metavar="FILE.TOML", default=d,
-                        help="read option defaults from this TOML file ([global] and one table per subcommand)")
-    parser.add_argument("--problems-out", metavar="FILE", default=d,
-                        help="on an error that lists problems (an invalid database, settings file, model file), "
-                             "write all of them to this new file (never overwritten; the message shows the first 10)")
 
 
 def table_options(p: argparse.ArgumentParser) -> None:
