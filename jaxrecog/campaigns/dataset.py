@@ -93,7 +93,8 @@ def run_dataset(
 
         pool = RayRigs(functools.partial(DatasetRig, db, seed=settings.seed), max(1, settings.batch),
                        settings.render_workers, cluster=settings.cluster)
-    planners = tuple(planners or dataset_planners(model_path))
+    default = dataset_planners(model_path)   # reads the recipe: one newer than this code is refused here
+    planners = tuple(planners or default)
     case = Case("dataset", f"Image database {folder} ({model.n_objects} objects x {model.n_poses} poses, "
                            f"positions {tuple(int(p) for p in model.positions)}), model {model_path}",
                 str(folder), False, None, planners)

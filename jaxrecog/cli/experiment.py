@@ -260,8 +260,10 @@ def _resolve(args) -> _Resolved:
     if dataset:  # the stop rule: the model's recipe unless an option or the experiment file gives it
         try:
             recipe = model_recipe(str(model))
-        except (ModelFileError, ValueError):
+        except ModelFileError:
             recipe = None   # the campaign's own load of the model reports it, after the usage checks
+        except ValueError as e:   # a recipe newer than this code: never run as another recipe
+            raise UsageError(f"model {model}: {e}") from None
         for part, field in (("p_threshold", "p_threshold"), ("min_views", "min_views"),
                             ("exclude_visited", "exclude_visited_positions"), ("adaptive_scale", "adaptive_scale")):
             if recipe is not None:
