@@ -19,7 +19,13 @@ from .hardware.rigs.rig import Rig, RigPool
 from .recognizer import Recognizer
 from .results import TrialResult, TrialStore
 
-__all__ = ["TrialSpec", "plan_trials", "run_campaign", "batched_step"]
+__all__ = ["TrialSpec", "plan_trials", "run_campaign", "batched_step", "MAX_TRIALS"]
+
+#: The most trials one campaign plans (all objects together): every trial's
+#: spec and result stay in memory (a few hundred bytes and ~1 KB each) and the
+#: specs are drawn before the first trial runs, so a mistyped count is refused
+#: at once instead of filling the memory.  The thesis runs 800 per case.
+MAX_TRIALS = 100_000
 
 
 OccluderFactory = Callable[[np.random.Generator, tuple[int, ...]], Any]
@@ -46,11 +52,17 @@ def plan_trials(
     degrees (``TrialSpec.yaw_offset``), drawn last from the same generator,
     so pose, start and occluders are those of the on-grid trial and the
     offsets of two bounds are proportional (``-a + 2 a u``, the same ``u``).
-    ``yaw_deg = 0`` draws nothing (``yaw_offset`` None)."""
+    ``yaw_deg = 0`` draws nothing (``yaw_offset`` None).  At most
+    :data:`MAX_TRIALS` trials in all (a ``ValueError`` before any is drawn)."""
     if isinstance(yaw_deg, bool) or not isinstance(yaw_deg, (int, float)) or not 0 <= yaw_deg < float("inf"):
         raise ValueError(f"yaw_deg must be a finite number of degrees >= 0, got {yaw_deg!r}")
-    specs = []
     objs = list(range(n_objects)) if objects is None else list(objects)
+    if isinstance(trials_per_object, bool) or not isinstance(trials_per_object, int) or trials_per_object < 1 \
+            or len(objs) * trials_per_object > MAX_TRIALS:
+        raise ValueError(f"{len(objs)} objects x {trials_per_object!r} trials per object: a campaign runs 1 to "
+                         f"{MAX_TRIALS} trials (jaxrecog.campaign.MAX_TRIALS; each one's spec and result stay in "
+                         "memory)")
+    specs = []
     for m in objs:
         for t in range(trials_per_object):
             rng = np.random.default_rng([seed, m, t])
