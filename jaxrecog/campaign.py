@@ -87,9 +87,10 @@ def run_campaign(
     trace: bool = False,
     devices: int | None = None,
 ) -> list[TrialResult]:
-    """Run the trials (skipping those already in ``store`` with the same object,
-    pose and initial configuration) and return every result, old and new,
-    ordered by trial number.
+    """Run the trials (skipping those already in ``store``) and return every
+    result, old and new, ordered by trial number.  A stored trial of another
+    object, pose, initial configuration or yaw offset than its spec is a
+    ``ValueError`` naming the store: it holds another run's trials.
 
     Args:
         recognizer: the recognizer (its model fixes the cameras).
@@ -116,11 +117,15 @@ def run_campaign(
         raise ValueError("trial ids in `specs` must be unique")
     done: dict[int, TrialResult] = store.load() if store is not None else {}
     by_id = {s.trial: s for s in specs}
-    for t, r in list(done.items()):
+    for t, r in done.items():
         s = by_id.get(t)
-        # a stored trial is reused only if it is the same scene and start
+        # a stored trial is reused only if it is the same scene and start; one that is not says the store
+        # is another run's: refused whole (rerunning the trial would record it twice)
         if s is not None and (r.object, r.pose, r.configurations[:1], r.yaw_offset) != (s.object, s.pose, (s.initial,), s.yaw_offset):
-            del done[t]
+            raise ValueError(f"{store.path}: trial {t} is object {r.object} pose {r.pose} from "
+                             f"{list(r.configurations[0]) if r.configurations else '?'}, but this run's trial {t} "
+                             f"is object {s.object} pose {s.pose} from {list(s.initial)}; the store is not this "
+                             "run's trials: move the file away to run them afresh")
     todo = [s for s in specs if s.trial not in done]
 
     def finished(results: Sequence[TrialResult]) -> None:

@@ -25,6 +25,7 @@ from .naming import run_id
 from .reports import CaseReport
 from .run import compare_planners
 from .settings import Settings
+from .stores import database_sha256
 
 __all__ = ["DATASET_PLANNERS", "dataset_planners", "run_dataset"]
 
@@ -74,7 +75,9 @@ def run_dataset(
     The model file fixes the cameras and positions (any number of each);
     the database must have a test image of every view.  Finished trials are
     kept in ``workdir/trials`` (named by the settings, the model's and the
-    manifest's hashes), so an interrupted campaign resumes.  ``stride``,
+    database's digests: its manifest and pixels,
+    :func:`~jaxrecog.campaigns.stores.database_sha256`), so an interrupted
+    campaign resumes and a database re-rendered in place starts afresh.  ``stride``,
     ``capture_noise`` and the training settings do not apply (stored images,
     a given model); ``stride`` must stay 1.
     """
@@ -100,11 +103,11 @@ def run_dataset(
                 str(folder), False, None, planners)
     specs = plan_trials(model.n_objects, model.n_poses, rig.positions, settings.trials_per_object, seed=settings.seed)
     rid = run_id(settings, model_path)
-    db_id = db.manifest_sha256[:10]
+    data = database_sha256(db)   # the pixels, not only the manifest: a database re-rendered in place is another
     try:
         return compare_planners(case, model, pool, specs, settings, planners,
-                                lambda planner: f"dataset-{planner}-{rid}-{db_id}", progress=progress,
-                                on_result=on_result, probe=rig)
+                                lambda planner: f"dataset-{planner}-{rid}-{data[:10]}", progress=progress,
+                                on_result=on_result, probe=rig, content={"database_sha256": data})
     finally:
         if pool is not rig:
             pool.close()
