@@ -69,8 +69,8 @@ def header_problem(found: Any, want: Mapping[str, Any]) -> str | None:
     have, need = _flat({k: found.get(k) for k in ("run", "limits")}), _flat({k: want[k] for k in ("run", "limits")})
     for k in sorted(set(have) | set(need)):
         if have.get(k, None) != need.get(k, None):
-            return (f"records {k} = {_show(have.get(k))}, this run has {_show(need.get(k))}: the trials of "
-                    "another run")
+            return (f"records {json.dumps(k)[1:-1][:80]} = {_show(have.get(k))}, this run has "
+                    f"{_show(need.get(k))}: the trials of another run")
     return None
 
 
