@@ -124,8 +124,8 @@ def run_campaign(
         if s is not None and (r.object, r.pose, r.configurations[:1], r.yaw_offset) != (s.object, s.pose, (s.initial,), s.yaw_offset):
             raise ValueError(f"{store.path}: trial {t} is object {r.object} pose {r.pose} from "
                              f"{list(r.configurations[0]) if r.configurations else '?'}, but this run's trial {t} "
-                             f"is object {s.object} pose {s.pose} from {list(s.initial)}; the store is not this "
-                             "run's trials: move the file away to run them afresh")
+                             f"is object {s.object} pose {s.pose} from {list(s.initial)}: the trials of another run; "
+                             "move the file away to start afresh")
     todo = [s for s in specs if s.trial not in done]
 
     def finished(results: Sequence[TrialResult]) -> None:

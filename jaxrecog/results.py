@@ -194,8 +194,7 @@ class _StoreReader:
         self.seen: dict[int, int] = {}   # trial -> its line
 
     def fail(self, number: int, problem: str) -> ValueError:
-        return ValueError(f"{self.path}: line {number} {problem}; the store is not this run's trials: move the file "
-                          "away to run them afresh")
+        return ValueError(f"{self.path}: line {number} {problem}; move the file away to start afresh")
 
     def line(self, number: int, raw: bytes) -> TrialResult | None:
         """The record of line ``number`` (``None`` for the header), checked."""
