@@ -23,7 +23,8 @@ HEADER = store_header({"planner": "mi", "settings": {"seed": 0}, "model_sha256":
 GOOD = [TrialResult(t, t // 4, 1, t // 4, 1, 0.97, 2, True, ((0.0, 0.1),) * 2, ((1, 0), (2, 1))) for t in (0, 1, 5)]
 
 _scalar = st.none() | st.booleans() | st.integers(-2**70, 2**70) | st.floats() | st.text(max_size=8)
-_json = _scalar | st.lists(_scalar | st.lists(_scalar, max_size=3), max_size=9) | st.dictionaries(st.text(max_size=6), _scalar, max_size=3)
+_json = (_scalar | st.lists(_scalar | st.lists(_scalar, max_size=3), max_size=9)
+         | st.dictionaries(st.text(max_size=6), _scalar, max_size=3))
 _FIELDS = ["trial", "object", "pose", "predicted_object", "predicted_pose", "exit_prob", "steps", "stopped",
            "occluded_fraction", "configurations", "object_probs", "invalid_steps", "travel_s", "yaw_offset", "correct"]
 

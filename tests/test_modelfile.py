@@ -271,7 +271,8 @@ def test_a_model_that_cannot_explain_any_capture_is_refused_on_load(tmp_path, mo
 
     m = models[0]
     for name, change, needle in [
-        ("basis", lambda c: c.basis * 1e30, r"camera0.basis at position 0 is not orthonormal \(max \|B\^T B - I\| = 1e\+60"),
+        ("basis", lambda c: c.basis * 1e30,
+         r"camera0.basis at position 0 is not orthonormal \(vector 0 has length inf, not 1\)"),
         ("mean", lambda c: c.mean_image * 5, "camera0.mean_image has norm"),
         ("mu", lambda c: c.likelihood.mu + 1e20, "camera0.mu reaches 1e\\+20"),
     ]:
