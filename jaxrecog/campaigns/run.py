@@ -26,7 +26,7 @@ from .preparation import Prepared, prepare, progress_bar
 from .reports import CaseReport
 from .rigs import capture_pool, make_rig
 from .settings import Settings
-from .stores import campaign_store
+from .stores import campaign_store, model_sha256
 
 if TYPE_CHECKING:
     from ..hardware.rigs.capture_memo import CaptureMemo
@@ -69,6 +69,7 @@ def compare_planners(
     ``probe``: a rig of the same table, whose geometry gives the travel times."""
     rows, results, seconds = {}, {}, {}
     travel = rig_travel_times(probe)
+    content = {"model_sha256": model_sha256(model), **dict(content or {})}   # hashed once for every planner
     for planner in planners:
         rec = campaign_recognizer(model, planner, settings, travel)
         store = campaign_store(settings, store_name(planner), planner, model, content)

@@ -75,11 +75,13 @@ def campaign_store(settings: Settings, name: str, planner: str, model, content: 
                    ) -> TrialStore:
     """The store ``workdir/trials/<name>.jsonl`` of ``planner``'s trials of a
     campaign with ``settings`` and ``model`` (``content``: digests of further
-    data the trials depend on, e.g. ``{"database_sha256": ...}``), with the
-    header it must have."""
+    data the trials depend on, e.g. ``{"database_sha256": ...}``; a
+    ``model_sha256`` there saves hashing the model again), with the header it
+    must have."""
     fields = {k: v for k, v in settings.flat().items() if k not in RUN_ID_IGNORED}
-    run = {"planner": planner, "settings": fields, "model_sha256": model_sha256(model),
-           **dict(content or {})}
+    content = dict(content or {})
+    run = {"planner": planner, "settings": fields,
+           "model_sha256": content.pop("model_sha256", None) or model_sha256(model), **content}
     limits = {"max_steps": settings.max_steps, "p_threshold": settings.p_threshold,
               "min_views": settings.min_views, "n_objects": model.n_objects, "n_poses": model.n_poses,
               "positions": [int(v) for v in model.positions], "trials_per_object": settings.trials_per_object}
