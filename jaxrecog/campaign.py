@@ -19,7 +19,13 @@ from .hardware.rigs.rig import Rig, RigPool
 from .recognizer import Recognizer
 from .results import TrialResult, TrialStore
 
-__all__ = ["TrialSpec", "plan_trials", "run_campaign", "batched_step"]
+__all__ = ["TrialSpec", "plan_trials", "run_campaign", "batched_step", "MAX_TRIALS"]
+
+#: The most trials one campaign plans (all objects together): every trial's
+#: spec and result stay in memory (a few hundred bytes and ~1 KB each) and the
+#: specs are drawn before the first trial runs, so a mistyped count is refused
+#: at once instead of filling the memory.  The thesis runs 800 per case.
+MAX_TRIALS = 100_000
 
 
 OccluderFactory = Callable[[np.random.Generator, tuple[int, ...]], Any]
@@ -46,11 +52,17 @@ def plan_trials(
     degrees (``TrialSpec.yaw_offset``), drawn last from the same generator,
     so pose, start and occluders are those of the on-grid trial and the
     offsets of two bounds are proportional (``-a + 2 a u``, the same ``u``).
-    ``yaw_deg = 0`` draws nothing (``yaw_offset`` None)."""
+    ``yaw_deg = 0`` draws nothing (``yaw_offset`` None).  At most
+    :data:`MAX_TRIALS` trials in all (a ``ValueError`` before any is drawn)."""
     if isinstance(yaw_deg, bool) or not isinstance(yaw_deg, (int, float)) or not 0 <= yaw_deg < float("inf"):
         raise ValueError(f"yaw_deg must be a finite number of degrees >= 0, got {yaw_deg!r}")
-    specs = []
     objs = list(range(n_objects)) if objects is None else list(objects)
+    if isinstance(trials_per_object, bool) or not isinstance(trials_per_object, int) or trials_per_object < 1 \
+            or len(objs) * trials_per_object > MAX_TRIALS:
+        raise ValueError(f"{len(objs)} objects x {trials_per_object!r} trials per object: a campaign runs 1 to "
+                         f"{MAX_TRIALS} trials (jaxrecog.campaign.MAX_TRIALS; each one's spec and result stay in "
+                         "memory)")
+    specs = []
     for m in objs:
         for t in range(trials_per_object):
             rng = np.random.default_rng([seed, m, t])
@@ -76,9 +88,10 @@ def run_campaign(
     devices: int | None = None,
     on_step: Callable[[StepRecord], None] | None = None,
 ) -> list[TrialResult]:
-    """Run the trials (skipping those already in ``store`` with the same object,
-    pose and initial configuration) and return every result, old and new,
-    ordered by trial number.
+    """Run the trials (skipping those already in ``store``) and return every
+    result, old and new, ordered by trial number.  A stored trial of another
+    object, pose, initial configuration or yaw offset than its spec is a
+    ``ValueError`` naming the store: it holds another run's trials.
 
     Args:
         recognizer: the recognizer (its model fixes the cameras).
@@ -108,11 +121,15 @@ def run_campaign(
         raise ValueError("trial ids in `specs` must be unique")
     done: dict[int, TrialResult] = store.load() if store is not None else {}
     by_id = {s.trial: s for s in specs}
-    for t, r in list(done.items()):
+    for t, r in done.items():
         s = by_id.get(t)
-        # a stored trial is reused only if it is the same scene and start
+        # a stored trial is reused only if it is the same scene and start; one that is not says the store
+        # is another run's: refused whole (rerunning the trial would record it twice)
         if s is not None and (r.object, r.pose, r.configurations[:1], r.yaw_offset) != (s.object, s.pose, (s.initial,), s.yaw_offset):
-            del done[t]
+            raise ValueError(f"{store.path}: trial {t} is object {r.object} pose {r.pose} from "
+                             f"{list(r.configurations[0]) if r.configurations else '?'}, but this run's trial {t} "
+                             f"is object {s.object} pose {s.pose} from {list(s.initial)}: the trials of another run; "
+                             "move the file away to start afresh")
     todo = [s for s in specs if s.trial not in done]
 
     def finished(results: Sequence[TrialResult]) -> None:

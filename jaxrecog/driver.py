@@ -45,6 +45,11 @@ Travel: where the recognizer has a :class:`~jaxrecog.motion.MotionCost`, each
 result's ``travel_s`` is the seconds its moves took under that motion model
 (the initial configuration is free); otherwise NaN.
 
+A usable image set that the model explains under no class (its likelihood
+NaN, +inf or zero for every one, ``Decision.degenerate``) stops the run with
+an :class:`UnexplainedCaptureError`: such a model would end every trial at
+an unchanged belief, wrong, with nothing to say why.
+
 Keys: trial ``t`` step ``n`` uses ``fold_in(fold_in(key, t), n)`` and the
 rig's capture noise is reseeded with ``(seed, t, n)``, so a trial's result
 does not depend on the batch, the slot or the trials beside it.
@@ -70,7 +75,15 @@ from .features import host_features_batch
 from .recognizer import Decision, Recognizer, RecognizerState, StaticParts, host_planes_of
 from .results import TrialResult
 
-__all__ = ["TrialSpec", "StepRecord", "run_trials", "batched_step", "trial_mesh", "TRIALS_AXIS"]
+__all__ = ["TrialSpec", "StepRecord", "run_trials", "batched_step", "trial_mesh", "TRIALS_AXIS",
+           "UnexplainedCaptureError"]
+
+
+class UnexplainedCaptureError(ValueError):
+    """A usable image set whose likelihood under the model is NaN, +inf or
+    zero for every class (``Decision.degenerate``): the model cannot explain
+    it, and every trial would end at its unchanged (uniform) belief, wrong.
+    The trials finished before it keep their results."""
 
 #: The mesh axis the lockstep batch is sharded along (:func:`trial_mesh`).
 TRIALS_AXIS = "trials"
@@ -382,6 +395,11 @@ def run_trials(
             cap = g.captures[i]
             sl.configs.append(sl.config)
             sl.occluded.append(cap.occluded)
+            if mine.degenerate is not None and bool(mine.degenerate):
+                raise UnexplainedCaptureError(
+                    f"trial {sl.spec.trial}, image set {sl.step + 1}: the model cannot explain the capture (its "
+                    "likelihood is not finite, or zero, under every class; are the model's arrays damaged?); "
+                    "stopped instead of ending every trial at an unchanged belief")
             sl.invalid += int(not mine.valid)
             if trace:
                 sl.probs.append(tuple(float(p) for p in mine.trace.object_probs))

@@ -61,7 +61,7 @@ import numpy as np
 from .problems import one_line, problem_message
 from .kernels import likelihood_class
 from .recipes import THESIS
-from .sensor_model import CameraModel, SensorModel
+from .sensor_model import CameraModel, SensorModel, model_problems
 
 __all__ = [
     "FORMAT_VERSION",
@@ -420,14 +420,26 @@ def load_model(path: str | os.PathLike) -> SensorModel:
         err = ModelFileContentError(f"model file {path}: " + problem_message("unexpected arrays", names))
         err.problems = names  # all of them, for --debug
         raise err
-    return SensorModel(
+    return _explaining(SensorModel(
         cameras=tuple(cameras),
         n_objects=n_objects,
         n_poses=n_poses,
         levels=levels,
         image_shape=(H, W),
         stability=stability,
-    )
+    ), path)
+
+
+def _explaining(model: SensorModel, path: Path) -> SensorModel:
+    """``model`` if it can explain a capture at all
+    (:func:`~jaxrecog.sensor_model.model_problems`: an orthonormal basis, a
+    unit mean, bounded feature means, finite positive variances), else a
+    :class:`ModelFileContentError` naming the file and the first problem."""
+    problems = model_problems(model)
+    if problems:
+        raise ModelFileContentError(f"model file {path}: {one_line(problems[0])}"
+                                    + (f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""))
+    return model
 
 
 def _checked(arrays: dict[str, np.ndarray], key: str, spec: str, sizes: dict[str, int], bad) -> np.ndarray:

@@ -45,7 +45,7 @@ import dataclasses
 from typing import Any, Mapping
 
 __all__ = ["Recipe", "RECIPES", "DEFAULT_RECIPE", "THESIS", "ROBUST", "get_recipe", "recipe_from_meta",
-           "STOP_FIELDS", "TRAIN_FIELDS", "PLAN_FIELDS", "AUTO"]
+           "STOP_FIELDS", "TRAIN_FIELDS", "PLAN_FIELDS", "AUTO", "known_versions"]
 
 #: ``view_jitter`` / ``calibrate`` value: on when the database has the split, off (with one line) otherwise
 AUTO = "auto"
@@ -235,12 +235,48 @@ def get_recipe(name: str) -> Recipe:
         raise ValueError(f"unknown recipe {name!r}; choose {', '.join(RECIPES)} (`jaxrecog recipes` lists them)") from None
 
 
+def known_versions() -> str:
+    """The recipe versions this code knows, for messages: ``robust 1-6, thesis 1``."""
+    return ", ".join(f"{r.name} {r.version}" if r.version == 1 else f"{r.name} 1-{r.version}"
+                     for r in RECIPES.values())
+
+
+def _check_known(d: Mapping[str, Any]) -> None:
+    """A model's recipe entry that this code can run as it was trained: a
+    registered recipe's version no newer than this code's, and no part this
+    code does not know (a newer recipe's part would be dropped, and the model
+    run without it).  A recipe of another name is checked for its parts only.
+
+    Raises:
+        ValueError: one line naming the recipe, its version and the versions known.
+    """
+    name, version = d.get("name"), d.get("version")
+    label = f"{name} version {version}" if isinstance(name, str) else "entry"
+    mine = RECIPES.get(name) if isinstance(name, str) else None
+    if isinstance(version, bool) or not isinstance(version, int) or version < 1:
+        raise ValueError(f"the model's recipe entry is not readable (version {str(version)[:40]!r} is not an "
+                         f"integer >= 1; known recipe versions: {known_versions()})")
+    if mine is not None and version > mine.version:
+        raise ValueError(f"the model's recipe {label} is newer than this jaxrecog knows (known recipe versions: "
+                         f"{known_versions()}); update jaxrecog to run this model as it was trained")
+    unknown = sorted(set(d) - {f.name for f in dataclasses.fields(Recipe)})
+    if unknown:
+        raise ValueError(f"the model's recipe {label} has part(s) this jaxrecog does not know: "
+                         f"{', '.join(map(str, unknown))[:200]} (known recipe versions: {known_versions()}); "
+                         "update jaxrecog to run this model as it was trained")
+
+
 def recipe_from_meta(meta: Mapping[str, Any]) -> Recipe:
     """The recipe a model file records (its metadata dict); a file written
-    before recipes (format version < 4, no ``recipe`` entry) is ``thesis``."""
+    before recipes (format version < 4, no ``recipe`` entry) is ``thesis``.
+    A recipe newer than this code (a registered name's later version, or a
+    part it does not know) is a ``ValueError`` naming the versions it knows:
+    running such a model without the part would not be the recipe it was
+    trained with."""
     d = meta.get("recipe")
     if not isinstance(d, Mapping):
         return THESIS
+    _check_known(d)
     fields = {f.name for f in dataclasses.fields(Recipe)}
     parts = {k: v for k, v in d.items() if k in fields}
     opts = parts.get("likelihood_options") or {}

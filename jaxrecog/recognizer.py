@@ -9,7 +9,10 @@ shapes and no Python branching on data:
    inside the program when traced;
 2. Bayes update of the factorised belief with log p(g_i | c, k_i, v_i)
    (eq. 3.1, 4.17-4.19) — an unusable image (zero energy, NaN) leaves the
-   belief unchanged and sets ``Decision.valid = False``;
+   belief unchanged and sets ``Decision.valid = False``; so does a usable
+   image set whose likelihood is not finite (or zero) under every class,
+   which also sets ``Decision.degenerate``: the model cannot explain it (a
+   campaign stops there, :func:`jaxrecog.driver.run_trials`);
 3. the stop test: the best (object, pose) reaches ``p_threshold`` (thesis
    P_th = 0.95) or ``max_steps`` image sets were taken;
 4. the next configuration: the planner scores all configurations under the
@@ -104,6 +107,10 @@ class Decision(NamedTuple):
         next_index: the flat configuration index of ``next_config``.
         valid: ``False`` if the images could not be used (belief unchanged).
         trace: a :class:`StepTrace` when the step was asked to trace, else ``None``.
+        degenerate: the images were usable but the model's likelihood of
+            them was NaN, +inf or zero under every class (belief unchanged,
+            ``valid`` False): a model that cannot explain the capture (e.g.
+            corrupt arrays), not a bad image.
     """
 
     object: Int[Array, ""]
@@ -115,6 +122,7 @@ class Decision(NamedTuple):
     next_index: Int[Array, ""]
     valid: Bool[Array, ""]
     trace: StepTrace | None = None
+    degenerate: Bool[Array, ""] | None = None
 
 
 def restrict_cameras(model, cameras: Sequence[int]):
@@ -383,6 +391,7 @@ class Recognizer(eqx.Module):
         state_posterior, _, ok, explained = update_from_features(
             model, state.prior, state.config, gs, usable, shared_view=self.shared_view,
             adaptive_scale=self.adaptive_scale)
+        degenerate = jnp.asarray(usable, bool) & ~ok   # usable images the model explains under no class
         posterior = self.belief(state_posterior)
 
         pc = jnp.minimum(K.class_marginal(posterior), 1.0)   # exp of a float32 log-probability may round above 1
@@ -452,6 +461,7 @@ class Recognizer(eqx.Module):
             next_index=nxt.astype(jnp.int32),
             valid=ok,
             trace=step_trace,
+            degenerate=degenerate,
         )
         return new_state, decision
 

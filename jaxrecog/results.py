@@ -11,6 +11,8 @@ import os
 from pathlib import Path
 from typing import Any, Iterable, Sequence
 
+from . import trial_checks
+
 __all__ = ["TrialResult", "TrialStore", "ObjectRow", "summarize", "table_markdown", "table_json"]
 
 
@@ -124,10 +126,19 @@ class TrialStore:
     ``write`` + ``fsync``; a torn last line (the
     process died mid-write) is ignored on reading and truncated away before the
     next append.
+
+    ``header`` (:func:`jaxrecog.trial_checks.store_header`: what the trials
+    depend on and the limits of their values) is written as the first line of
+    a new store and must be the first line of an existing one.  Every record
+    is checked when read (:func:`jaxrecog.trial_checks.record_problem`:
+    against the header's limits where the store has one) and each trial may
+    be recorded once: a store that fails is refused whole (a ``ValueError``
+    naming the file and line), never merged.
     """
 
-    def __init__(self, path: str | os.PathLike):
+    def __init__(self, path: str | os.PathLike, header: dict | None = None):
         self.path = Path(path)
+        self.header = header
         self.path.parent.mkdir(parents=True, exist_ok=True)
 
     def load(self) -> dict[int, TrialResult]:
@@ -137,15 +148,13 @@ class TrialStore:
         good_bytes = 0
         with open(self.path, "rb") as f:
             lines = f.readlines()
+        check = _StoreReader(self.path, self.header)
         for number, raw in enumerate(lines, 1):
             if not raw.endswith(b"\n") and number == len(lines):
                 break  # a torn final write: dropped below
-            try:
-                rec = TrialResult.from_dict(json.loads(raw))
-            except (ValueError, TypeError, RecursionError) as e:
-                raise ValueError(f"{self.path}: line {number} is not a trial record ({e}); move the file away "
-                                 "to start afresh") from None
-            out[rec.trial] = rec
+            rec = check.line(number, raw)
+            if rec is not None:
+                out[rec.trial] = rec
             good_bytes += len(raw)
         if good_bytes != self.path.stat().st_size:
             with open(self.path, "r+b") as f:
@@ -162,6 +171,8 @@ class TrialStore:
         if not results:
             return
         line = "".join(r.to_json() + "\n" for r in results).encode()
+        if self.header is not None and (not self.path.exists() or self.path.stat().st_size == 0):
+            line = (json.dumps(self.header, sort_keys=True, separators=(",", ":")) + "\n").encode() + line
         fd = os.open(self.path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
         try:
             view = memoryview(line)
@@ -170,6 +181,49 @@ class TrialStore:
             os.fsync(fd)
         finally:
             os.close(fd)
+
+
+class _StoreReader:
+    """Checks a store's lines as :meth:`TrialStore.load` reads them: the
+    header (first line; required when the store is read with one), each
+    record, and one record per trial."""
+
+    def __init__(self, path: Path, header: dict | None):
+        self.path, self.want = path, header
+        self.limits = None if header is None else header["limits"]
+        self.seen: dict[int, int] = {}   # trial -> its line
+
+    def fail(self, number: int, problem: str) -> ValueError:
+        return ValueError(f"{self.path}: line {number} {problem}; move the file away to start afresh")
+
+    def line(self, number: int, raw: bytes) -> TrialResult | None:
+        """The record of line ``number`` (``None`` for the header), checked."""
+        try:
+            obj = json.loads(raw)
+        except (ValueError, RecursionError) as e:
+            raise self.fail(number, f"is not a trial record ({e})") from None
+        if number == 1 and trial_checks.is_header(obj):
+            problem = None if self.want is None else trial_checks.header_problem(obj, self.want)
+            if problem:
+                raise self.fail(number, f"(the store's header) {problem}")
+            if self.want is None and isinstance(obj.get("limits"), dict):
+                self.limits = obj["limits"]   # read without a run: its own limits (checked as it was written)
+            return None
+        if number == 1 and self.want is not None:
+            raise self.fail(number, "is a trial record, not the store's header (a store written before stores "
+                                    "recorded their run, or by another tool): its trials cannot be checked "
+                                    "against this run's settings")
+        try:
+            rec = TrialResult.from_dict(obj)
+            problem = trial_checks.record_problem(obj, rec, self.limits)
+        except (ValueError, TypeError, KeyError, RecursionError) as e:
+            raise self.fail(number, f"is not a trial record ({e})") from None
+        if problem:
+            raise self.fail(number, f"(trial {rec.trial}): {problem}")
+        if rec.trial in self.seen:
+            raise self.fail(number, f"records trial {rec.trial} again (first on line {self.seen[rec.trial]})")
+        self.seen[rec.trial] = number
+        return rec
 
 
 @dataclasses.dataclass(frozen=True)

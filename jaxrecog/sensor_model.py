@@ -22,7 +22,14 @@ from jaxtyping import Array, Float
 from . import kernels as K
 from ._types import Bases, Cholesky, Eigenvalues, MeanImages, Means, Variances
 
-__all__ = ["CameraModel", "SensorModel", "GaussianAccumulator"]
+__all__ = ["CameraModel", "SensorModel", "GaussianAccumulator", "model_problems"]
+
+#: How far a basis vector's length may be from 1, and a mean image's norm
+#: above 1, before a model counts as one that cannot explain a capture
+BASIS_TOLERANCE = 1e-2
+#: The largest feature mean a model may have: a capture's features are
+#: bounded by 2 (``|Bᵀ (x̂ - x̄)| <= |x̂| + |x̄| <= 2`` for unit-energy ``x̂``)
+MAX_FEATURE_MEAN = 10.0
 
 
 class CameraModel(eqx.Module):
@@ -189,6 +196,44 @@ class SensorModel(eqx.Module):
         n_comp = sum(c.n_positions for c in self.cameras) * self.n_classes * self.n_levels
         lines.append(f"  {n_comp} {plural} (positions x classes x levels)")
         return "\n".join(lines)
+
+
+def model_problems(model: "SensorModel") -> list[str]:
+    """What makes ``model`` unable to explain any capture, one line each
+    (``[]``: none), checked where a model comes from a file
+    (:func:`jaxrecog.modelfile.load_model`): a file can hold finite arrays
+    (and a valid checksum) with which every capture's features overflow or
+    lie far from every class, and every trial would end at a uniform belief.
+
+    Per camera and position: the basis vectors of unit length (eq. 4.10,
+    within ``BASIS_TOLERANCE``), the mean image no longer than 1 (the mean of
+    unit-energy images, eq. 4.4), the feature means within
+    ``MAX_FEATURE_MEAN`` (features are bounded by 2) and the feature
+    variances finite and positive."""
+    out = []
+    with np.errstate(all="ignore"):
+        for i, cam in enumerate(model.cameras):
+            # each basis vector's length (no matrix product: a BLAS call on a busy machine took seconds)
+            norms = np.sqrt(np.einsum("vdk,vdk->vk", np.asarray(cam.basis), np.asarray(cam.basis)))
+            off = np.abs(norms.astype(np.float64) - 1.0)
+            if not np.all(off <= BASIS_TOLERANCE):
+                v, k = np.unravel_index(np.argmax(np.where(np.isnan(off), np.inf, off)), off.shape)
+                out.append(f"camera{i}.basis at position {v} is not orthonormal (vector {k} has length "
+                           f"{float(norms[v, k]):.3g}, not 1): no capture's features would be comparable with "
+                           "the classes'")
+            norms = np.linalg.norm(np.asarray(cam.mean_image, np.float64), axis=-1)
+            if not np.all(norms <= 1.0 + BASIS_TOLERANCE):
+                out.append(f"camera{i}.mean_image has norm {float(np.nanmax(norms)):.3g} > 1 (a mean of "
+                           "unit-energy images)")
+            mu = getattr(cam.likelihood, "mu", None)
+            if mu is not None and not np.all(np.abs(np.asarray(mu)) <= MAX_FEATURE_MEAN):
+                out.append(f"camera{i}.mu reaches {float(np.nanmax(np.abs(np.asarray(mu)))):.3g} (a capture's "
+                           f"features are at most 2, means beyond {MAX_FEATURE_MEAN:g} explain none)")
+            var = np.asarray(jax.vmap(lambda lik: lik.variance())(cam.likelihood), np.float64)
+            if not np.all(np.isfinite(var) & (var > 0)):
+                out.append(f"camera{i}: feature variances must be finite and > 0 (smallest {float(np.min(var)):.3g},"
+                           f" largest {float(np.max(var)):.3g})")
+    return out
 
 
 class GaussianAccumulator:

@@ -67,3 +67,20 @@ def test_bad_input_names_the_flat_setting():
         Settings(exclude_visited=True)  # the recipe's name of the part is not a setting
     with pytest.raises(TypeError):
         Settings("out/work")  # noqa: the recipe and every setting are keywords
+
+
+def test_a_trial_count_past_the_maximum_is_refused_before_any_spec_is_drawn():
+    """``--trials 1000000000`` drew every trial's spec up front (gigabytes, no
+    trial started); now the count is refused at once, naming the maximum."""
+    import time
+
+    from jaxrecog.campaign import MAX_TRIALS, plan_trials
+
+    with pytest.raises(ValueError, match=rf"^trials_per_object must be in \[1, {MAX_TRIALS}\].*got 1000000000$"):
+        Settings(trials_per_object=1_000_000_000)
+    assert Settings(trials_per_object=MAX_TRIALS).trials_per_object == MAX_TRIALS
+    t0 = time.perf_counter()
+    with pytest.raises(ValueError, match=rf"8 objects x 12501 trials per object: a campaign runs 1 to {MAX_TRIALS}"):
+        plan_trials(8, 4, (4, 1), MAX_TRIALS // 8 + 1)
+    assert time.perf_counter() - t0 < 0.5   # refused before drawing
+    assert len(plan_trials(2, 4, (4, 1), 3)) == 6

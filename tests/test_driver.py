@@ -339,3 +339,25 @@ def test_a_campaign_step_crosses_between_configuration_and_flat_index_twice(monk
     results = run_trials(rec, DatasetRig(db), specs, key=jr.PRNGKey(1), batch=2)
     assert len(results) == 6 and sum(r.steps for r in results) > 6
     assert [c for c in calls if not c[1]] == []
+
+
+def test_a_model_that_explains_no_capture_stops_the_run_instead_of_ending_wrong(moving_model):
+    """A model whose basis is 1e30 (finite arrays) made every image set's
+    likelihood NaN under every class: each trial ran to max_steps at the
+    uniform belief, WRONG, with no word.  Now the step says ``degenerate``
+    (the belief unchanged, no NaN in it) and the driver stops with one line."""
+    import equinox as eqx
+
+    from jaxrecog.driver import UnexplainedCaptureError
+
+    db, model = moving_model
+    broken = eqx.tree_at(lambda m: m.cameras[0].basis, model, model.cameras[0].basis * 1e30)
+    rec = Recognizer(broken, RandomPlanner(3), p_threshold=0.9)
+    state, dec = rec.step(rec.init(config=(0,)), db.images[db.split == "test"][:1], jr.PRNGKey(0), trace=True)
+    assert bool(dec.degenerate) and not bool(dec.valid)
+    assert all(np.all(np.isfinite(np.asarray(x))) for x in jax.tree.leaves(dec.trace.posterior))
+    np.testing.assert_allclose(np.asarray(dec.trace.object_probs), np.full(2, 0.5), atol=1e-6)
+    done = []
+    with pytest.raises(UnexplainedCaptureError, match=r"^trial 0, image set 1: the model cannot explain the capture"):
+        run_trials(rec, StrictRig(db), [TrialSpec(0, 1, 2, (0,))], key=jr.PRNGKey(0), batch=1, on_result=done.append)
+    assert done == []

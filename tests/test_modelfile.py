@@ -259,3 +259,27 @@ def test_train_refuses_an_unwritable_out_before_training(tmp_path, monkeypatch, 
     assert cli.main(["train", str(tmp_path / "db"), "--out", str(tmp_path / "afile" / "m.npz")]) == 1
     assert capsys.readouterr().err.splitlines() == [
         f"jaxrecog: error: cannot write model file {tmp_path / 'afile' / 'm.npz'}: {tmp_path / 'afile'} is not a folder"]
+
+
+def test_a_model_that_cannot_explain_any_capture_is_refused_on_load(tmp_path, models):
+    """A file whose basis is 1e30 (finite, checksum valid) loaded, and every
+    trial ended at the uniform belief, WRONG.  Now its arrays are checked
+    for what a trained model has: an orthonormal basis, a unit mean, bounded
+    feature means and positive variances; one line names the file and array."""
+    import equinox as eqx
+    import jax.numpy as jnp
+
+    m = models[0]
+    for name, change, needle in [
+        ("basis", lambda c: c.basis * 1e30,
+         r"camera0.basis at position 0 is not orthonormal \(vector 0 has length inf, not 1\)"),
+        ("mean", lambda c: c.mean_image * 5, "camera0.mean_image has norm"),
+        ("mu", lambda c: c.likelihood.mu + 1e20, "camera0.mu reaches 1e\\+20"),
+    ]:
+        field = {"basis": lambda c: c.basis, "mean": lambda c: c.mean_image, "mu": lambda c: c.likelihood.mu}[name]
+        broken = eqx.tree_at(lambda mm: field(mm.cameras[0]), m, jnp.asarray(change(m.cameras[0]), jnp.float32))
+        path = save_model(tmp_path / f"{name}.npz", broken)
+        with pytest.raises(ModelFileContentError, match=f"^model file {path}: {needle}") as e:
+            load_model(path)
+        assert "\n" not in str(e.value)
+    load_model(save_model(tmp_path / "ok.npz", m))   # the model as trained loads

@@ -250,3 +250,21 @@ def test_recipe_part_occluder_gray(photo_db, tmp_path):
     meta = load_model_meta(out)
     assert recipe_from_meta(meta).occluder_gray == (40.0, 60.0)
     assert tuple(meta["training"]["augment"]["occluder_gray"]) == (40.0, 60.0)
+
+
+def test_a_recipe_newer_than_this_code_is_one_line_not_dropped_parts():
+    """A model whose recipe is a later version than this code knows, or has a
+    part it does not know, is refused naming the known versions (before, the
+    part was dropped and the model ran as another recipe)."""
+    v7 = ROBUST.to_dict() | {"version": 7, "colour_boost": 2.0}
+    with pytest.raises(ValueError, match=r"recipe robust version 7 is newer than this jaxrecog knows "
+                                         r"\(known recipe versions: robust 1-6, thesis 1\)"):
+        recipe_from_meta({"recipe": v7})
+    with pytest.raises(ValueError, match="recipe robust version 6 has part.s. this jaxrecog does not know: "
+                                         "colour_boost .known recipe versions: robust 1-6, thesis 1"):
+        recipe_from_meta({"recipe": ROBUST.to_dict() | {"colour_boost": 2.0}})
+    with pytest.raises(ValueError, match="recipe thesis version 2 is newer"):
+        recipe_from_meta({"recipe": THESIS.to_dict() | {"version": 2}})
+    with pytest.raises(ValueError, match="version 'seven' is not an integer"):
+        recipe_from_meta({"recipe": THESIS.to_dict() | {"version": "seven"}})
+    assert recipe_from_meta({"recipe": ROBUST.to_dict() | {"version": 3}}).version == 3   # older: as it ran

@@ -229,7 +229,9 @@ def test_fixed_planner_never_moves_and_nan_scores_do_not_pick_visited(getkey):
         seen.add(int(dec.next_index))
 
 
-def test_resume_reruns_a_stored_trial_whose_scene_changed(tmp_path, moving_model):
+def test_resume_refuses_a_stored_trial_whose_scene_changed(tmp_path, moving_model):
+    """A stored trial of another scene says the store is another run's: refused
+    whole, naming the file (rerunning the trial recorded it twice)."""
     from jaxrecog.campaign import TrialSpec
     from jaxrecog.results import TrialResult, TrialStore
 
@@ -239,8 +241,10 @@ def test_resume_reruns_a_stored_trial_whose_scene_changed(tmp_path, moving_model
     store = TrialStore(tmp_path / "t.jsonl")
     store.append(TrialResult(0, 0, 0, 0, 0, 1.0, 1, True, ((0.0,),), ((1,),)))  # a stale record of another scene
     spec = TrialSpec(0, 1, 2, (0,))
-    (res,) = run_campaign(rec, rig, [spec], key=jr.PRNGKey(0), batch=1, store=store)
-    assert (res.object, res.pose, res.configurations[0]) == (1, 2, (0,))
+    with pytest.raises(ValueError, match=rf"^{store.path}: trial 0 is object 0 pose 0 from \[1\], but this run's "
+                                         r"trial 0 is object 1 pose 2 from \[0\]"):
+        run_campaign(rec, rig, [spec], key=jr.PRNGKey(0), batch=1, store=store)
+    assert store.path.read_text().count("\n") == 1   # nothing added
     with pytest.raises(ValueError, match="unique"):
         run_campaign(rec, rig, [spec, spec], key=jr.PRNGKey(0), batch=1)
 

@@ -22,6 +22,7 @@ One idea per module:
 ================ ==========================================================
 ``settings``     :class:`Settings`, everything that defines a run, and its checks
 ``naming``       cache naming: database folders, model files, run ids, result folders
+``stores``       trial stores keyed by what their trials depend on (settings, model, data digests)
 ``cases``        the case table (:data:`CASES`), a case's settings, model and trials
 ``preparation`` rendering and training (cached): :func:`prepare`
 ``rigs``         the synthetic rig, its pool for the lockstep slots, worker processes

@@ -25,6 +25,7 @@ from .naming import run_id
 from .reports import CaseReport
 from .run import compare_planners
 from .settings import Settings
+from .stores import database_sha256
 
 __all__ = ["DATASET_PLANNERS", "dataset_planners", "run_dataset"]
 
@@ -75,7 +76,9 @@ def run_dataset(
     The model file fixes the cameras and positions (any number of each);
     the database must have a test image of every view.  Finished trials are
     kept in ``workdir/trials`` (named by the settings, the model's and the
-    manifest's hashes), so an interrupted campaign resumes.  ``stride``,
+    database's digests: its manifest and pixels,
+    :func:`~jaxrecog.campaigns.stores.database_sha256`), so an interrupted
+    campaign resumes and a database re-rendered in place starts afresh.  ``stride``,
     ``capture_noise`` and the training settings do not apply (stored images,
     a given model); ``stride`` must stay 1.  ``live``: the live view's
     observer factory (:func:`~jaxrecog.campaigns.run.compare_planners`).
@@ -95,17 +98,18 @@ def run_dataset(
 
         pool = RayRigs(functools.partial(DatasetRig, db, seed=settings.seed), max(1, settings.batch),
                        settings.render_workers, cluster=settings.cluster)
-    planners = tuple(planners or dataset_planners(model_path))
+    default = dataset_planners(model_path)   # reads the recipe: one newer than this code is refused here
+    planners = tuple(planners or default)
     case = Case("dataset", f"Image database {folder} ({model.n_objects} objects x {model.n_poses} poses, "
                            f"positions {tuple(int(p) for p in model.positions)}), model {model_path}",
                 str(folder), False, None, planners)
     specs = plan_trials(model.n_objects, model.n_poses, rig.positions, settings.trials_per_object, seed=settings.seed)
     rid = run_id(settings, model_path)
-    db_id = db.manifest_sha256[:10]
+    data = database_sha256(db)   # the pixels, not only the manifest: a database re-rendered in place is another
     try:
         return compare_planners(case, model, pool, specs, settings, planners,
-                                lambda planner: f"dataset-{planner}-{rid}-{db_id}", progress=progress,
-                                on_result=on_result, probe=rig, live=live)
+                                lambda planner: f"dataset-{planner}-{rid}-{data[:10]}", progress=progress,
+                                on_result=on_result, probe=rig, live=live, content={"database_sha256": data})
     finally:
         if pool is not rig:
             pool.close()

@@ -12,20 +12,21 @@ that reveal identity.
 from __future__ import annotations
 
 import time
-from typing import TYPE_CHECKING, Any, Callable, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Mapping, Sequence
 
 import jax.random as jr
 
 from ..campaign import TrialSpec, run_campaign
 from ..motion import rig_travel_times
 from ..recognizer_factory import make_recognizer
-from ..results import TrialResult, TrialStore, summarize
+from ..results import TrialResult, summarize
 from .cases import CASES, Case, case_model, case_settings, case_trials
 from .naming import run_id
 from .preparation import Prepared, prepare, progress_bar
 from .reports import CaseReport
 from .rigs import capture_pool, make_rig
 from .settings import Settings
+from .stores import campaign_store, model_sha256
 
 if TYPE_CHECKING:
     from ..hardware.rigs.capture_memo import CaptureMemo
@@ -59,17 +60,22 @@ def compare_planners(
     on_result: Callable[[str, TrialResult], None] | None,
     probe,
     live: Callable[[str, Any, Any], Callable] | None = None,
+    content: Mapping[str, str] | None = None,
 ) -> CaseReport:
     """Each planner on the same trials (``specs``) on ``rig``; finished trials
-    go to ``workdir/trials/<store_name(planner)>.jsonl`` (resumable).
+    go to ``workdir/trials/<store_name(planner)>.jsonl`` (resumable; its header
+    records the settings, the planner, the model's digest and ``content``,
+    digests of further data the trials depend on:
+    :func:`~jaxrecog.campaigns.stores.campaign_store`).
     ``probe``: a rig of the same table, whose geometry gives the travel times.
     ``live(planner, model, probe)``: the step observer of a planner's trials
     (the live view, :class:`jaxrecog.liveview.CampaignView`), or ``None``."""
     rows, results, seconds = {}, {}, {}
     travel = rig_travel_times(probe)
+    content = {"model_sha256": model_sha256(model), **dict(content or {})}   # hashed once for every planner
     for planner in planners:
         rec = campaign_recognizer(model, planner, settings, travel)
-        store = TrialStore(settings.workdir / "trials" / f"{store_name(planner)}.jsonl")
+        store = campaign_store(settings, store_name(planner), planner, model, content)
         t0 = time.perf_counter()
         with progress_bar(len(specs), f"{case.name} {planner}" if case.name == "dataset" else f"case {case.name} {planner}", progress) as bar:
             already = len(store.load())

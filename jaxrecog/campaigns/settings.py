@@ -28,6 +28,7 @@ from typing import Any, ClassVar
 from .._fieldtypes import check_settings
 from ..cluster import check_cluster
 from ..augment import AugmentParams
+from ..campaign import MAX_TRIALS
 from ..kernels import likelihood_class, likelihood_names
 from ..kernels.adaptive_scale import scale_grid
 from ..motion import check_weight
@@ -90,7 +91,8 @@ class Settings:
             *recipe*).  Its ``name`` is the recipe it started from (``thesis``
             unless given) with the parts given by flat name replaced.
         workdir: where the database, models, trials and tables go.
-        trials_per_object: thesis: ~100.
+        trials_per_object: thesis: ~100; at most
+            :data:`~jaxrecog.campaign.MAX_TRIALS` (so is the campaign's total).
         seed: seeds trials, occluders, training and the planners' tables.
         samples: Monte Carlo samples per configuration for MI / CRLB.
         min_per_stratum: at least this many samples per state stratum
@@ -287,8 +289,9 @@ def _check(flat: dict[str, Any]) -> dict[str, Any]:
             raise ValueError(f"{k} must be an integer >= {lo}, got {v!r}")
     check_min_views(flat["min_views"], flat["max_steps"])
     scale_grid(flat["adaptive_scale"])   # a ValueError for a bad value, before anything runs
-    if flat["trials_per_object"] < 1:
-        raise ValueError("trials_per_object must be >= 1")
+    if not 1 <= flat["trials_per_object"] <= MAX_TRIALS:
+        raise ValueError(f"trials_per_object must be in [1, {MAX_TRIALS}] (a campaign holds every trial's spec "
+                         f"and result in memory), got {flat['trials_per_object']}")
     for k in ("off_grid_deg", "off_grid_eye", "off_grid_light"):
         v = flat[k]
         if v is None:

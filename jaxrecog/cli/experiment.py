@@ -13,6 +13,7 @@ from typing import Any
 from .. import campaigns  # as a module: tests stub its prepare / run_case / run_dataset
 from .._config import FIELD_OPTIONS, LIKELIHOOD_OPTION_KEYS, OPTION_FIELDS, ConfigFileError, read_toml, resolve_keys
 from .._lock import folder_lock
+from ..campaign import MAX_TRIALS
 from ..driver import trial_mesh
 from ..modelfile import ModelFileError
 from ..planners import DEFAULT_MIN_PER_STRATUM
@@ -65,7 +66,8 @@ def add_arguments(p) -> None:
     p.add_argument("--planners", nargs="+", choices=PLANNERS, metavar="PLANNER",
                    help=f"planners to compare, from {', '.join(PLANNERS)} (default: the case's; "
                         "the model's recipe's planner and random on a dataset rig)")
-    p.add_argument("--trials", type=positive, help="trials per object (default: the case's)")
+    p.add_argument("--trials", type=positive, help=f"trials per object (default: the case's; a campaign runs at "
+                                                   f"most {MAX_TRIALS} trials in all)")
     p.add_argument("--samples", type=positive, help="Monte Carlo samples of the planners")
     p.add_argument("--min-per-stratum", type=positive, help="at least this many planner samples per state "
                    f"(default {DEFAULT_MIN_PER_STRATUM})")
@@ -263,8 +265,10 @@ def _resolve(args) -> _Resolved:
     if dataset:  # the stop rule: the model's recipe unless an option or the experiment file gives it
         try:
             recipe = model_recipe(str(model))
-        except (ModelFileError, ValueError):
+        except ModelFileError:
             recipe = None   # the campaign's own load of the model reports it, after the usage checks
+        except ValueError as e:   # a recipe newer than this code: never run as another recipe
+            raise UsageError(f"model {model}: {e}") from None
         for part, field in (("p_threshold", "p_threshold"), ("min_views", "min_views"),
                             ("exclude_visited", "exclude_visited_positions"), ("adaptive_scale", "adaptive_scale")):
             if recipe is not None:
