@@ -373,7 +373,7 @@ def belief_trace(result, path: str | os.PathLike, *, planner: str, case: str, oc
     scene = "occluded" if occluded else "clean"
     return belief_lines(probs, path, true_object=result.object, reference=np.asarray(TABLE_7_8) if traced else None,
                         title=f"Belief per step: object {result.object}, "
-                              f"pose {result.pose}, {planner.upper()}, case {case} ({scene})")
+                              f"pose {result.pose}, {planner}, case {case} ({scene})")
 
 
 def model_figures(model, scores: np.ndarray, folder: str | os.PathLike, *,

@@ -51,7 +51,7 @@ def test_campaign_on_an_image_database(moving, tmp_path, saved_figures):
     text = p.stdout
     # the thesis-shaped table per planner: per-object rows and the average, no thesis column
     assert f"### Image database {moving['db']} (2 objects x 3 poses, positions (3,))" in text
-    for planner in ("MI", "RANDOM"):
+    for planner in ("mi", "random"):  # as the CLI spells them
         assert f"**{planner} — {trials} trials per object" in text
     assert text.count("| Average | 12 |") == 2 and text.count("| 1 | 6 |") == 2 and "Thesis" not in text
     # one numbering: the table's rows and the bars' ticks are the manifest's objects (0-based, as --object)

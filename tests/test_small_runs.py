@@ -80,7 +80,7 @@ def test_reproduce_thesis_script_on_a_strided_table(tmp_path, strided_workdir):
     assert p.returncode == 0, p.stderr
     text = p.stdout
     assert "### Case (i)" in text and "Thesis" not in text
-    for planner in ("MI", "MI-CLASS", "CRLB", "RANDOM"):  # case (i)'s planners, each on the same 8 trials
+    for planner in ("mi", "mi-class", "crlb", "random"):  # case (i)'s planners, as the CLI spells them,, each on the same 8 trials
         assert f"**{planner} — 1 trials per object" in text
     assert text.count("| Average | 8 |") == 4
     md = work / "results-stride8" / "case-i.md"

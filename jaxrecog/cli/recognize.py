@@ -192,7 +192,7 @@ def _report(args) -> tuple[dict, str]:
                          + [np.asarray(s["object_probabilities"], dtype=float) for s in steps])
         written = plots.belief_lines(probs, args.plot, true_object=args.object,
                                      title=f"Belief per step: object {args.object}, "
-                                           f"pose {args.pose}, {args.planner.upper()}")
+                                           f"pose {args.pose}, {args.planner}")
     result = {"object": int(dec.object), "pose": int(dec.pose), "probability": float(dec.probability),
               "steps": len(steps), "correct": int(dec.object) == args.object and int(dec.pose) == args.pose,
               "travel_s": float(res.travel_s)}
