@@ -250,3 +250,22 @@ def test_recipe_part_occluder_gray(photo_db, tmp_path):
     meta = load_model_meta(out)
     assert recipe_from_meta(meta).occluder_gray == (40.0, 60.0)
     assert tuple(meta["training"]["augment"]["occluder_gray"]) == (40.0, 60.0)
+
+
+def test_a_two_image_database_says_what_to_train_instead(tmp_path):
+    """The default recipe's low-rank covariance needs K >= 2; two training
+    images per position give K = 1: one line naming what works, before any
+    sampling, with or without --components 1 (the rank used to fail inside the
+    fit as 'rank must be in 1..K-1 = 1..0, got None')."""
+    from builders import write_synthetic_database
+
+    from clirun import one_error_line
+
+    db = write_synthetic_database(tmp_path / "db", positions=(1,), n_objects=2, n_poses=1, image_shape=(30, 40))
+    for extra in ((), ("--components", "1")):
+        p = run_cli("train", db, "--out", tmp_path / "m.npz", "--samples", "4", *extra)
+        assert p.returncode == 1
+        one_error_line(p, "K >= 2", "K = 1", "--recipe thesis", "--likelihood view-mixture")
+        assert "1..0" not in p.stderr and not (tmp_path / "m.npz").exists()
+    # what it names works
+    assert run_cli("train", db, "--out", tmp_path / "m.npz", "--samples", "4", "--recipe", "thesis", "--kind", "DB1").returncode == 0
