@@ -144,11 +144,12 @@ def belief_groups(object_probs: np.ndarray, true_object: int | None = None,
     after some image set (rows after the first, the prior, which every object
     shares), and the true object, each drawn as its own line; the rest, drawn
     as one line of their summed probability (else eight lines at zero hide
-    each other under one visible colour)."""
+    each other under one visible colour); a single such object keeps its line."""
     P = np.asarray(object_probs, dtype=float)
     body = P[1:] if P.shape[0] > 1 else P
     shown = [m for m in range(P.shape[1]) if m == true_object or float(np.nanmax(body[:, m])) > floor]
-    return shown, [m for m in range(P.shape[1]) if m not in shown]
+    others = [m for m in range(P.shape[1]) if m not in shown]
+    return (shown, others) if len(others) > 1 else (list(range(P.shape[1])), [])  # one alone hides nothing
 
 
 def _others_label(others: Sequence[int], floor: float) -> str:

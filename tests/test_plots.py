@@ -161,6 +161,8 @@ def test_belief_groups_keep_the_true_object_and_lump_the_flat_ones():
     P = np.asarray(TABLE_7_8)
     assert plots.belief_groups(P, 5) == ([0, 1, 3, 4, 5], [2, 6, 7])
     assert plots.belief_groups(P, 6) == ([0, 1, 3, 4, 5, 6], [2, 7])  # the true object always drawn
+    flat_one = np.array([[0.5, 0.5], [0.001, 0.999]])
+    assert plots.belief_groups(flat_one, 1) == ([0, 1], [])  # one object alone hides nothing: its own line
     assert plots.step_labels(3, [(1, 2)]) == ["0\nprior", "1\n(1,2)", "2"]
 
 

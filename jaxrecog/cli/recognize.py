@@ -11,7 +11,7 @@ from .. import plots
 from ..driver import StepRecord, TrialSpec, run_trials
 from ..counts import CountsMismatchError, check_counts
 from ..scene import CAPTURE_NOISE, occluder_factory  # the thesis-case boards (first views occluded)
-from ..hardware import Capture, DatasetRig, Noise, rig_from_config
+from ..hardware import Capture, DatasetRig, Noise, RigError, rig_from_config
 from ..modelfile import load_model
 from ..motion import rig_travel_times
 from ..planners import DEFAULT_PLANNER
@@ -71,7 +71,10 @@ def _make_rig(args, model):
         folder = spec[len("dataset:"):]
         if not folder:
             raise UsageError("--rig dataset:FOLDER needs a folder")
-        return DatasetRig.from_folder(folder, seed=args.seed)
+        try:
+            return DatasetRig.from_folder(folder, seed=args.seed)
+        except RigError as e:  # a database that cannot be replayed: the user's input, one line
+            raise CLIError(f"--rig {spec}: {e}") from None
     if spec.endswith(".toml"):
         if not Path(spec).is_file():
             raise CLIError(f"rig file {spec} not found")
