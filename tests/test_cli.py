@@ -323,6 +323,17 @@ def test_experiment_case_and_toml(fake_experiments, tmp_path, capsys):
     assert cli.main(["experiment", "iv", "--out", str(out)]) == 2
 
 
+def test_demo_quick_is_the_smoke_sizes_unless_given():
+    """``demo --quick``: every 8th position, 2 trials per object; a size given wins."""
+    from jaxrecog.cli import build_parser, demo
+
+    def sizes(*argv):
+        return demo.demo_sizes(build_parser().parse_args(["demo", *argv]))
+
+    assert sizes() == (1, 10) and sizes("--quick") == (8, 2)
+    assert sizes("--quick", "--stride", "4") == (4, 2) and sizes("--quick", "--trials", "5") == (8, 5)
+
+
 @pytest.mark.slow
 def test_demo_writes_every_plot(fake_experiments, tiny, tmp_path, capsys):
     out = tmp_path / "demo"
