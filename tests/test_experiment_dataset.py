@@ -96,8 +96,8 @@ def test_campaign_on_an_image_database(moving, tmp_path, saved_figures):
                     f"[settings]\ntrials_per_object = {trials}\nsamples = 64\n")
     q = run("--quiet", "experiment", toml, "--out", out)
     assert q.returncode == 0, q.stderr
-    mi_table = text[text.index("**MI"):text.index("**RANDOM")].split("\n", 1)[1]
-    assert mi_table.strip() in q.stdout and "RANDOM" not in q.stdout
+    mi_table = text[text.index("**mi —"):text.index("**random —")].split("\n", 1)[1]
+    assert mi_table.strip() in q.stdout and "**random" not in q.stdout
     # --json: the same table as one document (the stored trials again), the keys of docs/cli.md
     from jaxrecog.cli._json import SCHEMAS, check
 
