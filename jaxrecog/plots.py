@@ -154,7 +154,7 @@ def belief_groups(object_probs: np.ndarray, true_object: int | None = None,
 
 def _others_label(others: Sequence[int], floor: float) -> str:
     names = (", ".join(str(m) for m in others) if len(others) <= 6 else f"{len(others)} objects")
-    return f"others ({names}; each \u2264 {100 * floor:g} %), summed"
+    return f"others: {names}\n(each \u2264 {100 * floor:g} %, summed)"
 
 
 def step_labels(n_steps: int, configurations: Sequence[Sequence[int]] | None) -> list[str]:

@@ -203,6 +203,6 @@ def test_the_trace_names_objects_and_cameras_as_the_cli_does(tmp_path, saved_fig
     assert fig["titles"][0].startswith("Belief per step: object 5, pose 2, mi")
     # objects 2, 6 and 7 never pass 1 % after the prior: one summed line, not three hidden at zero
     assert fig["legend"][:5] == [f"object {m}" + (" (true)" if m == 5 else "") for m in (0, 1, 3, 4, 5)]
-    assert fig["legend"][5:] == ["others (2, 6, 7; each \u2264 1 %), summed", "thesis Table 7.8 (object 5)"]
+    assert fig["legend"][5:] == ["others: 2, 6, 7\n(each \u2264 1 %, summed)", "thesis Table 7.8 (object 5)"]
     # each step names the configuration its image set was taken at
     assert fig["xticks"][0][:3] == ["0\nprior", "1\n(0,1)", "2\n(2,3)"]
