@@ -166,3 +166,16 @@ def test_a_campaign_with_a_damaged_store_fails_before_running_a_trial(tmp_path, 
 
     with unchecked(), pytest.raises(ValueError, match="line 1 is not a trial record"):
         run_campaign(NoRecognizer(), NoRig(), [], key=None, store=store)
+
+
+def test_a_case_reports_metrics_rows_carry_both_intervals(tmp_path):
+    """CaseReport.metrics_table (the turntable and rig-recipe summaries): rate
+    and confident errors each with the 95 % Wilson interval of its counts."""
+    from jaxrecog.campaigns import CASES, CaseReport, Settings
+
+    rs = [_trial(0, 0, ok=False, p=0.99), _trial(1, 0), _trial(2, 1), _trial(3, 1)]
+    report = CaseReport(CASES["iii"], Settings(workdir=tmp_path), {"mi": summarize(rs, 2)}, {"mi": rs}, {"mi": 3.0})
+    lines, metrics = report.metrics_table()
+    assert "[95 % CI]" in lines[0] and metrics["mi"]["recognition_rate_ci"] == pytest.approx(
+        [100 * x for x in wilson_interval(3, 4)])
+    assert lines[2].startswith("| mi | 4 | 75.0 [30.1, 95.4] | 2.00 | 25.0 [4.6, 69.9] |"), lines[2]
