@@ -42,7 +42,7 @@ from jaxrecog.calibration import calibrate_model, features_from_database  # noqa
 from jaxrecog.metrics import campaign_metrics  # noqa: E402
 from jaxrecog.planners import make_planner  # noqa: E402
 from jaxrecog.recognizer import Recognizer  # noqa: E402
-from jaxrecog.results import TrialResult  # noqa: E402
+from jaxrecog.results import TrialResult, format_rate  # noqa: E402
 from jaxrecog.train import train_model  # noqa: E402
 
 VARIANTS = {
@@ -135,7 +135,7 @@ def main(argv=None) -> int:
             row["seconds"] = time.perf_counter() - t0
             rows.append(row)
             print(f"{name:17s} cal={calibrated!s:5s} LL {row['held_out_loglik']:8.2f}  NLL1 {row['single_view_nll']:6.3f}  "
-                  f"rate {row['recognition_rate']:5.1f}%  views {row['mean_views']:.2f}  "
+                  f"rate {format_rate(row['recognition_rate'], row['recognition_rate_ci'])} %  views {row['mean_views']:.2f}  "
                   f"conf.err {row['confident_errors']}/{row['stopped']}  ECE {row['ece']:.3f}"
                   + (f"  nu {row['nu']}" if "nu" in row else ""), flush=True)
     out = {"settings": vars(args) | {"out": str(args.out)}, "jax": jax.__version__, "rows": rows}

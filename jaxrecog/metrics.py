@@ -9,6 +9,9 @@ width bins ``B_b = ((b-1)/n, b/n]`` over ``[0, 1]`` (the first bin includes 0):
 * confident-error rate: of the trials that stopped on the threshold
   (``stopped`` and ``exit_prob ≥ P_th``), the fraction that are wrong.  A
   calibrated recognizer keeps it ≤ ``1 − P_th``.
+
+Every rate comes with its 95 % Wilson score interval
+(:func:`~jaxrecog.results.wilson_interval`).
 """
 
 from __future__ import annotations
@@ -18,7 +21,7 @@ from typing import Sequence
 
 import numpy as np
 
-from .results import TrialResult
+from .results import TrialResult, wilson_interval
 
 __all__ = [
     "ReliabilityBin",
@@ -99,9 +102,14 @@ def campaign_metrics(results: Sequence[TrialResult], p_threshold: float = 0.95,
                      n_bins: int = 10) -> dict:
     """Recognition rate (%), mean views, mean exit probability, ECE and the
     confident-error rate (% of stopped trials, and % of all trials: the
-    number every results table shows) of one campaign."""
+    number every results table shows) of one campaign; each rate ``x`` with
+    its 95 % Wilson interval ``x_ci = [lo, hi]`` in percent."""
     p, ok = _arrays(results)
     ce = confident_errors(results, p_threshold)
+
+    def pct(k: int, n: int) -> list[float]:
+        return [100.0 * x for x in wilson_interval(k, n)]
+
     return {
         "trials": len(p),
         "recognition_rate": 100.0 * float(ok.mean()),
@@ -112,4 +120,7 @@ def campaign_metrics(results: Sequence[TrialResult], p_threshold: float = 0.95,
         "confident_errors": ce.wrong,
         "confident_error_rate": 100.0 * ce.rate,
         "confident_error_pct_of_trials": 100.0 * ce.rate_of_all,
+        "recognition_rate_ci": pct(int(ok.sum()), len(p)),
+        "confident_error_rate_ci": pct(ce.wrong, ce.stopped),
+        "confident_error_pct_of_trials_ci": pct(ce.wrong, len(p)),
     }

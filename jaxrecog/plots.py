@@ -22,7 +22,9 @@ __all__ = [
     "DPI",
     "save",
     "score_heatmap",
+    "belief_groups",
     "belief_lines",
+    "step_labels",
     "eigenimages",
     "occlusion_examples",
     "campaign_bars",
@@ -32,9 +34,8 @@ __all__ = [
 ]
 
 DPI = 100
-PLANNER_LABELS = {"mi": "MI", "mi-class": "MI (class)", "crlb": "CRLB (trace)",
-                  "crlb-det": "CRLB (det)", "crlb-eig": "CRLB (max eig.)", "random": "random",
-                  "fixed": "fixed"}
+#: belief_lines draws an object on its own only where it exceeds this probability after some image set
+BELIEF_FLOOR = 0.01
 
 
 def wrap_title(title: str, width: int) -> str:
@@ -137,6 +138,40 @@ def score_heatmap(
     return save(fig, path)
 
 
+def belief_groups(object_probs: np.ndarray, true_object: int | None = None,
+                  floor: float = BELIEF_FLOOR) -> tuple[list[int], list[int]]:
+    """``(shown, others)``: the objects whose probability exceeds ``floor``
+    after some image set (rows after the first, the prior, which every object
+    shares), and the true object, each drawn as its own line; the rest, drawn
+    as one line of their summed probability (else eight lines at zero hide
+    each other under one visible colour); a single such object keeps its line."""
+    P = np.asarray(object_probs, dtype=float)
+    body = P[1:] if P.shape[0] > 1 else P
+    shown = [m for m in range(P.shape[1]) if m == true_object or float(np.nanmax(body[:, m])) > floor]
+    others = [m for m in range(P.shape[1]) if m not in shown]
+    return (shown, others) if len(others) > 1 else (list(range(P.shape[1])), [])  # one alone hides nothing
+
+
+def _others_label(others: Sequence[int], floor: float) -> str:
+    names = (", ".join(str(m) for m in others) if len(others) <= 6 else f"{len(others)} objects")
+    return f"others: {names}\n(each \u2264 {100 * floor:g} %, summed)"
+
+
+def step_labels(n_steps: int, configurations: Sequence[Sequence[int]] | None) -> list[str]:
+    """Tick labels of steps ``0..n_steps-1``: step 0 is the prior; step n
+    names the configuration its image set was taken at (``configurations[n-1]``)."""
+    configurations = list(configurations or ())
+    out = []
+    for s in range(n_steps):
+        if s == 0:
+            out.append("0\nprior" if configurations else "0")
+        elif s - 1 < len(configurations):
+            out.append(f"{s}\n(" + ",".join(str(int(c)) for c in configurations[s - 1]) + ")")
+        else:
+            out.append(str(s))
+    return out
+
+
 def belief_lines(
     object_probs: np.ndarray,
     path: str | os.PathLike,
@@ -144,9 +179,12 @@ def belief_lines(
     true_object: int | None = None,
     title: str = "Belief over objects per step",
     reference: np.ndarray | None = None,
+    configurations: Sequence[Sequence[int]] | None = None,
+    floor: float = BELIEF_FLOOR,
 ) -> tuple[Path, Path]:
     """Object probabilities (summed over poses) after each step, one line per
-    object, like thesis Table 7.8.
+    object that exceeds ``floor`` after some step (:func:`belief_groups`),
+    the others as one summed line, like thesis Table 7.8.
 
     Args:
         object_probs: ``[S, M]``; row 0 is usually the uniform prior.
@@ -154,6 +192,8 @@ def belief_lines(
             objects from 0, as the manifest, the CLI and the tables do.
         reference: optional ``[S', M]`` (e.g. Table 7.8) drawn dotted for
             the true object only.
+        configurations: the configuration of each image set (step n's is
+            ``configurations[n-1]``), written under the step's tick.
     """
     plt = _plt()
     P = np.asarray(object_probs, dtype=float)
@@ -164,21 +204,28 @@ def belief_lines(
     fig, ax = plt.subplots(figsize=(7.0, 4.5))
     cmap = plt.get_cmap("tab10")
     steps = np.arange(S)
-    for m in range(M):
+    shown, others = belief_groups(P, true_object, floor)
+    for m in shown:
         thick = true_object is not None and m == true_object
         ax.plot(steps, P[:, m], marker="o", lw=5 if thick else 1.3, ms=9 if thick else 5, color=cmap(m % 10),
                 label=f"object {m}" + (" (true)" if thick else ""), zorder=2 if thick else 3)  # true line underneath, so ties stay visible
+    if others:
+        ax.plot(steps, P[:, others].sum(axis=1), marker=".", ls="--", lw=1.0, color="0.55",
+                label=_others_label(others, floor), zorder=1)
     if R is not None:
         ax.plot(np.arange(R.shape[0]), R[:, true_object], ls=":", color="k", lw=1.5,
                 label=f"thesis Table 7.8 (object {true_object})")
-    ax.set_xlabel("step (0 = prior, n = after the n-th image set)")
+    n_ticks = max(S, 0 if R is None else R.shape[0])  # ticks cover the reference line too
+    ax.set_xlabel("step (0 = prior, n = after the n-th image set" + ("; (configuration)" if configurations else "")
+                  + ")")
     ax.set_ylabel("P(object | images so far)")
     ax.set_ylim(-0.02, 1.02)
-    ax.set_xticks(np.arange(max(S, 0 if R is None else R.shape[0])))  # ticks cover the reference line too
+    ax.set_xticks(np.arange(n_ticks))
+    ax.set_xticklabels(step_labels(n_ticks, configurations), fontsize=8)
     ax.grid(alpha=0.3)
     ax.set_title(wrap_title(title, 62), fontsize=10)  # wrapped: the axes are narrower than the figure
     ax.legend(loc="center left", bbox_to_anchor=(1.01, 0.5), fontsize=8, frameon=False)
-    fig.subplots_adjust(left=0.1, right=0.72, top=0.86, bottom=0.13)
+    fig.subplots_adjust(left=0.1, right=0.72, top=0.86, bottom=0.17 if configurations else 0.13)
     return save(fig, path)
 
 
@@ -288,8 +335,9 @@ def campaign_bars(
     thesis: Mapping[str, object] | None = None,
     title: str = "Recognition campaign",
 ) -> tuple[Path, Path]:
-    """Recognition rate and mean number of views per object, one bar per
-    planner, the thesis's published values as markers.
+    """Recognition rate (with its 95 % Wilson interval as an error bar) and
+    mean number of views per object, one bar per planner (named as the CLI
+    spells it), the thesis's published values as markers.
 
     Args:
         rows: planner name -> :class:`~jaxrecog.results.ObjectRow` list from
@@ -313,9 +361,11 @@ def campaign_bars(
         views = np.array([rs[l].views if l in rs else np.nan for l in labels], float)
         xs = x - 0.4 + width * (j + 0.5)
         color = cmap(j % 10)
-        nice = PLANNER_LABELS.get(name, name)
-        ax1.bar(xs, rate, width, color=color, label=nice)
-        ax2.bar(xs, views, width, color=color, label=nice)
+        ax1.bar(xs, rate, width, color=color, label=name)  # the planner as the CLI spells it
+        ax2.bar(xs, views, width, color=color, label=name)
+        lo, hi = rate_interval(rows[name], labels)
+        ax1.errorbar(xs, rate, yerr=[rate - lo, hi - rate], fmt="none", ecolor="black", elinewidth=0.9,
+                     capsize=2, zorder=3)
         for xz in xs[rate == 0]:  # a zero rate is a result, not a missing bar
             ax1.text(xz, 1.0, "0", ha="center", va="bottom", fontsize=8, color=color)
         ref = (thesis or {}).get(name)
@@ -327,7 +377,7 @@ def campaign_bars(
             ax1.plot(xs[:n], t_rate[:n], label="thesis (published)" if not marked else None, **kw)
             ax2.plot(xs[:n], t_views[:n], **kw)
             marked = True
-    ax1.set_ylabel("recognition rate (%)")
+    ax1.set_ylabel("recognition rate (%)\nbars: 95 % interval", fontsize=9)
     ax1.set_ylim(0, 105)
     ax2.set_ylabel("mean number of views")
     ax2.set_xlabel("object")
@@ -340,6 +390,15 @@ def campaign_bars(
     ax1.set_title(title)
     fig.subplots_adjust(left=0.08, right=0.78, top=0.93, bottom=0.09, hspace=0.12)
     return save(fig, path)
+
+
+def rate_interval(rows: Sequence, labels: Sequence[str]) -> tuple[np.ndarray, np.ndarray]:
+    """The 95 % interval (percent) of each labelled row's rate, NaN where the
+    row is missing or has none (:attr:`~jaxrecog.results.ObjectRow.rate_ci`)."""
+    by = {r.label: r for r in rows}
+    ci = np.array([tuple(getattr(by[l], "rate_ci", (np.nan, np.nan))) if l in by else (np.nan, np.nan)
+                   for l in labels], float).reshape(len(labels), 2)
+    return ci[:, 0], ci[:, 1]
 
 
 # -- the figures of a campaign report (``jaxrecog experiment`` / ``demo``) ----------
@@ -372,8 +431,9 @@ def belief_trace(result, path: str | os.PathLike, *, planner: str, case: str, oc
     traced = thesis_rig and case == "iii" and result.object == 5 and M == len(TABLE_7_8[0])
     scene = "occluded" if occluded else "clean"
     return belief_lines(probs, path, true_object=result.object, reference=np.asarray(TABLE_7_8) if traced else None,
+                        configurations=getattr(result, "configurations", None) or None,
                         title=f"Belief per step: object {result.object}, "
-                              f"pose {result.pose}, {planner.upper()}, case {case} ({scene})")
+                              f"pose {result.pose}, {planner}, case {case} ({scene})")
 
 
 def model_figures(model, scores: np.ndarray, folder: str | os.PathLike, *,

@@ -13,7 +13,56 @@ from typing import Any, Iterable, Sequence
 
 from . import trial_checks
 
-__all__ = ["TrialResult", "TrialStore", "ObjectRow", "summarize", "table_markdown", "table_json"]
+__all__ = ["TrialResult", "TrialStore", "ObjectRow", "wilson_interval", "summarize", "table_markdown",
+           "table_json", "format_rate"]
+
+#: the confidence of every interval printed with a rate
+CONFIDENCE = 0.95
+
+
+def wilson_interval(successes: int, trials: int, confidence: float = CONFIDENCE) -> tuple[float, float]:
+    """The Wilson score interval of a binomial proportion, as fractions in [0, 1].
+
+    With ``p = k/n`` and ``z`` the two-sided normal quantile of ``confidence``
+    (1.96 for 95 %): centre ``(p + z²/2n) / (1 + z²/n)``, half-width
+    ``z/(1 + z²/n) · sqrt(p(1-p)/n + z²/4n²)``.  Unlike ``p ± z·se`` it stays
+    in [0, 1] and is not empty at ``k = 0`` or ``k = n`` (20 of 20 correct:
+    [83.9, 100] %).  ``(nan, nan)`` for ``n = 0``.
+
+    Raises:
+        ValueError: ``successes`` not in ``0..trials`` or ``confidence`` not in (0, 1).
+    """
+    if not 0.0 < confidence < 1.0:
+        raise ValueError(f"confidence must be in (0, 1), got {confidence}")
+    if trials < 0 or not 0 <= successes <= trials:
+        raise ValueError(f"successes must be in 0..trials, got {successes} of {trials}")
+    if trials == 0:
+        return math.nan, math.nan
+    from statistics import NormalDist
+
+    z = NormalDist().inv_cdf(0.5 + confidence / 2)
+    n, p = float(trials), successes / trials
+    denom = 1.0 + z * z / n
+    centre = (p + z * z / (2 * n)) / denom
+    half = z / denom * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n))
+    lo = 0.0 if successes == 0 else max(0.0, centre - half)
+    hi = 1.0 if successes == trials else min(1.0, centre + half)
+    return lo, hi
+
+
+def _pct_interval(successes: int, trials: int) -> tuple[float, float]:
+    lo, hi = wilson_interval(successes, trials)
+    return 100.0 * lo, 100.0 * hi
+
+
+def format_rate(rate: float, interval: Sequence[float], digits: int = 1) -> str:
+    """``"95.0 [86.5, 98.3]"``: a percentage and its 95 % interval (an em dash for NaN)."""
+    if rate != rate:
+        return "\u2014"
+    lo, hi = interval
+    if lo != lo:
+        return f"{rate:.{digits}f}"
+    return f"{rate:.{digits}f} [{lo:.{digits}f}, {hi:.{digits}f}]"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -238,6 +287,11 @@ class ObjectRow:
     confident_errors: float = math.nan
     #: mean seconds of travel per trial (NaN: not recorded)
     travel_s: float = math.nan
+    #: 95 % Wilson interval of ``rate``, percent (:func:`wilson_interval`; the
+    #: average row's is that of all its trials pooled); NaN: no trials
+    rate_ci: tuple[float, float] = (math.nan, math.nan)
+    #: 95 % Wilson interval of ``confident_errors``, percent
+    confident_errors_ci: tuple[float, float] = (math.nan, math.nan)
 
 
 def _mean_travel(rs: Sequence[TrialResult]) -> float:
@@ -252,38 +306,49 @@ def summarize(results: Iterable[TrialResult], n_objects: int) -> list[ObjectRow]
     A trial is a *confident error* when it stopped on the threshold (its
     ``stopped`` flag: exit probability >= P_th) on the wrong object or pose.
     ``travel_s`` is the mean travel time per trial (NaN unless every trial of
-    the row recorded one)."""
+    the row recorded one).  Each rate carries its 95 % Wilson interval
+    (:func:`wilson_interval`); the average row's is that of the pooled
+    trials (the average rate itself with equal trials per object)."""
     by_obj: dict[int, list[TrialResult]] = {m: [] for m in range(n_objects)}
     for r in results:
         by_obj[r.object].append(r)
     rows = []
+    right = wrong = 0
     for m in range(n_objects):
         rs = by_obj[m]
         if rs:
+            k = sum(r.correct for r in rs)
+            e = sum(r.stopped and not r.correct for r in rs)
+            right, wrong = right + k, wrong + e
             rows.append(
                 ObjectRow(
                     str(m),
                     len(rs),
-                    100.0 * sum(r.correct for r in rs) / len(rs),
+                    100.0 * k / len(rs),
                     sum(r.exit_prob for r in rs) / len(rs),
                     sum(r.steps for r in rs) / len(rs),
-                    100.0 * sum(r.stopped and not r.correct for r in rs) / len(rs),
+                    100.0 * e / len(rs),
                     _mean_travel(rs),
+                    _pct_interval(k, len(rs)),
+                    _pct_interval(e, len(rs)),
                 )
             )
         else:
             rows.append(ObjectRow(str(m), 0, math.nan, math.nan, math.nan))
     filled = [r for r in rows if r.trials]
     if filled:
+        n = sum(r.trials for r in filled)
         rows.append(
             ObjectRow(
                 "Average",
-                sum(r.trials for r in filled),
+                n,
                 sum(r.rate for r in filled) / len(filled),
                 sum(r.exit_prob for r in filled) / len(filled),
                 sum(r.views for r in filled) / len(filled),
                 sum(r.confident_errors for r in filled) / len(filled),
                 sum(r.travel_s for r in filled) / len(filled),
+                _pct_interval(right, n),
+                _pct_interval(wrong, n),
             )
         )
     return rows
@@ -297,11 +362,12 @@ def _num(x: float, digits: int) -> str:
 def table_markdown(rows: Sequence[ObjectRow], title: str = "", reference: Sequence[tuple[float, float, float]] | None = None) -> str:
     """The thesis-shaped table as Markdown, with the confident-error column
     (wrong and stopped at p >= P_th, % of trials; the thesis does not report
-    it); ``reference`` adds the thesis's (rate, exit prob, views) per row for
+    it); both rates with their 95 % Wilson interval in brackets; ``reference`` adds the thesis's (rate, exit prob, views) per row for
     comparison.  A mean-travel column (seconds per trial) is added when some
     row recorded travel times."""
     travel = any(r.travel_s == r.travel_s for r in rows)
-    head = "| Object | Trials | Recog. rate (%) | Mean exit prob. | Mean no. of views | Confident errors (%) |"
+    head = ("| Object | Trials | Recog. rate (%) [95 % CI] | Mean exit prob. | Mean no. of views "
+            "| Confident errors (%) [95 % CI] |")
     sep = "|---|---:|---:|---:|---:|---:|"
     if travel:
         head += " Mean travel (s) |"
@@ -311,7 +377,8 @@ def table_markdown(rows: Sequence[ObjectRow], title: str = "", reference: Sequen
         sep += "---|"
     lines = ([f"**{title}**", ""] if title else []) + [head, sep]
     for i, r in enumerate(rows):
-        line = f"| {r.label} | {r.trials} | {r.rate:.1f} | {r.exit_prob:.2f} | {r.views:.2f} | {_num(r.confident_errors, 1)} |"
+        line = (f"| {r.label} | {r.trials} | {format_rate(r.rate, r.rate_ci)} | {_num(r.exit_prob, 2)} | "
+                f"{_num(r.views, 2)} | {format_rate(r.confident_errors, r.confident_errors_ci)} |")
         if travel:
             line += f" {_num(r.travel_s, 2)} |"
         if reference is not None:

@@ -48,6 +48,23 @@ class TrainingInfo:
                 "seconds": self.seconds}
 
 
+def _check_rank(family, options: dict, K: int) -> None:
+    """A low-rank covariance (``rank`` R in ``1..K-1``) needs K >= 2: on a
+    database too small for that (one or two training images per position give
+    K = 1) say what to train instead, before any sample is drawn."""
+    if "rank" not in family.fit_options:
+        return
+    rank = options.get("rank")
+    name = family.name or family.kind
+    if K < 2:
+        raise ValueError(f"likelihood {name} needs K >= 2 components for its rank (1..K-1), and K = 1 is all this "
+                         f"database's training images hold: train with --recipe thesis or --likelihood "
+                         f"{'view-mixture' if family.view_components else 'gaussian-full'}, or add training images")
+    if rank is not None and not 1 <= int(rank) < K:
+        raise ValueError(f"likelihood {name}: rank must be in 1..K-1 = 1..{K - 1}, got {rank}: give --rank "
+                         f"1..{K - 1} or more --components")
+
+
 def train_model(
     database: ImageDatabase | str | os.PathLike,
     *,
@@ -184,6 +201,7 @@ def train_model(
     train = [db.train_images(i) for i in range(db.n_cameras)]        # [V, C, H, W] each
     spaces = [[position_eigenspace(t[v]) for v in range(t.shape[0])] for t in train]
     K = choose_n_components([s.eigenvalues for cam in spaces for s in cam], n_components, at_most=components_at_most)
+    _check_rank(family, options, K)
     bank = occluder_bank(levels, (H, W), params, seed)
 
     total = sum(len(s) for s in spaces)

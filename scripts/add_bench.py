@@ -42,6 +42,7 @@ from pathlib import Path
 
 from jaxrecog.cli import main as cli_main
 from jaxrecog.photo_turntable import PhotoSet, build_photo_database, scan_photos
+from jaxrecog.results import format_rate
 from photo_bench import bench_args, bench_options, planner_metrics   # scripts/ is this script's folder
 
 QUICK = {"grid": 40, "old": 2, "new": 1, "trials": 1, "samples": 10, "components": 4, "repeats": 0}
@@ -70,11 +71,12 @@ def _cold(*args) -> float:
 
 def _rate(exp: Path) -> dict:
     """The model recipe's planner's metrics of an ``experiment --out EXP`` (rate and
-    confident errors in % of trials, each with its standard error)."""
+    confident errors in % of trials, each with its standard error and its 95 % Wilson interval)."""
     report = json.loads((exp / "case_dataset.json").read_text())
     planner = next(iter(report["tables"]))
     m = planner_metrics(exp / "work", planner, report["settings"]["p_threshold"])
-    keys = ("recognition_rate", "recognition_rate_se", "confident_error_pct_of_trials", "confident_error_pct_of_trials_se")
+    keys = ("recognition_rate", "recognition_rate_se", "recognition_rate_ci", "confident_error_pct_of_trials",
+            "confident_error_pct_of_trials_se", "confident_error_pct_of_trials_ci")
     return {"planner": planner, "trials": m["trials"], **{k: m[k] for k in keys}}
 
 
@@ -118,7 +120,7 @@ def run(out: Path, *, photos: Path, grid: int, old: int, new: int, trials: int, 
     return rows
 
 
-HEADER = ("| command | cold s (share of at once) | warm s (share of at once) | rate % ± SE | confident errors % ± SE |\n"
+HEADER = ("| command | cold s (share of at once) | warm s (share of at once) | rate % [95 % CI] | confident errors % [95 % CI] |\n"
           "|---|---:|---:|---:|---:|")
 
 
@@ -126,8 +128,8 @@ def _line(r: dict, full: dict) -> str:
     def share(k):
         return f"{r[k]:.2f} ({100 * r[k] / full[k]:.0f} %)" if math.isfinite(r[k]) else "-"
 
-    rate = (f"{r['recognition_rate']:.1f} ± {r['recognition_rate_se']:.1f} | "
-            f"{r['confident_error_pct_of_trials']:.1f} ± {r['confident_error_pct_of_trials_se']:.1f}"
+    rate = (f"{format_rate(r['recognition_rate'], r['recognition_rate_ci'])} | "
+            f"{format_rate(r['confident_error_pct_of_trials'], r['confident_error_pct_of_trials_ci'])}"
             if "recognition_rate" in r else "- | -")
     return f"| {r['variant']} | {share('cold_s')} | {share('warm_s')} | {rate} |"
 

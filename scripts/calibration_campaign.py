@@ -40,7 +40,7 @@ from jaxrecog.hardware.render.synthetic import Noise, Perturb
 from jaxrecog.metrics import campaign_metrics
 from jaxrecog.modelfile import load_model, save_model
 from jaxrecog.recognizer import restrict_cameras
-from jaxrecog.results import TrialStore
+from jaxrecog.results import TrialStore, format_rate
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -136,14 +136,15 @@ def main(argv=None) -> int:
         metrics[label] = {**campaign_metrics(res, settings.p_threshold, args.bins),
                           "seconds": time.perf_counter() - t1}
 
-    head = ("| model | trials | recog. rate (%) | mean views | mean exit prob. | ECE | stopped "
-            "| confident errors (% of trials; % of stopped) |")
+    head = ("| model | trials | recog. rate (%) [95 % CI] | mean views | mean exit prob. | ECE | stopped "
+            "| confident errors (% of trials; % of stopped) [95 % CI] |")
     lines = [f"Case {case.name} ({case.title}), planner {args.planner}, {args.trials} trials/object, "
              f"P_th = {settings.p_threshold}", "", head, "|---|---:|---:|---:|---:|---:|---:|---:|"]
     for label, m in metrics.items():
-        lines.append(f"| {label} | {m['trials']} | {m['recognition_rate']:.1f} | {m['mean_views']:.2f} | "
+        lines.append(f"| {label} | {m['trials']} | {format_rate(m['recognition_rate'], m['recognition_rate_ci'])} | {m['mean_views']:.2f} | "
                      f"{m['mean_exit_prob']:.3f} | {m['ece']:.3f} | {m['stopped']} | "
-                     f"{m['confident_errors']} ({m['confident_error_pct_of_trials']:.1f} %; {m['confident_error_rate']:.1f} %) |")
+                     f"{m['confident_errors']} ({format_rate(m['confident_error_pct_of_trials'], m['confident_error_pct_of_trials_ci'])} %; "
+                     f"{format_rate(m['confident_error_rate'], m['confident_error_rate_ci'])} %) |")
     table = "\n".join(lines)
     print(table)
     out = args.workdir / "results"

@@ -50,7 +50,7 @@ from jaxrecog.hardware.rigs.capture_memo import CaptureMemo
 from jaxrecog.cluster import ClusterError, connect
 from jaxrecog.metrics import expected_calibration_error
 from jaxrecog.plots import save_png
-from jaxrecog.results import summarize
+from jaxrecog.results import format_rate, summarize, wilson_interval
 
 PLANNERS = ("mi-class-pairwise", "random")
 DATABASES = ("DB1", "DB2")
@@ -76,6 +76,7 @@ def off_grid_amounts(angle: float) -> tuple[float, float, float]:
 def _point(results, n_objects: int) -> dict:
     if not results:
         return {"trials": 0, "rate": math.nan, "views": math.nan, "confident_errors": math.nan,
+                "rate_ci": [math.nan, math.nan], "confident_errors_ci": [math.nan, math.nan],
                 "exit_prob": math.nan, "ece": math.nan}
     n = len(results)
     # pooled over trials (a bin holds unequal numbers per object, so no per-object mean)
@@ -84,6 +85,8 @@ def _point(results, n_objects: int) -> dict:
         "rate": 100.0 * sum(r.correct for r in results) / n,
         "views": sum(r.steps for r in results) / n,
         "confident_errors": 100.0 * sum(r.stopped and not r.correct for r in results) / n,
+        "rate_ci": [100.0 * x for x in wilson_interval(sum(r.correct for r in results), n)],
+        "confident_errors_ci": [100.0 * x for x in wilson_interval(sum(r.stopped and not r.correct for r in results), n)],
         "exit_prob": sum(r.exit_prob for r in results) / n,
         "ece": float(expected_calibration_error(results)),
     }
@@ -100,8 +103,9 @@ def _rows(axis: str, x, base: dict, res, n_objects: int, dt: float, say) -> tupl
     above the last bin), said as they are made."""
     if axis == "off_grid":
         row = {**base, "angle": x, **_point(res, n_objects)}
-        say(f"off-grid {x:g} deg, {base['database']}, {base['cameras']}, {base['planner']}: rate {row['rate']:.1f} %, "
-            f"views {row['views']:.2f}, confident errors {row['confident_errors']:.1f} % ({dt:.0f} s)")
+        say(f"off-grid {x:g} deg, {base['database']}, {base['cameras']}, {base['planner']}: rate {format_rate(row['rate'], row['rate_ci'])} %, "
+            f"views {row['views']:.2f}, confident errors {format_rate(row['confident_errors'], row['confident_errors_ci'])} % "
+            f"({dt:.0f} s)")
         return [row], None
     fr = [first_view_fraction(r) for r in res]
     made = []
@@ -114,7 +118,7 @@ def _rows(axis: str, x, base: dict, res, n_objects: int, dt: float, say) -> tupl
     above = sum(f > OCCLUSION_BINS[-1][1] for f in fr)
     overall = summarize(res, n_objects)[-1]
     say(f"occlusion, {base['database']}, {base['cameras']}, {base['planner']}: {len(res)} trials ({above} above "
-        f"{OCCLUSION_BINS[-1][1]:g} %), overall rate {overall.rate:.1f} % ({dt:.0f} s)")
+        f"{OCCLUSION_BINS[-1][1]:g} %), overall rate {format_rate(overall.rate, overall.rate_ci)} % ({dt:.0f} s)")
     return made, {**base, "trials": above}
 
 
@@ -203,7 +207,7 @@ def _num(x, fmt):
 def markdown(summary: dict) -> str:
     out = [f"Positions {summary['positions']}; trials per object {summary['settings']['trials_per_object']}; "
            f"{summary['note']}.", ""]
-    head = "| model | cameras | planner | {x} | trials | rate (%) | views | confident errors (%) | exit prob. | ECE |"
+    head = "| model | cameras | planner | {x} | trials | rate (%) [95 % CI] | views | confident errors (%) [95 % CI] | exit prob. | ECE |"
     sep = "|---|---|---|---:|---:|---:|---:|---:|---:|---:|"
     for axis, xname, xfmt in (("occlusion", "first-view occluded (%)", None), ("off_grid", "off-grid angle (°)", "g")):
         if not summary.get(axis):
@@ -214,7 +218,8 @@ def markdown(summary: dict) -> str:
             x = f"{r['bin'][0]:g}–{r['bin'][1]:g} (mean {_num(r['mean_fraction'], '.1f')})" if axis == "occlusion" \
                 else format(r["angle"], xfmt)
             out.append(f"| {r['database']} | {r['cameras']} | {r['planner']} | {x} | {r['trials']} | "
-                       f"{_num(r['rate'], '.1f')} | {_num(r['views'], '.2f')} | {_num(r['confident_errors'], '.1f')} | "
+                       f"{format_rate(r['rate'], r.get('rate_ci', (math.nan, math.nan)))} | {_num(r['views'], '.2f')} | "
+                       f"{format_rate(r['confident_errors'], r.get('confident_errors_ci', (math.nan, math.nan)))} | "
                        f"{_num(r['exit_prob'], '.3f')} | {_num(r['ece'], '.3f')} |")
         out.append("")
     return "\n".join(out)

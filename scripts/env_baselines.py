@@ -47,6 +47,7 @@ def main(argv=None) -> int:
         return 2
 
     from jaxrecog.envs import ActiveRecognitionEnv, PlannerPolicy, env_vs_campaign, run_episodes, summary
+    from jaxrecog.results import format_rate
 
     case = CASES[args.case]
     settings = Settings(workdir=Path(args.workdir), trials_per_object=args.trials, stride=args.stride, seed=args.seed)
@@ -72,7 +73,7 @@ def main(argv=None) -> int:
         for kind in ("env", "campaign"):
             if kind in row:
                 s = row[kind]
-                print(f"{planner:9s} {kind:8s}: rate {s['rate']:5.1f} %, views {s['views']:.2f}, exit p {s['exit_prob']:.3f}, "
+                print(f"{planner:9s} {kind:8s}: rate {format_rate(s['rate'], s['rate_ci'])} %, views {s['views']:.2f}, exit p {s['exit_prob']:.3f}, "
                       f"confident errors {s['confident_errors']}, {row[kind + '_s']:.0f} s")
         if "same_path" in row:
             print(f"{planner:9s} same path in {100 * row['same_path']:.1f} % of the trials")

@@ -35,6 +35,7 @@ from jaxrecog.hardware.render.occluders import OCCLUDER_OFFSET, OCCLUDER_SIZE
 from jaxrecog.hardware.geometry.positions import CameraTable, default_table
 from jaxrecog.planners import make_planner
 from jaxrecog.recognizer import Recognizer
+from jaxrecog.results import wilson_interval
 
 OBJECTS = (0, 2, 4, 5, 6, 7)  # duck, mug, house, house+sticker, truck, truck+sticker
 LOOKALIKE = (2, 3, 4, 5)  # their indices in OBJECTS
@@ -89,7 +90,8 @@ def main(argv=None):
 
         def stats(rs):
             ok = np.array([r.correct for r in rs])
-            return {"n": len(rs), "rate": round(100 * float(ok.mean()), 1),
+            ci = [round(100 * x, 1) for x in wilson_interval(int(ok.sum()), len(rs))]  # 95 %
+            return {"n": len(rs), "rate": round(100 * float(ok.mean()), 1), "rate_ci": ci,
                     "views": round(float(np.mean([r.steps for r in rs])), 2),
                     "confident_errors": int(sum((not r.correct) and r.stopped for r in rs))}
 

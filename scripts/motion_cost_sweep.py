@@ -35,7 +35,7 @@ from jaxrecog.hardware.rigs.capture_memo import CaptureMemo, MemoRigs
 from jaxrecog.hardware.rigs.rig_pool import LocalRigs
 from jaxrecog.motion import check_weight, rig_travel_times, with_motion_cost
 from jaxrecog.plots import save_png
-from jaxrecog.results import summarize
+from jaxrecog.results import format_rate, summarize
 
 DEFAULT_LAMBDAS = (0.0, 0.01, 0.03, 0.1, 0.3, 1.0, 10.0)
 #: --quick: a (8, 2) table (stride 4), small models, 3 trials per object
@@ -66,6 +66,7 @@ def sweep(settings: ex.Settings, case: str = "i", planner: str = "mi-class", lam
             "lambda": lam,
             "trials": avg.trials,
             "rate": avg.rate,
+            "rate_ci": list(avg.rate_ci),
             "views": avg.views,
             "travel_s": avg.travel_s,
             "travel_s_per_move": sum(r.travel_s for r in res) / max(1, sum(r.steps - 1 for r in res)),
@@ -73,7 +74,7 @@ def sweep(settings: ex.Settings, case: str = "i", planner: str = "mi-class", lam
             "confident_errors": avg.confident_errors,
             "seconds": time.perf_counter() - t0,
         })
-        print(f"lambda {lam:g}: rate {avg.rate:.1f} %, views {avg.views:.2f}, travel {avg.travel_s:.2f} s/trial, "
+        print(f"lambda {lam:g}: rate {format_rate(avg.rate, avg.rate_ci)} %, views {avg.views:.2f}, travel {avg.travel_s:.2f} s/trial, "
               f"exit {avg.exit_prob:.2f} ({rows[-1]['seconds']:.0f} s)", flush=True)
     return {
         "case": case,

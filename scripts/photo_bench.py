@@ -45,7 +45,7 @@ from jaxrecog.metrics import campaign_metrics
 from jaxrecog.modelfile import load_model_meta
 from jaxrecog.photo_turntable import PHOTOS, build_photo_database, scan_photos
 from jaxrecog.recipes import RECIPES
-from jaxrecog.results import TrialStore
+from jaxrecog.results import TrialStore, format_rate
 
 #: Other approaches measured beside the recipes: name -> (train flags, experiment flags)
 APPROACHES: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
@@ -148,12 +148,12 @@ def run(out: Path, *, photos: Path, grids, recipes, approaches, trials: int, obj
 
 def _line(r: dict) -> str:
     return (f"| {r['grid']}° / {r['offset']:g}° | {r['variant']} | {r['planner']} | "
-            f"{r['recognition_rate']:.1f} ± {r['recognition_rate_se']:.1f} | "
-            f"{r['mean_views']:.2f} | {r['confident_error_pct_of_trials']:.1f} | "
+            f"{format_rate(r['recognition_rate'], r['recognition_rate_ci'])} | "
+            f"{r['mean_views']:.2f} | {format_rate(r['confident_error_pct_of_trials'], r['confident_error_pct_of_trials_ci'])} | "
             f"{r['ece']:.3f} | {r['mean_exit_prob']:.3f} | {r['trials']} |")
 
 
-HEADER = ("| grid / test offset | recipe or approach | planner | rate % ± SE | views | confident errors % "
+HEADER = ("| grid / test offset | recipe or approach | planner | rate % [95 % CI] | views | confident errors % [95 % CI] "
           "| ECE | exit P | trials |\n|---|---|---|---:|---:|---:|---:|---:|---:|")
 
 
@@ -177,15 +177,18 @@ def figure(rows: list[dict], path: Path) -> Path:
             sel = sorted((r for r in rows if r["variant"] == variant and r["planner"] == planner),
                          key=lambda r: r["offset"])
             rnd = planner == "random"
-            ax.errorbar([r["offset"] for r in sel], [r["confident_error_pct_of_trials"] for r in sel],
-                        yerr=[r["confident_error_pct_of_trials_se"] for r in sel], marker="s" if rnd else "o",
+            y = [r["confident_error_pct_of_trials"] for r in sel]
+            ci = [r["confident_error_pct_of_trials_ci"] for r in sel]  # 95 % Wilson: asymmetric bars
+            ax.errorbar([r["offset"] for r in sel], y,
+                        yerr=[[v - lo for v, (lo, _) in zip(y, ci)], [hi - v for v, (_, hi) in zip(y, ci)]],
+                        marker="s" if rnd else "o",
                         linestyle="--" if rnd else "-", color=colour[variant], capsize=3,
                         label=f"{variant}, {planner}")
         ax.set_xlabel("test views' offset from the nearest training view (degrees)")
         ax.set_title(title, fontsize=10)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7, loc="upper left")
-    axes[0].set_ylabel("confident errors (% of trials)")
+    axes[0].set_ylabel("confident errors (% of trials; bars: 95 % interval)")
     fig.suptitle("Real turntable photos: trials that stopped sure and wrong")
     fig.tight_layout()
     fig.savefig(path, dpi=110)

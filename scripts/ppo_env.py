@@ -13,8 +13,10 @@ scenes (seeds 10000, 10001, ...) as the random policy and the MI planner
     python scripts/ppo_env.py                       # the docs' run (a few minutes)
     python scripts/ppo_env.py --steps 512 --eval-every 256 --episodes 4   # a smoke run
 
-Writes ``OUT/ppo_env.json`` (the curve, the baselines, wall times) and the
-figure (``--figure``, default docs/figures/ppo_env.png).
+Writes ``WORKDIR/ppo_env.json`` (the curve, the baselines, wall times) and the
+figure (``--figure``, default ``WORKDIR/ppo_env.png``; the docs' figure is
+``--figure docs/figures/ppo_env.png``, a tracked file, so never the default).
+Each printed rate carries its 95 % Wilson interval over the episodes.
 """
 
 from __future__ import annotations
@@ -55,13 +57,22 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--episodes", type=int, default=48, help="evaluation episodes per point")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--workdir", default="out/ppo-env", help="rendered database and model cache, and the JSON")
-    ap.add_argument("--figure", default="docs/figures/ppo_env.png")
+    ap.add_argument("--figure", default=None,
+                    help="the learning-curve figure (default: WORKDIR/ppo_env.png, under out/)")
     ap.add_argument("--plot-only", metavar="JSON", help="redraw the figure from a run's ppo_env.json")
     return ap
 
 
-def main(argv=None) -> int:
+def parse_args(argv=None) -> argparse.Namespace:
+    """The options, ``--figure`` defaulting to ``WORKDIR/ppo_env.png``."""
     args = build_parser().parse_args(argv)
+    if args.figure is None:
+        args.figure = str(Path(args.workdir) / "ppo_env.png")
+    return args
+
+
+def main(argv=None) -> int:
+    args = parse_args(argv)
     if args.plot_only:
         plot(json.loads(Path(args.plot_only).read_text()), args.figure)
         return 0
@@ -131,13 +142,22 @@ def main(argv=None) -> int:
 
 def baselines_line(setup_s: float, random: dict, mi: dict) -> str:
     """The first printed line: setup time and the two baseline policies."""
-    return (f"setup {setup_s:.0f} s; random: {100 * random['rate']:.1f} %, {random['views']:.2f} views; "
-            f"MI: {100 * mi['rate']:.1f} %, {mi['views']:.2f} views")
+    return (f"setup {setup_s:.0f} s; random: {_rate(random)} %, {random['views']:.2f} views; "
+            f"MI: {_rate(mi)} %, {mi['views']:.2f} views")
+
+
+def _rate(r: dict) -> str:
+    """An evaluation's rate (%) with its 95 % Wilson interval over its episodes."""
+    from jaxrecog.results import format_rate, wilson_interval
+
+    n = int(r["episodes"])
+    lo, hi = wilson_interval(int(round(r["rate"] * n)), n)
+    return format_rate(100 * r["rate"], (100 * lo, 100 * hi))
 
 
 def point_line(r: dict) -> str:
     """The printed line of one evaluation of the PPO policy (a ``curve`` entry)."""
-    return (f"PPO {r['steps']:6d} steps: {100 * r['rate']:.1f} %, {r['views']:.2f} views, return {r['return']:.2f} "
+    return (f"PPO {r['steps']:6d} steps: {_rate(r)} %, {r['views']:.2f} views, return {r['return']:.2f} "
             f"(training so far {r['train_s']:.0f} s)")
 
 

@@ -44,6 +44,7 @@ from jaxrecog.cli._options import (capture_options, capture_params, given_likeli
                                    render_workers_option)
 from jaxrecog.hardware.rigs.capture_memo import CaptureMemo
 from jaxrecog.metrics import campaign_metrics
+from jaxrecog.results import format_rate
 from jaxrecog.campaigns import CASES, Settings, prepare, results_dir, run_case, run_trace
 
 #: Worker processes that render the campaigns' captures (``--render-workers``):
@@ -169,8 +170,9 @@ def main(argv=None) -> int:
         for planner, res in report.results.items():
             m = campaign_metrics(res, settings.p_threshold)
             print(f"case {name} {planner} [{settings.likelihood}{dict(settings.likelihood_options) or ''}]: "
-                  f"{m['trials']} trials, rate {m['recognition_rate']:.2f} %, views {m['mean_views']:.2f}, "
-                  f"confident errors {m['confident_errors']} ({m['confident_error_pct_of_trials']:.1f} % of trials), "
+                  f"{m['trials']} trials, rate {format_rate(m['recognition_rate'], m['recognition_rate_ci'], 2)} %, "
+                  f"views {m['mean_views']:.2f}, confident errors {m['confident_errors']} "
+                  f"({format_rate(m['confident_error_pct_of_trials'], m['confident_error_pct_of_trials_ci'])} % of trials), "
                   f"ECE {m['ece']:.3f}, {report.seconds[planner]:.0f} s")
         print(f"wrote {md_path}")
     return 0

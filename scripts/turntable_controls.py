@@ -9,6 +9,7 @@ from jaxrecog.campaigns import Settings, run_dataset
 from jaxrecog.hardware.render.random_objects import random_objects
 from jaxrecog.hardware.render.turntable import render_turntable
 from jaxrecog.metrics import campaign_metrics
+from jaxrecog.results import format_rate
 from jaxrecog.calibration import uncalibrated
 from jaxrecog.modelfile import load_model, save_model
 work = Path("out/turntable")
@@ -28,4 +29,4 @@ for name, folder, model in (("on-grid, calibrated", ongrid, cal), ("off-grid, un
     r = run_dataset(folder, model, s, planners=("mi-class-pairwise", "random"))
     for p, res in r.results.items():
         m = campaign_metrics(res)
-        print(f"| {name} | {p} | {m['trials']} | {m['recognition_rate']:.1f} | {m['mean_views']:.2f} | {m['confident_error_pct_of_trials']:.1f} | {m['ece']:.3f} | {r.seconds[p]:.0f} |", flush=True)
+        print(f"| {name} | {p} | {m['trials']} | {format_rate(m['recognition_rate'], m['recognition_rate_ci'])} | {m['mean_views']:.2f} | {format_rate(m['confident_error_pct_of_trials'], m['confident_error_pct_of_trials_ci'])} | {m['ece']:.3f} | {r.seconds[p]:.0f} |", flush=True)

@@ -268,6 +268,15 @@ def test_recognize_dataset_rig(tiny, tmp_path, saved_figures):
     assert p.returncode == 2 and "2 objects" in p.stderr
 
 
+def test_recognize_on_a_database_without_test_rows_is_one_plain_line(tiny, tmp_path):
+    """Nothing to replay: one line that says what to add, no exception class name."""
+    db = write_synthetic_database(tmp_path / "db", positions=(3, 2), n_objects=2, n_poses=2, image_shape=(30, 40))
+    p = run("recognize", tiny["model"], "--rig", f"dataset:{db}", "--object", 0, "--pose", 0)
+    assert p.returncode == 1
+    line = one_error_line(p, f"--rig dataset:{db}", "no 'test' rows", "--test-per-view")
+    assert "RigError" not in line
+
+
 def test_render_a_one_camera_layout(tmp_path):
     """The synthetic rig with camera 0 only, every 8th position (4 positions).
     Render, train and recognize on the synthetic rig, and a model refused by
@@ -312,6 +321,17 @@ def test_experiment_case_and_toml(fake_experiments, tmp_path, capsys):
     assert cli.main(["experiment", str(toml), "--out", str(out)]) == 2
     assert "bogus" in capsys.readouterr().err
     assert cli.main(["experiment", "iv", "--out", str(out)]) == 2
+
+
+def test_demo_quick_is_the_smoke_sizes_unless_given():
+    """``demo --quick``: every 8th position, 2 trials per object; a size given wins."""
+    from jaxrecog.cli import build_parser, demo
+
+    def sizes(*argv):
+        return demo.demo_sizes(build_parser().parse_args(["demo", *argv]))
+
+    assert sizes() == (1, 10) and sizes("--quick") == (8, 2)
+    assert sizes("--quick", "--stride", "4") == (4, 2) and sizes("--quick", "--trials", "5") == (8, 5)
 
 
 @pytest.mark.slow

@@ -20,6 +20,7 @@ from clirun import one_error_line, run_cli
 
 from jaxrecog import cli
 from jaxrecog.cli._json import SCHEMAS, check, clean, dumps
+from jaxrecog.results import wilson_interval
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -183,6 +184,9 @@ def test_experiment_json(fake_experiments, tmp_path):
     rows = doc["planners"][0]["rows"]
     assert [r["label"] for r in rows] == ["0", "1", "Average"] and rows[-1]["trials"] == 6
     assert rows[-1]["travel_s"] is None and rows[0]["rate"] == pytest.approx(2 / 3 * 100)
+    # every rate with its 95 % Wilson interval (2 of 3 right: [20.8, 93.9] %)
+    assert rows[0]["rate_ci"] == pytest.approx([100 * x for x in wilson_interval(2, 3)])
+    assert all(len(r["rate_ci"]) == 2 and len(r["confident_errors_ci"]) == 2 for r in rows)
     assert doc["settings"]["trials_per_object"] == 3 and doc["settings"]["workdir"] == str(out / "work")
     assert str(out / "case_i.json") in doc["written"] and str(out / "campaign_i.png") in doc["written"]
     assert all(Path(f).is_file() for f in doc["written"])

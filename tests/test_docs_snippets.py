@@ -438,6 +438,24 @@ def test_the_ppo_output_is_the_recorded_runs():
     assert block.text == ppo.printed(run, "docs/figures/ppo_env.png")
 
 
+def test_the_readme_says_which_extras_make_venv_installs():
+    """README's installation paragraph names the extras of the Makefile's
+    install line (it used to say "all extras" where `make venv` installs three)."""
+    extras = re.search(r"pip install[^\n]*-e '\.\[([^\]]+)\]'", (ROOT / "Makefile").read_text()).group(1)
+    readme = (ROOT / "README.md").read_text()
+    para = readme[readme.index("## Installation"):readme.index("```sh", readme.index("## Installation"))]
+    assert f"`{extras}`" in para and f"'.[{extras}]'" in para and "all extras" not in para
+
+
+def test_the_ppo_script_writes_no_tracked_file_by_default():
+    """Its figure goes under out/ (WORKDIR) unless --figure names another:
+    the default used to overwrite docs/figures/ppo_env.png."""
+    ppo = script("ppo_env")
+    assert Path(ppo.parse_args([]).figure) == Path("out/ppo-env/ppo_env.png")
+    assert Path(ppo.parse_args(["--workdir", "w"]).figure) == Path("w/ppo_env.png")
+    assert ppo.parse_args(["--figure", "docs/figures/ppo_env.png"]).figure == "docs/figures/ppo_env.png"
+
+
 def test_the_claims_of_the_other_test_modules_hold():
     """``envs-example`` and ``protocol-dump`` blocks are the ones those tests read."""
     import test_datagram

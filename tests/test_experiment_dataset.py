@@ -52,7 +52,7 @@ def test_campaign_on_an_image_database(moving, tmp_path, saved_figures):
     text = p.stdout
     # the thesis-shaped table per planner: per-object rows and the average, no thesis column
     assert f"### Image database {moving['db']} (2 objects x 3 poses, positions (3,))" in text
-    for planner in ("MI", "RANDOM"):
+    for planner in ("mi", "random"):  # as the CLI spells them
         assert f"**{planner} — {trials} trials per object" in text
     assert text.count("| Average | 12 |") == 2 and text.count("| 1 | 6 |") == 2 and "Thesis" not in text
     # one numbering: the table's rows and the bars' ticks are the manifest's objects (0-based, as --object)
@@ -99,8 +99,8 @@ def test_campaign_on_an_image_database(moving, tmp_path, saved_figures):
                     f"[settings]\ntrials_per_object = {trials}\nsamples = 64\n")
     q = run("--quiet", "experiment", toml, "--out", out)
     assert q.returncode == 0, q.stderr
-    mi_table = text[text.index("**MI"):text.index("**RANDOM")].split("\n", 1)[1]
-    assert mi_table.strip() in q.stdout and "RANDOM" not in q.stdout
+    mi_table = text[text.index("**mi —"):text.index("**random —")].split("\n", 1)[1]
+    assert mi_table.strip() in q.stdout and "**random" not in q.stdout
     # --json: the same table as one document (the stored trials again), the keys of docs/cli.md
     from jaxrecog.cli._json import SCHEMAS, check
 

@@ -32,4 +32,7 @@ def test_quick_benchmark_writes_its_table_json_and_figure(tmp_path):
     assert all(r["stability"] in (0.0, 1.0) for r in robust) and all(r["stability"] == 1.0 for r in thesis)
     md = (out / "photo_bench.md").read_text().splitlines()
     assert md[0] == mod.HEADER.splitlines()[0] and len(md) == 2 + len(rows)
+    # both rates of every row with their 95 % Wilson interval, in the table and the JSON
+    assert all(line.count(" [") == 2 for line in md[2:]), md
+    assert all(r["recognition_rate_ci"][0] <= r["recognition_rate"] <= r["recognition_rate_ci"][1] for r in rows)
     assert (out / "photo_bench_confident_errors.png").stat().st_size > 10_000

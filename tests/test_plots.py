@@ -89,11 +89,13 @@ def _rows(rate, views):
     return rows + [ObjectRow("Average", 10 * len(rate), float(np.mean(rate)), 0.9, float(np.mean(views)))]
 
 
-def test_campaign_bars(tmp_path):
+def test_campaign_bars(tmp_path, saved_figures):
     rows = {"mi": _rows([100.0] * 8, [2.0] * 8), "crlb": _rows([90.0] * 8, [3.0] * 8),
             "random": _rows([50.0] * 8, [6.0] * 8)}
     thesis = {p: TABLES[("i", p)] for p in rows}
     _check_pair(plots.campaign_bars(rows, tmp_path / "c.svg", thesis=thesis), (900, 650))
+    # the legend names the planners as the CLI spells them
+    assert sorted(saved_figures[0]["legend"]) == ["crlb", "mi", "random", "thesis (published)"]
     with pytest.raises(ValueError, match="no campaign"):
         plots.campaign_bars({}, tmp_path / "none")
 
@@ -141,12 +143,35 @@ def test_case_bars_mark_the_thesis_where_it_has_numbers(tmp_path):
     assert not _same_png(plots.case_bars(full, tmp_path / "full"), plots.case_bars(strided, tmp_path / "s8b"))
 
 
+def test_rate_bars_carry_the_rows_wilson_interval(tmp_path):
+    """The error bar of each bar is its row's 95 % Wilson interval (NaN: none)."""
+    from jaxrecog.results import TrialResult, summarize, wilson_interval
+
+    res = [TrialResult(i, i % 2, 0, i % 2 if i < 5 else 0, 0, 0.99, 1, True) for i in range(8)]
+    rows = summarize(res, 2)
+    lo, hi = plots.rate_interval(rows, ["0", "1", "Average", "9"])
+    k0 = sum(r.correct for r in res if r.object == 0)
+    assert (lo[0], hi[0]) == pytest.approx(tuple(100 * x for x in wilson_interval(k0, 4)))
+    assert (lo[2], hi[2]) == pytest.approx(tuple(100 * x for x in wilson_interval(sum(r.correct for r in res), 8)))
+    assert np.isnan(lo[3]) and np.isnan(hi[3])
+    plots.campaign_bars({"mi-class": rows}, tmp_path / "ci")  # draws with the bars
+
+
+def test_belief_groups_keep_the_true_object_and_lump_the_flat_ones():
+    P = np.asarray(TABLE_7_8)
+    assert plots.belief_groups(P, 5) == ([0, 1, 3, 4, 5], [2, 6, 7])
+    assert plots.belief_groups(P, 6) == ([0, 1, 3, 4, 5, 6], [2, 7])  # the true object always drawn
+    flat_one = np.array([[0.5, 0.5], [0.001, 0.999]])
+    assert plots.belief_groups(flat_one, 1) == ([0, 1], [])  # one object alone hides nothing: its own line
+    assert plots.step_labels(3, [(1, 2)]) == ["0\nprior", "1\n(1,2)", "2"]
+
+
 def test_belief_trace_draws_table_7_8_beside_the_trial_it_traces(tmp_path):
     import types
 
     probs = np.asarray(TABLE_7_8[1:])
     res = types.SimpleNamespace(object=5, pose=2, object_probs=probs)
-    title = "Belief per step: object 5, pose 2, MI, case iii (occluded)"
+    title = "Belief per step: object 5, pose 2, mi, case iii (occluded)"
     with_ref = plots.belief_trace(res, tmp_path / "t", planner="mi", case="iii", occluded=True, thesis_rig=True)
     assert _same_png(with_ref, plots.belief_lines(np.asarray(TABLE_7_8), tmp_path / "r", true_object=5,
                                                   reference=np.asarray(TABLE_7_8), title=title))
@@ -175,6 +200,9 @@ def test_the_trace_names_objects_and_cameras_as_the_cli_does(tmp_path, saved_fig
     assert "(camera 0, camera 1)" in md and "Thesis Table 7.8 (the thesis's object 6 = object 5" in md
     plots.belief_trace(res, tmp_path / "t", planner="mi", case="iii", occluded=True, thesis_rig=True)
     (fig,) = saved_figures
-    assert fig["titles"][0].startswith("Belief per step: object 5, pose 2, MI")
-    assert fig["legend"][:8] == [f"object {m}" + (" (true)" if m == 5 else "") for m in range(8)]
-    assert fig["legend"][8] == "thesis Table 7.8 (object 5)"
+    assert fig["titles"][0].startswith("Belief per step: object 5, pose 2, mi")
+    # objects 2, 6 and 7 never pass 1 % after the prior: one summed line, not three hidden at zero
+    assert fig["legend"][:5] == [f"object {m}" + (" (true)" if m == 5 else "") for m in (0, 1, 3, 4, 5)]
+    assert fig["legend"][5:] == ["others: 2, 6, 7\n(each \u2264 1 %, summed)", "thesis Table 7.8 (object 5)"]
+    # each step names the configuration its image set was taken at
+    assert fig["xticks"][0][:3] == ["0\nprior", "1\n(0,1)", "2\n(2,3)"]

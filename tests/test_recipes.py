@@ -90,7 +90,8 @@ def test_train_records_the_resolved_recipe_and_inspect_shows_it(photo_db, robust
     assert fit["n"] == 2 * 4 * 9 and 0 <= fit["n_unexplained"] <= fit["n"]
     p = run_cli("inspect", robust_model)
     assert "recipe: robust (version 6): likelihood = 'view-mixture-lowrank'" in p.stdout
-    assert "interpolated views: 2 per side; neighbouring positions found per camera: [18] of [18]" in p.stdout
+    assert ("interpolated views: 2 per side of each training position, towards its neighbouring views "
+            "(camera 0 18 of 18 sides have one)") in p.stdout and "a side without a neighbour" not in p.stdout
     # the thesis recipe: today's defaults; a flag overrides one part and the file records it
     out = photo_db / "thesis.npz"
     p = run_cli("train", photo_db / "db", "--out", out, *FAST, "--recipe", "thesis", "--min-views", "3")
@@ -125,7 +126,9 @@ def test_train_stability_option_and_a_database_without_calib_split(photo_db, tmp
     params = {}
     recipe, model = _resolve_stability(ROBUST, load_model(out), SimpleNamespace(split=np.array(["train", "test"])), params)
     assert recipe.stability == 1.0 == model.stability and params == {}
-    assert "has no 'calib' split, so the planner's stability weight is not fitted (1)" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "has no 'calib' split, so the planner's stability term keeps its default weight 1" in out
+    assert "add held-out 'calib' captures and retrain" in out  # what to do about it
 
 
 def test_calib_pool_option_is_recorded_and_contradicting_no_calibrate_is_one_line(photo_db, tmp_path):
@@ -268,3 +271,32 @@ def test_a_recipe_newer_than_this_code_is_one_line_not_dropped_parts():
     with pytest.raises(ValueError, match="version 'seven' is not an integer"):
         recipe_from_meta({"recipe": THESIS.to_dict() | {"version": "seven"}})
     assert recipe_from_meta({"recipe": ROBUST.to_dict() | {"version": 3}}).version == 3   # older: as it ran
+
+
+def test_a_two_image_database_says_what_to_train_instead(tmp_path):
+    """The default recipe's low-rank covariance needs K >= 2; two training
+    images per position give K = 1: one line naming what works, before any
+    sampling, with or without --components 1 (the rank used to fail inside the
+    fit as 'rank must be in 1..K-1 = 1..0, got None')."""
+    from builders import write_synthetic_database
+
+    from clirun import one_error_line
+
+    db = write_synthetic_database(tmp_path / "db", positions=(1,), n_objects=2, n_poses=1, image_shape=(30, 40))
+    for extra in ((), ("--components", "1")):
+        p = run_cli("train", db, "--out", tmp_path / "m.npz", "--samples", "4", *extra)
+        assert p.returncode == 1
+        one_error_line(p, "K >= 2", "K = 1", "--recipe thesis", "--likelihood view-mixture")
+        assert "1..0" not in p.stderr and not (tmp_path / "m.npz").exists()
+    # what it names works
+    assert run_cli("train", db, "--out", tmp_path / "m.npz", "--samples", "4", "--recipe", "thesis", "--kind", "DB1").returncode == 0
+
+
+def test_inspect_says_what_missing_view_neighbours_mean():
+    """Sides without a neighbouring view: said in words with what to do, not as bare lists."""
+    from jaxrecog.cli._common import interpolation_lines
+
+    lines = interpolation_lines({"points_per_side": 2, "neighbours": [[(-1, 1), (0, 2), (1, 3), (2, -1)], [(-1, -1)]]})
+    assert lines[0].endswith("(camera 0 6 of 8, camera 1 0 of 2 sides have one)")
+    assert "no views between the positions" in lines[1] and "add positions in between" in lines[1]
+    assert len(interpolation_lines({"points_per_side": 1, "neighbours": [[(1, 1), (0, 0)]]})) == 1

@@ -57,7 +57,7 @@ def test_demo_on_a_strided_table(tmp_path, strided_workdir):
     text = p.stdout
     assert "positions (4, 1), 8 objects x 4 poses" in text
     assert "training: kind DB2, K 12, samples_per_image 30" in text
-    assert "### Case (iii)" in text and "**MI-CLASS — 1 trials per object" in text
+    assert "### Case (iii)" in text and "**mi-class — 1 trials per object" in text
     assert "| Average | 8 |" in text and "Thesis" not in text
     sizes = {"campaign_iii": (900, 650), "belief_trace": (700, 450), "mi_scores": (500, 800),
              "eigenimages": (960, 515), "occlusion_examples": (1040, 845)}
@@ -80,7 +80,7 @@ def test_reproduce_thesis_script_on_a_strided_table(tmp_path, strided_workdir):
     assert p.returncode == 0, p.stderr
     text = p.stdout
     assert "### Case (i)" in text and "Thesis" not in text
-    for planner in ("MI", "MI-CLASS", "CRLB", "RANDOM"):  # case (i)'s planners, each on the same 8 trials
+    for planner in ("mi", "mi-class", "crlb", "random"):  # case (i)'s planners, as the CLI spells them,, each on the same 8 trials
         assert f"**{planner} — 1 trials per object" in text
     assert text.count("| Average | 8 |") == 4
     md = work / "results-stride8" / "case-i.md"

@@ -399,3 +399,16 @@ def test_contact_sheet_tiles_every_object_and_pose(rig):
     assert sheet.shape[0] >= 8 * H and sheet.shape[1] >= 8 * W
     rig.reset(7, 2)
     np.testing.assert_array_equal(sheet[7 * (H + 2) : 7 * (H + 2) + H, 2 * (W + 2) : 2 * (W + 2) + W], rig.render_clean(0, 9)[0])
+
+
+def test_pybullet_import_prints_no_build_time_line():
+    """pybullet's C code prints its build time on fd 2 at import, into every rig
+    command's progress bars: the import is silenced, and fd 2 works afterwards."""
+    import subprocess
+    import sys
+
+    code = ("import sys\nfrom jaxrecog.hardware.render.scene import require_pybullet\n"
+            "p, _ = require_pybullet()\np.disconnect(p.connect(p.DIRECT))\nprint('stderr still here', file=sys.stderr)\n")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert "build time" not in proc.stderr + proc.stdout and "stderr still here" in proc.stderr

@@ -40,10 +40,12 @@ position.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import functools
 import math
 import os
+import sys
 from typing import Sequence
 
 import numpy as np
@@ -67,10 +69,36 @@ _PARK = (0.0, 0.0, 1000.0)  # far above every camera: outside every view frustum
 REBUILD_AFTER = 4000
 
 
-def require_pybullet():
-    """Import pybullet (and pybullet_data) or fail naming the extra to install."""
+@contextlib.contextmanager
+def _quiet_stderr_fd():
+    """File descriptor 2 on the null device for the block: pybullet's C code
+    prints "pybullet build time: ..." there on import, past ``sys.stderr``,
+    into the middle of every rig command's progress bars."""
     try:
-        import pybullet
+        sys.stderr.flush()
+        saved = os.dup(2)
+    except (OSError, ValueError, AttributeError):  # no file descriptor 2: nothing to silence
+        yield
+        return
+    null = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(null, 2)
+        yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+        os.close(null)
+
+
+def require_pybullet():
+    """Import pybullet (and pybullet_data) or fail naming the extra to install;
+    the first import's build-time line is not printed (:func:`_quiet_stderr_fd`)."""
+    try:
+        if "pybullet" in sys.modules:
+            import pybullet
+        else:
+            with _quiet_stderr_fd():
+                import pybullet
         import pybullet_data
     except ImportError as err:  # pragma: no branch - message is the point
         raise ImportError(

@@ -33,7 +33,8 @@ class DatasetRig(SeededCaptures):
     def __init__(self, database, *, split: str = "test", seed: int = 0):
         rows = np.flatnonzero(np.asarray(database.split) == split)
         if rows.size == 0:
-            raise RigError(f"the database has no '{split}' rows to replay")
+            raise RigError(f"the database has no '{split}' rows to replay (give it some: rows with split "
+                           f"'{split}' in its manifest, or `jaxrecog render --test-per-view N` for a rendered one)")
         self._db = database
         self._rng = np.random.default_rng(seed)
         self._index: dict[tuple[int, int, int, int], list[int]] = {}

@@ -10,7 +10,7 @@ import math
 from pathlib import Path
 
 from ..planners import planner_spec
-from ..results import ObjectRow, TrialResult, table_json, table_markdown
+from ..results import ObjectRow, TrialResult, format_rate, table_json, table_markdown
 from ..thesis import ThesisTable, published
 from .cases import Case
 from .naming import results_dir
@@ -53,23 +53,25 @@ class CaseReport:
         for planner, rows in self.rows.items():
             ref = self.reference(planner)
             n = self.settings.trials_per_object
-            parts.append(table_markdown(rows, f"{planner.upper()} — {n} trials per object, {self.seconds[planner]:.0f} s", reference=ref))
+            parts.append(table_markdown(rows, f"{planner} — {n} trials per object, {self.seconds[planner]:.0f} s", reference=ref))
         return "\n".join(parts)
 
     def metrics_table(self, digits: int = 1) -> tuple[list[str], dict[str, dict]]:
         """One Markdown row per planner (rate, views, confident errors as %
-        of trials with ``digits`` decimals, ECE, seconds) under its header,
+        of trials with ``digits`` decimals and their 95 % Wilson intervals, ECE, seconds) under its header,
         and each planner's :func:`~jaxrecog.metrics.campaign_metrics` at the
         settings' P_th."""
         from ..metrics import campaign_metrics
 
-        lines = ["| Planner | Trials | Rate (%) | Mean views | Confident errors (% of trials) | ECE | Seconds |",
+        lines = ["| Planner | Trials | Rate (%) [95 % CI] | Mean views | Confident errors (% of trials) [95 % CI] "
+                 "| ECE | Seconds |",
                  "|---|---:|---:|---:|---:|---:|---:|"]
         metrics = {}
         for planner, res in self.results.items():
             m = metrics[planner] = campaign_metrics(res, self.settings.p_threshold)
-            lines.append(f"| {planner} | {m['trials']} | {m['recognition_rate']:.{digits}f} | {m['mean_views']:.2f} | "
-                         f"{m['confident_error_pct_of_trials']:.{digits}f} | {m['ece']:.3f} | "
+            rate = format_rate(m["recognition_rate"], m["recognition_rate_ci"], digits)
+            errors = format_rate(m["confident_error_pct_of_trials"], m["confident_error_pct_of_trials_ci"], digits)
+            lines.append(f"| {planner} | {m['trials']} | {rate} | {m['mean_views']:.2f} | {errors} | {m['ece']:.3f} | "
                          f"{self.seconds[planner]:.0f} |")
         return lines, metrics
 

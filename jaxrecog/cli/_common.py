@@ -158,7 +158,24 @@ def model_report(path, model=None) -> str:
             lines.append(f"  view jitter: {vj.get('images')} jitter image(s) of {vj.get('views')} view(s), {how}")
         ip = train.get("interpolate")
         if isinstance(ip, dict):
-            found = [sum(x >= 0 for pair in cam for x in pair) for cam in ip.get("neighbours", [])]
-            lines.append(f"  interpolated views: {ip.get('points_per_side')} per side; neighbouring positions "
-                         f"found per camera: {found} of {[2 * len(c) for c in ip.get('neighbours', [])]}")
+            lines += interpolation_lines(ip)
     return "\n".join(lines + _calibration_lines(model))
+
+
+def interpolation_lines(ip: dict) -> list[str]:
+    """What ``inspect`` says of a model's interpolated views (training's
+    ``params["interpolate"]``): how many of each camera's position sides
+    found a neighbouring view to interpolate towards, and, where some did
+    not, what that means and what to do."""
+    cams = ip.get("neighbours", [])
+    found = [sum(x >= 0 for pair in cam for x in pair) for cam in cams]
+    total = [2 * len(cam) for cam in cams]
+    per = ", ".join(f"camera {i} {f} of {t}" for i, (f, t) in enumerate(zip(found, total)))
+    lines = [f"  interpolated views: {ip.get('points_per_side')} per side of each training position, towards "
+             f"its neighbouring views ({per} sides have one)"]
+    if any(f < t for f, t in zip(found, total)):
+        lines.append("    a side without a neighbour gets no views between the positions: test views there are "
+                     "explained by the training view alone (less sure); a camera with one position, or positions "
+                     "that do not follow each other in order, have none -- add positions in between, or "
+                     "number them along the path")
+    return lines

@@ -232,6 +232,10 @@ def _schemas() -> dict[str, dict[str, Key]]:
         "views": Key("number|null", "mean number of image sets"),
         "confident_errors": Key("number|null", "wrong and stopped on P_th, percent (null: not recorded)"),
         "travel_s": Key("number|null", "mean seconds of travel per trial (null: not recorded)"),
+        "rate_ci": Key("array", "95 % Wilson score interval of rate, [low, high] percent (the average row's: of "
+                                "all its trials pooled; nulls: no trials)", items="number|null"),
+        "confident_errors_ci": Key("array", "95 % Wilson score interval of confident_errors, [low, high] percent",
+                                   items="number|null"),
         "thesis": _obj("the thesis's published row for comparison (null: none)", {
             "rate": Key("number|null", "percent"),
             "exit_prob": Key("number|null", "mean exit probability"),

@@ -25,26 +25,40 @@ HELP = "what `make demo` runs: render, train, a short campaign, plots"
 DESCRIPTION = ("Render the synthetic database, train DB1 and DB2 (and print their summaries), run\n"
                "a short case (iii) campaign (occluded scenes, DB2 model) with two class-target MI planners\n"
                "(the deterministic pairwise estimate and the Monte Carlo one), print the table and write\n"
-               "the plots.  --stride 8 makes it a smoke\n"
+               "the plots.  --quick (--stride 8, 2 trials per object) makes it a smoke\n"
                "run of well under a minute (positions (4, 1), 160 images).")
+
+#: ``--quick``: every 8th position and 2 trials per object, unless given
+QUICK_DEMO = {"stride": 8, "trials": 2}
 
 
 def add_arguments(p) -> None:
     p.add_argument("--out", default="out/demo", metavar="FOLDER", help="output folder")
-    p.add_argument("--trials", type=positive, default=10, help="trials per object")
+    p.add_argument("--trials", type=positive, default=None, help="trials per object (default 10; --quick: 2)")
     p.add_argument("--planners", nargs="+", choices=PLANNERS, default=["mi-class-pairwise", "mi-class"],
                    metavar="PLANNER",
                    help=f"planners to run, from {', '.join(PLANNERS)}; the first also draws the trace "
                         "(default: mi-class-pairwise mi-class: with the demo's quick 2 samples per "
                         "stratum the Monte Carlo estimate misjudges the sticker view and the trace's "
                         "look-alike trial stays at 0.50 / 0.50, the pairwise one takes it in 2 views)")
-    p.add_argument("--stride", type=positive, default=1,
-                   help="keep every STRIDE-th position of each camera (1 = the thesis's 32 x 7 table)")
+    p.add_argument("--stride", type=positive, default=None,
+                   help="keep every STRIDE-th position of each camera (default 1 = the thesis's 32 x 7 table; "
+                        "--quick: 8)")
+    p.add_argument("--quick", action="store_true",
+                   help="a smoke run of well under a minute: --stride 8 and --trials 2 unless given")
     p.add_argument("--seed", type=int, default=0, help="campaign seed")
+
+
+def demo_sizes(args) -> tuple[int, int]:
+    """``(stride, trials)``: the given ones, else ``--quick``'s, else 1 and 10."""
+    quick = QUICK_DEMO if args.quick else {"stride": 1, "trials": 10}
+    return (args.stride if args.stride is not None else quick["stride"],
+            args.trials if args.trials is not None else quick["trials"])
 
 
 def run(args) -> int:
     out = Path(args.out)
+    args.stride, args.trials = demo_sizes(args)
     t0 = time.perf_counter()
     values = {"workdir": str(out / "work"), "trials_per_object": args.trials, "seed": args.seed,
               "stride": args.stride, **QUICK}

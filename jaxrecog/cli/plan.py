@@ -111,7 +111,7 @@ def _report(args) -> tuple[dict, str]:
     if args.plot:
         what = _belief_words(images)
         written = plots.score_heatmap(scores, positions, args.plot, chosen=tuple(ranking[0]["config"]),
-                                      title=f"{args.planner.upper()} scores, {what}",
+                                      title=f"{args.planner} scores, {what}",
                                       label=f"{args.planner} score (higher = better)")
     doc = {"command": NAME, "schema_version": SCHEMA_VERSION, "model": str(args.model), "planner": args.planner,
            "samples": args.samples, "min_per_stratum": args.min_per_stratum, "seed": args.seed,

@@ -11,7 +11,7 @@ from .. import plots
 from ..driver import StepRecord, TrialSpec, run_trials
 from ..counts import CountsMismatchError, check_counts
 from ..scene import CAPTURE_NOISE, occluder_factory  # the thesis-case boards (first views occluded)
-from ..hardware import Capture, DatasetRig, Noise, rig_from_config
+from ..hardware import Capture, DatasetRig, Noise, RigError, rig_from_config
 from ..modelfile import load_model
 from ..motion import rig_travel_times
 from ..planners import DEFAULT_PLANNER
@@ -75,7 +75,10 @@ def _make_rig(args, model):
         folder = spec[len("dataset:"):]
         if not folder:
             raise UsageError("--rig dataset:FOLDER needs a folder")
-        return DatasetRig.from_folder(folder, seed=args.seed)
+        try:
+            return DatasetRig.from_folder(folder, seed=args.seed)
+        except RigError as e:  # a database that cannot be replayed: the user's input, one line
+            raise CLIError(f"--rig {spec}: {e}") from None
     if spec.startswith(HANDHELD):
         return handheld_rig(args, model)
     if spec.endswith(".toml"):
@@ -205,7 +208,7 @@ def _report(args) -> tuple[dict, str]:
                          + [np.asarray(s["object_probabilities"], dtype=float) for s in steps])
         written = plots.belief_lines(probs, args.plot, true_object=args.object,
                                      title=f"Belief per step: object {args.object}, "
-                                           f"pose {args.pose}, {args.planner.upper()}")
+                                           f"pose {args.pose}, {args.planner}")
     if args.rerun_save:
         written = [*written, args.rerun_save]
     result = {"object": int(dec.object), "pose": int(dec.pose), "probability": float(dec.probability),

@@ -230,12 +230,14 @@ def _resolve_stability(recipe: Recipe, model, db, params: dict):
     ``auto`` fitted on ``db``'s ``calib`` split (its result in ``params``
     and one printed line), 1 without one; a number as given."""
     if recipe.stability == AUTO and recipe.adaptive_scale < 2.0:
-        print(f"recipe {recipe.name}: adaptive scale {recipe.adaptive_scale:g} marks no capture unexplained, "
-              f"so the planner's stability weight is not fitted (1)")
+        print(f"recipe {recipe.name}: adaptive scale {recipe.adaptive_scale:g} marks no capture unexplained, so "
+              f"there is nothing to fit the planner's stability term on: it keeps its default weight 1 "
+              f"(--adaptive-scale 2 or more to fit it)")
         recipe = recipe.replace(stability=1.0)
     elif recipe.stability == AUTO and not int((db.split == "calib").sum()):
-        print(f"recipe {recipe.name}: the database has no 'calib' split, so the planner's stability weight "
-              f"is not fitted (1)")
+        print(f"recipe {recipe.name}: the database has no 'calib' split, so the planner's stability term keeps "
+              f"its default weight 1 instead of one fitted to this rig (add held-out 'calib' captures and retrain "
+              f"to fit it)")
         recipe = recipe.replace(stability=1.0)
     calib = features_from_database(model, db, "calib") if recipe.stability == AUTO else None
     model, fit = with_stability(model, recipe, calib)

@@ -77,11 +77,12 @@ def confident_errors(results: Sequence[TrialResult]) -> int:
 
 def summary(results: Sequence[TrialResult], n_objects: int) -> dict:
     """The average row of the thesis table (:func:`jaxrecog.results.summarize`)
-    plus the confident errors."""
+    plus the confident errors (a count) and the rate's 95 % Wilson interval (``rate_ci``, percent)."""
     from ..results import summarize
 
     avg = summarize(results, n_objects)[-1]
-    return {"trials": avg.trials, "rate": avg.rate, "exit_prob": avg.exit_prob, "views": avg.views,
+    return {"trials": avg.trials, "rate": avg.rate, "rate_ci": list(avg.rate_ci), "exit_prob": avg.exit_prob,
+            "views": avg.views,
             "confident_errors": confident_errors(results)}
 
 
