@@ -106,8 +106,54 @@ def _apply_config(parser: argparse.ArgumentParser, path: str) -> dict[str, Any]:
         if fields:
             values["config_fields"] = fields
         if values:
-            sp.set_defaults(**values)
+            sp.set_defaults(**_checked_values(sp, name, values, path))
     return glob
+
+
+def _checked_values(sp: argparse.ArgumentParser, table: str, values: dict[str, Any], path: str) -> dict[str, Any]:
+    """``values`` of the table ``[table]`` converted and checked as the
+    command line's options are (each option's ``type`` and ``choices``; a
+    switch takes true or false): ``max_steps = 0`` is refused as
+    ``--max-steps 0`` is.  The first bad value raises :class:`ConfigFileError`,
+    one line naming the file, the table and the key."""
+    actions = {a.dest: a for a in sp._actions if a.option_strings}
+    out = dict(values)
+    for dest, value in values.items():
+        a = actions.get(dest)
+        if a is None:
+            continue
+        try:
+            out[dest] = _checked_value(a, value)
+        except (argparse.ArgumentTypeError, ValueError, TypeError) as e:
+            raise ConfigFileError(f"settings file {path}: [{table}] {dest} = {one_line(repr(value), 60)}: "
+                                  f"{one_line(e) or 'invalid value'} (as {a.option_strings[-1]})") from None
+    return out
+
+
+def _checked_value(a: argparse.Action, value: Any) -> Any:
+    """One settings-file value through the option's own checks."""
+    if a.nargs == 0:  # store_true / store_false / a BooleanOptionalAction switch
+        if not isinstance(value, bool):
+            raise ValueError("expected true or false")
+        return value
+    many = a.nargs in ("+", "*") or isinstance(a.nargs, int)
+    if many and not isinstance(value, list):
+        value = [value]
+    if not many and isinstance(value, list):
+        value = ",".join(str(v) for v in value)  # e.g. start = [3, 2], as --start 3,2
+
+    def one(v: Any) -> Any:
+        if isinstance(v, (dict, list)):
+            raise ValueError(f"expected one value, got a {'table' if isinstance(v, dict) else 'list'}")
+        if a.type is not None:
+            if isinstance(v, bool):
+                raise ValueError(f"expected a value for {a.option_strings[-1]}, got {str(v).lower()}")
+            v = a.type(v if isinstance(v, str) else str(v))
+        if a.choices is not None and v not in a.choices:
+            raise ValueError(f"invalid choice {v!r} (choose from {', '.join(map(str, a.choices))})")
+        return v
+
+    return [one(v) for v in value] if many else one(value)
 
 
 #: The exit code when stdout's reader went away: 128 + SIGPIPE, what a shell

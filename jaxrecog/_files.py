@@ -1,0 +1,197 @@
+"""One rule for every file jaxrecog reads as text or writes as output.
+
+Outputs (model files, rendered databases, reports, plots, ``--problems-out``,
+JSON and TOML written beside results) are written only as *regular files* into
+*existing* folders: :func:`check_output_file` refuses a target that exists and
+is not a regular file (a folder, ``/dev/null``, ``/dev/full``, a FIFO, a
+socket) and a target whose folder does not exist (no folder chain is created
+behind the user's back: ``--out /nonexistent/m.npz`` is a typo more often than
+a wish).  :func:`check_output_folder` does the same for a command's output
+*folder* (``render --out DB``, ``experiment --out OUT``): it may be created,
+one level, inside a folder that exists.  :func:`write_text` writes one text
+output atomically (a temporary file in the same folder, then a rename) after
+those checks.
+
+Inputs read as text (settings files, experiment files, rig files) go through
+:func:`read_text`: a regular file only (``/dev/zero``, a FIFO or a terminal is
+refused before a byte is read), at most :data:`MAX_TEXT_BYTES` (the size is
+checked before reading and the read itself is capped, so a file that grows
+while read cannot run away either), UTF-8 (a bad byte is one line naming the
+file and the byte's offset).
+
+Every failure is one :class:`OSError` line naming what was being read or
+written and the path.  A leaf module of the core (standard library only).
+"""
+
+from __future__ import annotations
+
+import os
+import secrets
+import stat
+from pathlib import Path
+
+from .problems import one_line
+
+__all__ = ["MAX_TEXT_BYTES", "OutputPathError", "TextFileError", "check_output_file", "check_output_folder",
+           "read_text", "write_text"]
+
+#: The largest settings / experiment / rig text file read (1 MiB: such files
+#: are a few hundred bytes; anything larger is not one).
+MAX_TEXT_BYTES = 1 << 20
+
+
+class OutputPathError(OSError):
+    """An output path that jaxrecog will not write (one line naming it)."""
+
+
+class TextFileError(OSError):
+    """A text input that cannot be read as one (one line naming it)."""
+
+
+def _kind(mode: int) -> str:
+    for test, name in ((stat.S_ISDIR, "a folder"), (stat.S_ISCHR, "a character device"),
+                       (stat.S_ISBLK, "a block device"), (stat.S_ISFIFO, "a FIFO (named pipe)"),
+                       (stat.S_ISSOCK, "a socket")):
+        if test(mode):
+            return name
+    return "not a regular file"
+
+
+def _folder_of(p: Path) -> Path:
+    return p.parent if str(p.parent) else Path(".")
+
+
+def check_output_file(path: str | os.PathLike, what: str = "output file") -> Path:
+    """``path`` as a :class:`~pathlib.Path` when it may be written as ``what``:
+    its folder exists, and ``path`` is absent or a regular file (a symbolic
+    link counts as what it points to).
+
+    Raises:
+        OutputPathError: one line, e.g. ``cannot write model file /dev/null:
+            it is a character device, not a regular file``.
+    """
+    p = Path(path)
+    folder = _folder_of(p)
+    try:
+        st = os.stat(p)
+    except FileNotFoundError:
+        st = None
+    except OSError as e:
+        if e.errno == 20:  # ENOTDIR: a part of the folder is a file
+            raise OutputPathError(f"cannot write {what} {p}: a part of {folder} is not a folder") from None
+        raise OutputPathError(f"cannot write {what} {p}: {e.strerror}") from None
+    if st is not None and not stat.S_ISREG(st.st_mode):
+        raise OutputPathError(f"cannot write {what} {p}: it is {_kind(st.st_mode)}, not a regular file")
+    if st is None:
+        if not folder.exists():
+            raise OutputPathError(f"cannot write {what} {p}: folder {folder} does not exist (create it first)")
+        if not folder.is_dir():
+            raise OutputPathError(f"cannot write {what} {p}: {folder} is not a folder")
+    return p
+
+
+def check_output_folder(path: str | os.PathLike, what: str = "output folder", *, create: bool = True) -> Path:
+    """``path`` as a folder outputs may be written into: an existing folder,
+    or (``create``) a new one made inside a folder that exists; then checked
+    writable by creating and removing a temporary file in it.
+
+    Raises:
+        OutputPathError: one line (``path`` exists and is not a folder, its
+            parent folder does not exist, or it is not writable).
+    """
+    p = Path(path)
+    if p.exists() and not p.is_dir():
+        raise OutputPathError(f"cannot write {what} {p}: it exists and is not a folder")
+    if not p.exists():
+        parent = _folder_of(p)
+        if not parent.is_dir():
+            raise OutputPathError(f"cannot create {what} {p}: folder {parent} does not exist (create it first)")
+        if not create:
+            raise OutputPathError(f"{what} {p} does not exist")
+        try:
+            p.mkdir(exist_ok=True)
+        except OSError as e:
+            raise OutputPathError(f"cannot create {what} {p}: {e.strerror}") from None
+    probe = p / f".jaxrecog-probe.{os.getpid()}.{secrets.token_hex(4)}"
+    try:
+        fd = os.open(probe, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0), 0o600)
+    except OSError as e:
+        raise OutputPathError(f"cannot write into {what} {p}: {e.strerror}") from None
+    os.close(fd)
+    os.unlink(probe)
+    return p
+
+
+def write_text(path: str | os.PathLike, text: str, what: str = "output file") -> Path:
+    """Write ``text`` (UTF-8) to ``path`` atomically, after :func:`check_output_file`:
+    a temporary file beside it, then renamed over it (an existing file keeps its mode)."""
+    p = check_output_file(path, what)
+    folder = _folder_of(p)
+    tmp = folder / f".{p.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp"
+    flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0)
+    try:
+        fd = os.open(tmp, flags, 0o666)
+    except OSError as e:
+        raise OutputPathError(f"cannot write {what} {p}: {e.strerror}") from None
+    try:
+        try:
+            os.fchmod(fd, stat.S_IMODE(os.stat(p).st_mode))
+        except FileNotFoundError:
+            pass
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write(text)
+        os.replace(tmp, p)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except FileNotFoundError:
+            pass
+        raise
+    return p
+
+
+def read_text(path: str | os.PathLike, what: str = "settings file", limit: int = MAX_TEXT_BYTES) -> str:
+    """The UTF-8 text of the regular file ``path``, at most ``limit`` bytes.
+
+    The file is opened without blocking (a FIFO with no writer does not hang
+    the reader), checked to be a regular file of at most ``limit`` bytes, and
+    read with a cap of ``limit + 1`` bytes.
+
+    Raises:
+        FileNotFoundError: no such file (the message names ``what`` and the path).
+        TextFileError: not a regular file, too large, not UTF-8, or unreadable.
+    """
+    p = Path(path)
+    try:
+        fd = os.open(p, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0))
+    except FileNotFoundError:
+        raise FileNotFoundError(f"{what} {p} not found") from None
+    except OSError as e:
+        raise TextFileError(f"{what} {p} cannot be read: {e.strerror}") from None
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
+            raise TextFileError(f"{what} {p} is {_kind(st.st_mode)}, not a regular file")
+        if st.st_size > limit:
+            raise TextFileError(f"{what} {p} is {st.st_size} bytes, more than the {limit} a {what} may have")
+        chunks, n = [], 0
+        while n <= limit:
+            b = os.read(fd, limit + 1 - n)
+            if not b:
+                break
+            chunks.append(b)
+            n += len(b)
+    except OSError as e:
+        if isinstance(e, TextFileError):
+            raise
+        raise TextFileError(f"{what} {p} cannot be read: {e.strerror}") from None
+    finally:
+        os.close(fd)
+    raw = b"".join(chunks)
+    if len(raw) > limit:
+        raise TextFileError(f"{what} {p} grew past {limit} bytes while it was read")
+    try:
+        return raw.decode("utf-8")
+    except UnicodeDecodeError as e:
+        raise TextFileError(f"{what} {one_line(p)} is not UTF-8 text (byte 0x{raw[e.start]:02x} at offset "
+                            f"{e.start})") from None
