@@ -32,7 +32,8 @@ from pathlib import Path
 
 from .problems import one_line
 
-__all__ = ["MAX_TEXT_BYTES", "OutputPathError", "TextFileError", "check_output_file", "check_output_folder",
+__all__ = ["MAX_TEXT_BYTES", "OutputPathError", "OutputIsFolderError", "OutputFolderError", "OutputFolderMissingError",
+           "TextFileError", "check_output_file", "check_output_folder",
            "read_text", "write_text"]
 
 #: The largest settings / experiment / rig text file read (1 MiB: such files
@@ -42,6 +43,18 @@ MAX_TEXT_BYTES = 1 << 20
 
 class OutputPathError(OSError):
     """An output path that jaxrecog will not write (one line naming it)."""
+
+
+class OutputIsFolderError(OutputPathError, IsADirectoryError):
+    """The output file's path is a folder."""
+
+
+class OutputFolderError(OutputPathError, NotADirectoryError):
+    """The output file's folder is a file (or a part of its path is)."""
+
+
+class OutputFolderMissingError(OutputPathError, FileNotFoundError):
+    """The output file's folder does not exist (it is not created)."""
 
 
 class TextFileError(OSError):
@@ -78,15 +91,18 @@ def check_output_file(path: str | os.PathLike, what: str = "output file") -> Pat
         st = None
     except OSError as e:
         if e.errno == 20:  # ENOTDIR: a part of the folder is a file
-            raise OutputPathError(f"cannot write {what} {p}: a part of {folder} is not a folder") from None
+            raise OutputFolderError(f"cannot write {what} {p}: {folder} is not a folder") from None
         raise OutputPathError(f"cannot write {what} {p}: {e.strerror}") from None
+    if st is not None and stat.S_ISDIR(st.st_mode):
+        raise OutputIsFolderError(f"cannot write {what} {p}: it is a folder")
     if st is not None and not stat.S_ISREG(st.st_mode):
         raise OutputPathError(f"cannot write {what} {p}: it is {_kind(st.st_mode)}, not a regular file")
     if st is None:
         if not folder.exists():
-            raise OutputPathError(f"cannot write {what} {p}: folder {folder} does not exist (create it first)")
+            raise OutputFolderMissingError(f"cannot write {what} {p}: folder {folder} does not exist "
+                                           f"(create it first)")
         if not folder.is_dir():
-            raise OutputPathError(f"cannot write {what} {p}: {folder} is not a folder")
+            raise OutputFolderError(f"cannot write {what} {p}: {folder} is not a folder")
     return p
 
 

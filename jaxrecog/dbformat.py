@@ -4,7 +4,7 @@
 (``path,camera,position,object,pose,split``; 0-based integers; split one of
 :data:`SPLITS`), see ``docs/architecture.md``.  This leaf module (NumPy,
 OpenCV, imported when an image is read or written, and the standard library
-only; of this package it imports only :mod:`.problems`) is the one
+only; of this package it imports only :mod:`.problems` and :mod:`._files`) is the one
 definition of the format and of the in-memory :class:`ImageDatabase`: the
 renderer (:mod:`jaxrecog.hardware.render.render_db`) writes it, :func:`read_folder` reads and validates it for the dataset rig and
 for :func:`jaxrecog.load_database`, :func:`write_folder` writes an
@@ -41,6 +41,7 @@ from typing import NamedTuple, Sequence
 
 import numpy as np
 
+from ._files import check_output_folder, write_text
 from .problems import SHOWN, one_line, problem_message
 
 __all__ = [
@@ -352,8 +353,7 @@ def write_manifest(folder, rows: Sequence[Sequence]):
     the manifest's path."""
     ordered = sorted(rows, key=lambda r: (SPLITS.index(r[5]), r[1], r[2], r[3], r[4], r[0]))
     manifest = Path(folder) / "manifest.csv"
-    manifest.write_text(manifest_text(ordered))
-    return manifest
+    return write_text(manifest, manifest_text(ordered), "manifest")
 
 
 def parse_manifest(raw: bytes, where: str) -> tuple[list[tuple[int, ManifestRow]], list[str]]:
@@ -557,12 +557,14 @@ def read_folder(folder: str | os.PathLike) -> "ImageDatabase":
 
 
 def write_folder(folder: str | os.PathLike, db: ImageDatabase) -> Path:
-    """Write ``db`` as PNG files plus ``manifest.csv`` under ``folder``."""
-    root = Path(folder)
+    """Write ``db`` as PNG files plus ``manifest.csv`` under ``folder`` (an
+    existing folder, or a new one inside a folder that exists:
+    :func:`jaxrecog._files.check_output_folder`)."""
+    root = check_output_folder(folder, "database folder")
     for path, img in zip(db.paths, db.images):
         f = root / path
         f.parent.mkdir(parents=True, exist_ok=True)
         write_image(f, img)
     rows = zip(db.paths, db.camera, db.position, db.object, db.pose, db.split)
-    (root / "manifest.csv").write_text(manifest_text(list(rows)))
+    write_text(root / "manifest.csv", manifest_text(list(rows)), "manifest")
     return root

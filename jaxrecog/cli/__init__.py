@@ -19,16 +19,19 @@ Indices (objects, poses, positions) are 0-based everywhere.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import os
 import pkgutil
 import select
 import sys
 import types
+from pathlib import Path
 import warnings
 from typing import Any, Callable, Sequence
 
 from .. import __version__
+from .._files import check_output_file
 from .._config import OPTION_FIELDS, ConfigFileError, load_settings, section
 from ..problems import one_line, problem_message, write_problem_list
 from .._progress import set_quiet
@@ -60,8 +63,20 @@ SUBCOMMANDS = _discover()
 COMMANDS: dict[str, Callable[[argparse.Namespace], int]] = {m.NAME: m.run for m in SUBCOMMANDS}
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse's parser, except that a failed write of help or usage (stdout
+    on a full disk, ``> /dev/full``) is raised, not silently dropped: the
+    command then exits 1 with one line instead of 0 with nothing written.
+    The subcommands' parsers are of this class too (argparse makes them of
+    their parent's)."""
+
+    def _print_message(self, message, file=None):
+        if message:
+            (file or sys.stderr).write(message)
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="jaxrecog", description=__doc__, formatter_class=Formatter)
+    parser = _Parser(prog="jaxrecog", description=__doc__, formatter_class=Formatter)
     global_options(parser, suppress=False)
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
@@ -162,7 +177,7 @@ BROKEN_PIPE = 141
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    with warnings.catch_warnings():   # restores the caller's warning display afterwards
+    with warnings.catch_warnings(), _watched_stdout():   # both restored afterwards
         warnings.showwarning = _show_warning
         try:
             code = _main(argv)
@@ -172,6 +187,57 @@ def main(argv: Sequence[str] | None = None) -> int:
             if not _stdout_gone():
                 raise
             return _quiet_after_broken_pipe()
+        except OSError as e:  # stdout cannot take the output (a full disk, > /dev/full, an I/O error)
+            print(f"jaxrecog: error: {_stdout_error(e)}", file=sys.stderr)
+            _quiet_after_broken_pipe()  # the interpreter's last flush would fail again, with a traceback
+            return 1
+
+
+def _stdout_error(e: OSError) -> str:
+    """The one line for output that could not be written to stdout."""
+    return f"cannot write the output to standard output ({e.strerror or e})"
+
+
+class _WatchedStdout:
+    """stdout, remembering the last error a write or flush of it raised (so
+    that a full disk under ``> FILE`` is told apart from one under a file the
+    command writes itself)."""
+
+    def __init__(self, stream):
+        self._stream, self.failed = stream, None
+
+    def write(self, text):
+        try:
+            return self._stream.write(text)
+        except OSError as e:
+            self.failed = e
+            raise
+
+    def flush(self):
+        try:
+            return self._stream.flush()
+        except OSError as e:
+            self.failed = e
+            raise
+
+    def __getattr__(self, name):
+        return getattr(self._stream, name)
+
+
+def _stdout_failed(e: BaseException) -> bool:
+    """Whether ``e`` is a failed write to stdout."""
+    return isinstance(sys.stdout, _WatchedStdout) and sys.stdout.failed is e
+
+
+@contextlib.contextmanager
+def _watched_stdout():
+    """``sys.stdout`` as a :class:`_WatchedStdout` for the ``with`` block."""
+    real = sys.stdout
+    sys.stdout = _WatchedStdout(real)
+    try:
+        yield
+    finally:
+        sys.stdout = real
 
 
 def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
@@ -238,6 +304,7 @@ def _main(argv: Sequence[str] | None) -> int:
     args.debug = bool(getattr(args, "debug", False) or glob.get("debug", False) or debug)
     set_quiet(args.quiet)
     try:
+        _check_problems_out(getattr(args, "problems_out", None))
         return int(COMMANDS[args.command](args) or 0)
     except UsageError as e:
         if args.debug:
@@ -251,6 +318,10 @@ def _main(argv: Sequence[str] | None) -> int:
     except Exception as e:  # noqa: BLE001 - the one place that turns failures into exit code 1
         if isinstance(e, BrokenPipeError) and _stdout_gone():
             raise  # main: quiet, not an error
+        if _stdout_failed(e) and not args.debug:
+            print(f"jaxrecog: error: {_stdout_error(e)}", file=sys.stderr)
+            _quiet_after_broken_pipe()
+            return 1
         if args.debug:
             for problem in getattr(e, "problems", None) or ():  # the full list, then the traceback
                 print(problem, file=sys.stderr)
@@ -263,6 +334,24 @@ def _main(argv: Sequence[str] | None) -> int:
         print(f"jaxrecog: error: {msg}", file=sys.stderr)
         _write_problems(e, getattr(args, "problems_out", None))
         return 1
+
+
+def _check_problems_out(path: str | None) -> None:
+    """``--problems-out FILE``, before the command runs: a regular file (or
+    none yet) in a folder that exists, and not in an image database folder
+    (one holding ``manifest.csv``, at any depth above FILE): a command never
+    writes into the database it reads.  A :class:`UsageError` otherwise."""
+    if not path:
+        return
+    try:
+        p = check_output_file(path, "--problems-out file")
+    except OSError as e:
+        raise UsageError(str(e)) from None
+    folder = Path(os.path.realpath(p.parent if str(p.parent) else "."))
+    for f in (folder, *folder.parents):
+        if (f / "manifest.csv").is_file():
+            raise UsageError(f"--problems-out {path} is in the image database folder {f}: a command never "
+                             f"writes into a database folder; choose a file outside it")
 
 
 def _write_problems(e: BaseException, path: str | None) -> None:

@@ -11,6 +11,7 @@ from typing import Any
 
 from .. import campaigns  # as a module: tests stub its prepare / run_case / run_dataset
 from .._config import FIELD_OPTIONS, LIKELIHOOD_OPTION_KEYS, OPTION_FIELDS, ConfigFileError, read_toml, resolve_keys
+from .._files import check_output_folder, write_text
 from .._lock import folder_lock
 from ..driver import trial_mesh
 from ..modelfile import ModelFileError
@@ -345,9 +346,11 @@ def _report(args) -> tuple[dict, str]:
     name, rig, model, folder, settings, planners, out, dataset = (r.name, r.rig, r.model, r.folder, r.settings,
                                                                   r.planners, r.out, r.dataset)
     # one run per --out and work folder: a second is refused, naming the first's PID
+    check_output_folder(out, "--out folder")  # existing folders, or one new level: never a typo's chain
+    check_output_folder(settings.workdir, "work folder")
     with folder_lock(out, settings.workdir):
         config = out / "config.toml"  # the resolved configuration beside the results (as hydra does)
-        config.write_text(config_text(r))
+        write_text(config, config_text(r), "resolved configuration")
         t0 = time.perf_counter()
         if dataset:
             report = campaigns.run_dataset(folder, model, settings, planners=planners, progress=progress_bars())

@@ -11,6 +11,7 @@ from ..calibration_data import features_from_database
 from ..database import load_database
 from ..eigenspace import ComponentsError
 from ..kernels import likelihood_class
+from .._lock import file_lock
 from ..modelfile import check_writable, load_model, load_model_meta, save_model
 from .._progress import bar
 from ..recipes import AUTO, DEFAULT_RECIPE, RECIPES, Recipe, get_recipe, recipe_from_meta
@@ -176,7 +177,22 @@ def resolve_recipe(args, db=None) -> Recipe:
 
 def run(args) -> int:
     if args.add is not None or args.to is not None or args.database is None:
-        return _run_add(args)
+        return _locked(args, _run_add)
+    return _locked(args, _run)
+
+
+def _locked(args, work) -> int:
+    """``work(args)`` holding the lock on writing ``--out`` (one writer of a
+    model file at a time: a second ``train --out`` of the same file is refused
+    with one line naming the first's PID)."""
+    if args.out is None:
+        return work(args)
+    check_writable(args.out)  # a folder that exists, a regular file or none: before the lock file is made
+    with file_lock(args.out, what="jaxrecog train"):
+        return work(args)
+
+
+def _run(args) -> int:
     default_k = args.components is None  # the default fits the data; a K the user gives must
     comps: int | float = DEFAULT_COMPONENTS if default_k else args.components
     if float(comps).is_integer() and comps >= 1:
