@@ -7,8 +7,9 @@ is not a regular file (a folder, ``/dev/null``, ``/dev/full``, a FIFO, a
 socket) and a target whose folder does not exist (no folder chain is created
 behind the user's back: ``--out /nonexistent/m.npz`` is a typo more often than
 a wish).  :func:`check_output_folder` does the same for a command's output
-*folder* (``render --out DB``, ``experiment --out OUT``): it may be created,
-one level, inside a folder that exists.  :func:`write_text` writes one text
+*folder* (``render --out DB``, ``experiment --out OUT``): named as a folder,
+it is created with any missing parents (``--out out/iii``), but never through
+a path of which a part is a file, and it must take files.  :func:`write_text` writes one text
 output atomically (a temporary file in the same folder, then a rename) after
 those checks.
 
@@ -108,24 +109,25 @@ def check_output_file(path: str | os.PathLike, what: str = "output file") -> Pat
 
 def check_output_folder(path: str | os.PathLike, what: str = "output folder", *, create: bool = True) -> Path:
     """``path`` as a folder outputs may be written into: an existing folder,
-    or (``create``) a new one made inside a folder that exists; then checked
+    or (``create``) a new one, made with its missing parents; then checked
     writable by creating and removing a temporary file in it.
 
     Raises:
-        OutputPathError: one line (``path`` exists and is not a folder, its
-            parent folder does not exist, or it is not writable).
+        OutputPathError: one line (``path`` or a folder above it exists and
+            is not a folder, ``path`` is missing and not ``create``, or it
+            does not take files).
     """
     p = Path(path)
-    if p.exists() and not p.is_dir():
-        raise OutputPathError(f"cannot write {what} {p}: it exists and is not a folder")
+    for above in (p, *p.parents):
+        if above.exists():
+            if not above.is_dir():
+                raise OutputPathError(f"cannot write {what} {p}: {above} exists and is not a folder")
+            break
     if not p.exists():
-        parent = _folder_of(p)
-        if not parent.is_dir():
-            raise OutputPathError(f"cannot create {what} {p}: folder {parent} does not exist (create it first)")
         if not create:
             raise OutputPathError(f"{what} {p} does not exist")
         try:
-            p.mkdir(exist_ok=True)
+            p.mkdir(parents=True, exist_ok=True)
         except OSError as e:
             raise OutputPathError(f"cannot create {what} {p}: {e.strerror}") from None
     probe = p / f".jaxrecog-probe.{os.getpid()}.{secrets.token_hex(4)}"

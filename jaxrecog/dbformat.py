@@ -581,8 +581,8 @@ def read_folder(folder: str | os.PathLike) -> "ImageDatabase":
 
 
 def write_folder(folder: str | os.PathLike, db: ImageDatabase) -> Path:
-    """Write ``db`` as PNG files plus ``manifest.csv`` under ``folder`` (an
-    existing folder, or a new one inside a folder that exists:
+    """Write ``db`` as PNG files plus ``manifest.csv`` under ``folder`` (made
+    with its parents if missing; never through a file:
     :func:`jaxrecog._files.check_output_folder`)."""
     root = check_output_folder(folder, "database folder")
     for path, img in zip(db.paths, db.images):

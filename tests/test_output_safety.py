@@ -53,11 +53,11 @@ def test_an_output_must_be_a_regular_file_in_an_existing_folder(tmp_path, fifo):
     assert check_output_file(tmp_path / "new.npz") == tmp_path / "new.npz"
     assert write_text(tmp_path / "a.txt", "x\n").read_text() == "x\n"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.txt", "pipe"]  # no temporary file left
-    assert check_output_folder(tmp_path / "out") == tmp_path / "out"      # one new level
-    with pytest.raises(OSError, match="does not exist"):
-        check_output_folder(tmp_path / "x" / "y")
-    with pytest.raises(OSError, match="it exists and is not a folder"):
-        check_output_folder(tmp_path / "a.txt")
+    assert check_output_folder(tmp_path / "out" / "iii") == tmp_path / "out" / "iii"   # a folder: made with parents
+    for bad in (tmp_path / "a.txt", tmp_path / "a.txt" / "x"):
+        with pytest.raises(OSError) as e:
+            check_output_folder(bad, "database folder")
+        assert str(e.value) == f"cannot write database folder {bad}: {tmp_path / 'a.txt'} exists and is not a folder"
 
 
 def test_saving_a_model_over_a_device_or_into_a_missing_folder_is_refused(tmp_path, fifo):
@@ -106,9 +106,10 @@ def test_a_second_render_into_the_same_folder_is_refused(tmp_path):
         p = run("render", "--out", tmp_path / "db", "--stride", 8, "--objects", 1, "--poses", 1)
     assert p.returncode == 1
     one_error_line(p, f"{tmp_path / 'db'} is in use by another jaxrecog render (PID {os.getpid()}")
+    (tmp_path / "x").write_text("a file")
     p = run("render", "--out", tmp_path / "x" / "db")
     assert p.returncode == 1
-    one_error_line(p, f"cannot create database folder {tmp_path / 'x' / 'db'}: folder {tmp_path / 'x'} does not exist")
+    one_error_line(p, f"cannot write database folder {tmp_path / 'x' / 'db'}: {tmp_path / 'x'} exists and is not a folder")
 
 
 # -- settings files: bounded, regular, UTF-8 -------------------------------------------------

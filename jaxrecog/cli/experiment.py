@@ -346,7 +346,7 @@ def _report(args) -> tuple[dict, str]:
     name, rig, model, folder, settings, planners, out, dataset = (r.name, r.rig, r.model, r.folder, r.settings,
                                                                   r.planners, r.out, r.dataset)
     # one run per --out and work folder: a second is refused, naming the first's PID
-    check_output_folder(out, "--out folder")  # existing folders, or one new level: never a typo's chain
+    check_output_folder(out, "--out folder")  # a folder (made with its parents) that takes files, before any work
     check_output_folder(settings.workdir, "work folder")
     with folder_lock(out, settings.workdir):
         config = out / "config.toml"  # the resolved configuration beside the results (as hydra does)

@@ -55,7 +55,7 @@ def _database_summary(db) -> str:
 def _report(args) -> tuple[dict, str]:
     path = Path(args.path)
     written = []
-    if args.plot_dir:  # before any work: a folder that exists (or one new level) and takes files
+    if args.plot_dir:  # before any work: a folder (made with its parents) that takes files
         check_output_folder(args.plot_dir, "--plot-dir folder")
     if not path.exists() and path.suffix != ".npz":
         raise CLIError(f"{path}: no such model file or database folder")

@@ -59,8 +59,8 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
-    """Render into ``--out`` (a folder that exists, or one new level inside
-    one), holding its lock: a second ``render --out`` of the same folder is
+    """Render into ``--out`` (made with its parents if missing, never
+    through a file), holding its lock: a second ``render --out`` of the same folder is
     refused with one line naming the first's PID."""
     out = check_output_folder(args.out, "database folder")
     with folder_lock(out, what="jaxrecog render"):
