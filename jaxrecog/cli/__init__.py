@@ -7,6 +7,16 @@ Settings may come from a TOML file (--config FILE): one table per subcommand
 with the long option names (or, for experiment, the Settings field names) as
 keys; command-line options override the file.
 Indices (objects, poses, positions) are 0-based everywhere.
+
+Files: an output file (a model, a plot, a report, --problems-out) is written
+only as a regular file into a folder that exists: /dev/null, /dev/full, a
+FIFO or a folder at its path is refused, and no missing folder is made for
+it.  An output folder (render --out, experiment --out, --plot-dir) is made
+with its parents.  One writer at a time: a second train of the same --out,
+or render or experiment into the same folder, is refused at once (no wait),
+naming the first's PID.  Settings and experiment files are regular UTF-8
+files of at most 1 MiB; their values are checked as the options' are.
+Output that stdout cannot take (a full disk) is an error (exit 1).
 """
 
 # Subcommands are found, not listed: every public module of this package is

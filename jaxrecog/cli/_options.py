@@ -184,7 +184,8 @@ def global_options(parser: argparse.ArgumentParser, suppress: bool) -> None:
                         help="read option defaults from this TOML file ([global] and one table per subcommand)")
     parser.add_argument("--problems-out", metavar="FILE", default=d,
                         help="on an error that lists problems (an invalid database, settings file, model file), "
-                             "write all of them to this new file (never overwritten; the message shows the first 10)")
+                             "write all of them to this new file (never overwritten, never in a database folder; the "
+                             "message shows the first 10)")
 
 
 def table_options(p: argparse.ArgumentParser) -> None:

@@ -51,7 +51,7 @@ _COVARIANCE = {"diag": "gaussian-diag", "full": "gaussian-full"}
 def add_arguments(p) -> None:
     p.add_argument("database", metavar="DATABASE", nargs="?", default=None,
                    help="image database folder (with manifest.csv); not with --add")
-    p.add_argument("--out", required=True, metavar="MODEL.NPZ", help="model file to write")
+    p.add_argument("--out", required=True, metavar="MODEL.NPZ", help="model file to write (in a folder that exists; one train per file at a time)")
     p.add_argument("--add", default=None, metavar="NEW_DB",
                    help="add the objects of this image database to the model --to (its object m becomes object "
                         "M_old + m); the model's training settings are used")
