@@ -27,7 +27,6 @@ import pytest
 from clirun import one_error_line, run_cli
 
 from jaxrecog import cli
-from jaxrecog._files import check_output_file, check_output_folder, read_text, write_text
 
 run = run_cli
 
@@ -42,6 +41,8 @@ def fifo(tmp_path):
 
 
 def test_an_output_must_be_a_regular_file_in_an_existing_folder(tmp_path, fifo):
+    from jaxrecog._files import check_output_file, check_output_folder, write_text
+
     for target, words in (("/dev/null", "it is a character device, not a regular file"),
                           ("/dev/full", "it is a character device, not a regular file"),
                           (fifo, "it is a FIFO (named pipe), not a regular file"),
@@ -137,6 +138,8 @@ def test_a_settings_file_is_read_bounded_and_as_utf8(tmp_path, fifo):
     exp.write_bytes(b"case = \"iii\xff\"\n")
     p = run("experiment", exp)
     assert p.returncode == 2 and "experiment file" in p.stderr and "not UTF-8" in p.stderr
+    from jaxrecog._files import read_text
+
     with pytest.raises(OSError, match="is not UTF-8 text"):
         read_text(bad)
 
