@@ -18,7 +18,8 @@ Inputs read as text (settings files, experiment files, rig files) go through
 refused before a byte is read), at most :data:`MAX_TEXT_BYTES` (the size is
 checked before reading and the read itself is capped, so a file that grows
 while read cannot run away either), UTF-8 (a bad byte is one line naming the
-file and the byte's offset).
+file and the byte's offset).  :func:`read_bytes` is the same bounded read
+without the decoding (a database's ``manifest.csv``, up to 1 GiB).
 
 Every failure is one :class:`OSError` line naming what was being read or
 written and the path.  A leaf module of the core (standard library only).
@@ -35,7 +36,7 @@ from .problems import one_line
 
 __all__ = ["MAX_TEXT_BYTES", "OutputPathError", "OutputIsFolderError", "OutputFolderError", "OutputFolderMissingError",
            "TextFileError", "check_output_file", "check_output_folder",
-           "read_text", "write_text"]
+           "read_bytes", "read_text", "write_text"]
 
 #: The largest settings / experiment / rig text file read (1 MiB: such files
 #: are a few hundred bytes; anything larger is not one).
@@ -168,16 +169,16 @@ def write_text(path: str | os.PathLike, text: str, what: str = "output file") ->
     return p
 
 
-def read_text(path: str | os.PathLike, what: str = "settings file", limit: int = MAX_TEXT_BYTES) -> str:
-    """The UTF-8 text of the regular file ``path``, at most ``limit`` bytes.
+def read_bytes(path: str | os.PathLike, what: str, limit: int) -> bytes:
+    """The bytes of the regular file ``path``, at most ``limit`` of them.
 
     The file is opened without blocking (a FIFO with no writer does not hang
     the reader), checked to be a regular file of at most ``limit`` bytes, and
-    read with a cap of ``limit + 1`` bytes.
+    read with a cap of ``limit + 1`` bytes (a file that grows while read).
 
     Raises:
         FileNotFoundError: no such file (the message names ``what`` and the path).
-        TextFileError: not a regular file, too large, not UTF-8, or unreadable.
+        TextFileError: not a regular file, too large, or unreadable.
     """
     p = Path(path)
     try:
@@ -186,30 +187,41 @@ def read_text(path: str | os.PathLike, what: str = "settings file", limit: int =
         raise FileNotFoundError(f"{what} {p} not found") from None
     except OSError as e:
         raise TextFileError(f"{what} {p} cannot be read: {e.strerror}") from None
+    chunks, n = [], 0
     try:
         st = os.fstat(fd)
         if not stat.S_ISREG(st.st_mode):
             raise TextFileError(f"{what} {p} is {_kind(st.st_mode)}, not a regular file")
         if st.st_size > limit:
             raise TextFileError(f"{what} {p} is {st.st_size} bytes, more than the {limit} a {what} may have")
-        chunks, n = [], 0
         while n <= limit:
             b = os.read(fd, limit + 1 - n)
             if not b:
                 break
             chunks.append(b)
             n += len(b)
+    except TextFileError:
+        raise
     except OSError as e:
-        if isinstance(e, TextFileError):
-            raise
         raise TextFileError(f"{what} {p} cannot be read: {e.strerror}") from None
     finally:
         os.close(fd)
-    raw = b"".join(chunks)
-    if len(raw) > limit:
+    if n > limit:
         raise TextFileError(f"{what} {p} grew past {limit} bytes while it was read")
+    return b"".join(chunks)
+
+
+def read_text(path: str | os.PathLike, what: str = "settings file", limit: int = MAX_TEXT_BYTES) -> str:
+    """The UTF-8 text of the regular file ``path``, at most ``limit`` bytes
+    (:func:`read_bytes`).
+
+    Raises:
+        FileNotFoundError: no such file (the message names ``what`` and the path).
+        TextFileError: not a regular file, too large, not UTF-8, or unreadable.
+    """
+    raw = read_bytes(path, what, limit)
     try:
         return raw.decode("utf-8")
     except UnicodeDecodeError as e:
-        raise TextFileError(f"{what} {one_line(p)} is not UTF-8 text (byte 0x{raw[e.start]:02x} at offset "
+        raise TextFileError(f"{what} {one_line(path)} is not UTF-8 text (byte 0x{raw[e.start]:02x} at offset "
                             f"{e.start})") from None

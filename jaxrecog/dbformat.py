@@ -41,7 +41,7 @@ from typing import NamedTuple, Sequence
 
 import numpy as np
 
-from ._files import check_output_folder, write_text
+from ._files import check_output_folder, read_bytes, write_text
 from ._imagesize import MAX_IMAGE_PIXELS, image_size
 from .problems import SHOWN, one_line, problem_message
 
@@ -426,6 +426,8 @@ def parse_manifest(raw: bytes, where: str) -> tuple[list[tuple[int, ManifestRow]
 
 #: The most bytes the images of one database may take in memory (16 GiB).
 MAX_DATABASE_BYTES = 1 << 34
+#: The largest manifest.csv read (1 GiB: some 20 million rows).
+MAX_MANIFEST_BYTES = 1 << 30
 
 
 def read_gray(file: Path, name: str | None = None) -> tuple[np.ndarray | None, str | None, bool]:
@@ -498,7 +500,10 @@ def read_folder(folder: str | os.PathLike) -> "ImageDatabase":
     manifest = root / "manifest.csv"
     if not manifest.is_file():
         raise DatabaseError(str(root), [f"no manifest.csv in '{root}'"])
-    raw = manifest.read_bytes()
+    try:  # the size checked before reading, the read capped
+        raw = read_bytes(manifest, "manifest.csv", MAX_MANIFEST_BYTES)
+    except OSError as e:
+        raise DatabaseError(str(root), [str(e)]) from None
     numbered, problems = parse_manifest(raw, str(root))
     problems += check_rows(numbered)
     # the pixels are kept only for a clean manifest: a broken one is checked

@@ -162,6 +162,15 @@ def test_settings_file_values_are_checked_as_flags_are(tmp_path, line, words):
     assert last.startswith(f"jaxrecog: error: settings file {cfg}: {words}"), last
 
 
+def test_global_switches_in_a_settings_file_must_be_true_or_false(tmp_path):
+    cfg = tmp_path / "c.toml"
+    cfg.write_text('[global]\nquiet = "no"\n')   # was taken as quiet: a non-empty string is true
+    p = run("--config", cfg, "recipes")
+    assert p.returncode == 2
+    assert p.stderr.splitlines()[-1] == (f"jaxrecog: error: settings file {cfg}: [global] quiet = 'no': expected "
+                                         f"true or false (as --quiet)")
+
+
 def test_settings_file_values_of_the_right_kind_still_work(tmp_path):
     cfg = tmp_path / "c.toml"
     cfg.write_text('[recognize]\nmax_steps = 3\nstart = [1, 0]\nthreshold = 0.9\nplanner = "random"\n'
@@ -239,6 +248,19 @@ def test_a_huge_image_is_refused_by_its_header_naming_its_row(tmp_path, row):
         load_database(db)
     assert str(e.value).endswith(f"row {row}: image '{name}' is 20000x20000 pixels by its header, more than the "
                                  f"{1 << 25} an image may have (not decoded)"), str(e.value)
+
+
+def test_a_manifest_is_read_bounded(tmp_path, monkeypatch):
+    from jaxrecog import dbformat, load_database
+    from jaxrecog.dbformat import DatabaseError
+
+    (tmp_path / "db").mkdir()
+    (tmp_path / "db" / "manifest.csv").write_text("path,camera,position,object,pose,split\n" * 100)
+    monkeypatch.setattr(dbformat, "MAX_MANIFEST_BYTES", 1000)
+    with pytest.raises(DatabaseError) as e:
+        load_database(tmp_path / "db")
+    assert str(e.value) == (f"invalid image database {tmp_path / 'db'}: manifest.csv {tmp_path / 'db' / 'manifest.csv'} "
+                            f"is 3900 bytes, more than the 1000 a manifest.csv may have")
 
 
 def test_image_sizes_come_from_the_headers_of_the_usual_formats(tmp_path):

@@ -110,6 +110,10 @@ def _apply_config(parser: argparse.ArgumentParser, path: str) -> dict[str, Any]:
     data = load_settings(path)
     known_global = {"quiet", "debug"}
     glob = section(data, "global", known_global, path)
+    for k, v in glob.items():  # switches, as --quiet and --debug are
+        if not isinstance(v, bool):
+            raise ConfigFileError(f"settings file {path}: [global] {k} = {one_line(repr(v), 60)}: expected true "
+                                  f"or false (as --{k})")
     subs = subparsers(parser)
     unknown = sorted(set(data) - set(subs) - {"global"})
     if unknown:
