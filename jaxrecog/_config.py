@@ -30,6 +30,7 @@ import tomllib
 from pathlib import Path
 from typing import Any, Sequence
 
+from ._files import read_text
 from .problems import one_line, problem_message
 
 __all__ = ["ConfigFileError", "FIELD_OPTIONS", "LIKELIHOOD_OPTION_KEYS", "OPTION_FIELDS", "load_settings",
@@ -60,18 +61,24 @@ class ConfigFileError(ValueError):
 
 
 def read_toml(path: str | os.PathLike, what: str = "settings file") -> dict[str, Any]:
-    """Parse a TOML file; a missing, unreadable or invalid file is a
-    :class:`ConfigFileError` that names ``what`` and the path."""
+    """Parse a TOML file; a missing, unreadable, oversized (more than
+    :data:`~jaxrecog._files.MAX_TEXT_BYTES`), non-regular (``/dev/zero``, a
+    FIFO), non-UTF-8 or invalid file is a :class:`ConfigFileError` that names
+    ``what`` and the path (:func:`jaxrecog._files.read_text`: the size is
+    checked before reading and the read is capped)."""
     p = Path(path)
     try:
-        with open(p, "rb") as f:
-            return tomllib.load(f)
+        text = read_text(p, what)
     except FileNotFoundError:
         raise ConfigFileError(f"{what} {p} not found") from None
+    except OSError as e:  # TextFileError: one line naming the file already
+        raise ConfigFileError(str(e)) from None
+    try:
+        return tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
         raise ConfigFileError(f"{what} {p} is not valid TOML: {e}") from None
-    except OSError as e:
-        raise ConfigFileError(f"{what} {p} cannot be read: {e.strerror}") from None
+    except RecursionError:  # absurdly nested arrays or tables
+        raise ConfigFileError(f"{what} {p} is not valid TOML: nested too deeply") from None
 
 
 def load_settings(path: str | os.PathLike) -> dict[str, Any]:

@@ -8,6 +8,11 @@ holder (PID, host, start time), so a second run is refused with one line
 naming the first.  The kernel drops the lock when its holder dies, however it
 dies: the lock file of a killed run (a dead PID) is simply taken over by the
 next run.  The file is removed when the run ends.
+
+One output file per writer: :func:`file_lock` is the same lock on one file
+(``FOLDER/.NAME.lock`` beside it), held by ``jaxrecog train`` from its
+writability check until the model is saved; a second writer of the same file
+is refused at once (no waiting), with one line naming the first.
 """
 
 from __future__ import annotations
@@ -20,13 +25,17 @@ import time
 from pathlib import Path
 from typing import Iterator
 
-__all__ = ["LOCK_NAME", "FolderLockedError", "folder_lock"]
+__all__ = ["LOCK_NAME", "FolderLockedError", "FileLockedError", "folder_lock", "file_lock"]
 
 LOCK_NAME = ".jaxrecog.lock"
 
 
 class FolderLockedError(OSError):
     """Another run holds the folder (one line naming it)."""
+
+
+class FileLockedError(FolderLockedError):
+    """Another run is writing the same output file (one line naming it)."""
 
 
 def _holder(fd: int) -> str:
@@ -41,9 +50,14 @@ def _holder(fd: int) -> str:
     return "a process that has not written its PID yet"
 
 
-def _acquire(folder: Path, what: str) -> tuple[int, Path]:
-    folder.mkdir(parents=True, exist_ok=True)
-    path = folder / LOCK_NAME
+def _acquire(folder: Path, what: str, target: Path | None = None) -> tuple[int, Path]:
+    """Lock ``folder`` (``target``: the one file ``target`` of ``folder``, by
+    ``FOLDER/.NAME.lock``; the folder then must exist)."""
+    if target is None:
+        folder.mkdir(parents=True, exist_ok=True)
+        path = folder / LOCK_NAME
+    else:
+        path = folder / f".{target.name}.lock"
     flags = os.O_RDWR | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0)
     for _ in range(20):
         try:
@@ -55,6 +69,9 @@ def _acquire(folder: Path, what: str) -> tuple[int, Path]:
         except BlockingIOError:
             holder = _holder(fd)
             os.close(fd)
+            if target is not None:
+                raise FileLockedError(f"{target} is being written by another {what} ({holder}); wait for it to "
+                                      f"end or choose another file") from None
             raise FolderLockedError(f"{folder} is in use by another {what} ({holder}); wait for it to end "
                                     f"or choose another folder") from None
         try:  # the file we locked is still the one at the path (not one a finishing run just removed)
@@ -101,3 +118,23 @@ def folder_lock(*folders: str | os.PathLike, what: str = "jaxrecog experiment ru
     finally:
         for fd, path in reversed(held):
             _release(fd, path)
+
+
+@contextlib.contextmanager
+def file_lock(path: str | os.PathLike, what: str = "jaxrecog run") -> Iterator[None]:
+    """Hold an exclusive lock on writing the one file ``path`` (by
+    ``FOLDER/.NAME.lock`` beside it; its folder must exist) for the ``with``
+    block: two ``jaxrecog train --out m.npz`` at once both trained and both
+    exited 0, and one model was lost; now the second is refused at once.
+
+    Raises:
+        FileLockedError: a live process is writing ``path``; the message
+            names the file and that process's PID.  Nothing is held then.
+    """
+    p = Path(path)
+    folder = p.parent if str(p.parent) else Path(".")
+    held = _acquire(folder, what, target=p)
+    try:
+        yield
+    finally:
+        _release(*held)

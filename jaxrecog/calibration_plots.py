@@ -8,6 +8,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
+from ._files import check_output_file
 from .metrics import expected_calibration_error, reliability_bins
 from .results import TrialResult
 
@@ -64,8 +65,7 @@ def reliability_plot(campaigns: Mapping[str, Sequence[TrialResult]], path: str |
     axc.set_yscale("symlog", linthresh=1)
     axc.grid(alpha=0.3)
     fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    path = check_output_file(path, "plot")
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path

@@ -4,7 +4,7 @@
 (``path,camera,position,object,pose,split``; 0-based integers; split one of
 :data:`SPLITS`), see ``docs/architecture.md``.  This leaf module (NumPy,
 OpenCV, imported when an image is read or written, and the standard library
-only; of this package it imports only :mod:`.problems`) is the one
+only; of this package it imports only :mod:`.problems`, :mod:`._files` and :mod:`._imagesize`) is the one
 definition of the format and of the in-memory :class:`ImageDatabase`: the
 renderer (:mod:`jaxrecog.hardware.render.render_db`) writes it, :func:`read_folder` reads and validates it for the dataset rig and
 for :func:`jaxrecog.load_database`, :func:`write_folder` writes an
@@ -41,6 +41,8 @@ from typing import NamedTuple, Sequence
 
 import numpy as np
 
+from ._files import check_output_folder, read_bytes, write_text
+from ._imagesize import MAX_IMAGE_PIXELS, image_size
 from .problems import SHOWN, one_line, problem_message
 
 __all__ = [
@@ -352,8 +354,7 @@ def write_manifest(folder, rows: Sequence[Sequence]):
     the manifest's path."""
     ordered = sorted(rows, key=lambda r: (SPLITS.index(r[5]), r[1], r[2], r[3], r[4], r[0]))
     manifest = Path(folder) / "manifest.csv"
-    manifest.write_text(manifest_text(ordered))
-    return manifest
+    return write_text(manifest, manifest_text(ordered), "manifest")
 
 
 def parse_manifest(raw: bytes, where: str) -> tuple[list[tuple[int, ManifestRow]], list[str]]:
@@ -423,9 +424,18 @@ def parse_manifest(raw: bytes, where: str) -> tuple[list[tuple[int, ManifestRow]
     return numbered, problems
 
 
+#: The most bytes the images of one database may take in memory (16 GiB).
+MAX_DATABASE_BYTES = 1 << 34
+#: The largest manifest.csv read (1 GiB: some 20 million rows).
+MAX_MANIFEST_BYTES = 1 << 30
+
+
 def read_gray(file: Path, name: str | None = None) -> tuple[np.ndarray | None, str | None, bool]:
     """Read one image as uint8 gray: ``(image, problem, converted_from_colour)``;
-    a problem names the file as ``name`` (default: its file name)."""
+    a problem names the file as ``name`` (default: its file name).  An image
+    whose header declares more than :data:`MAX_IMAGE_PIXELS` pixels is a
+    problem found before it is decoded (a 20000 x 20000 PNG of a few kB would
+    take 1.2 GB)."""
     import cv2
 
     name = one_line(file.name if name is None else name, 120)
@@ -435,6 +445,13 @@ def read_gray(file: Path, name: str | None = None) -> tuple[np.ndarray | None, s
         found = False
     if not found:
         return None, f"missing file '{name}'", False
+    try:
+        size = image_size(file)
+    except OSError as e:
+        return None, f"cannot read image '{name}' ({e.strerror or e})", False
+    if size is not None and size[0] * size[1] > MAX_IMAGE_PIXELS:
+        return None, (f"image '{name}' is {size[0]}x{size[1]} pixels by its header, more than the "
+                      f"{MAX_IMAGE_PIXELS} an image may have (not decoded)"), False
     img = cv2.imread(str(file), cv2.IMREAD_UNCHANGED)
     if img is None:
         return None, f"cannot read image '{name}' (not an image file?)", False
@@ -483,7 +500,10 @@ def read_folder(folder: str | os.PathLike) -> "ImageDatabase":
     manifest = root / "manifest.csv"
     if not manifest.is_file():
         raise DatabaseError(str(root), [f"no manifest.csv in '{root}'"])
-    raw = manifest.read_bytes()
+    try:  # the size checked before reading, the read capped
+        raw = read_bytes(manifest, "manifest.csv", MAX_MANIFEST_BYTES)
+    except OSError as e:
+        raise DatabaseError(str(root), [str(e)]) from None
     numbered, problems = parse_manifest(raw, str(root))
     problems += check_rows(numbered)
     # the pixels are kept only for a clean manifest: a broken one is checked
@@ -518,7 +538,16 @@ def read_folder(folder: str | os.PathLike) -> "ImageDatabase":
             colour_rows.append(r)
             colour_set.add(i)
         if keep and out is None:
-            out = np.empty((len(numbered), *img.shape), np.uint8)
+            need = len(numbered) * img.size
+            try:
+                if need > MAX_DATABASE_BYTES:
+                    raise MemoryError
+                out = np.empty((len(numbered), *img.shape), np.uint8)
+            except MemoryError:
+                problems.append(f"row {r}: {len(numbered)} images of {img.shape[0]}x{img.shape[1]} (this row's "
+                                f"size) would take {need / 2**30:.1f} GiB, more than the "
+                                f"{MAX_DATABASE_BYTES / 2**30:.0f} GiB a database may")
+                keep = False
         if out is not None and img.shape == out.shape[1:]:
             out[i] = img
 
@@ -557,12 +586,14 @@ def read_folder(folder: str | os.PathLike) -> "ImageDatabase":
 
 
 def write_folder(folder: str | os.PathLike, db: ImageDatabase) -> Path:
-    """Write ``db`` as PNG files plus ``manifest.csv`` under ``folder``."""
-    root = Path(folder)
+    """Write ``db`` as PNG files plus ``manifest.csv`` under ``folder`` (made
+    with its parents if missing; never through a file:
+    :func:`jaxrecog._files.check_output_folder`)."""
+    root = check_output_folder(folder, "database folder")
     for path, img in zip(db.paths, db.images):
         f = root / path
         f.parent.mkdir(parents=True, exist_ok=True)
         write_image(f, img)
     rows = zip(db.paths, db.camera, db.position, db.object, db.pose, db.split)
-    (root / "manifest.csv").write_text(manifest_text(list(rows)))
+    write_text(root / "manifest.csv", manifest_text(list(rows)), "manifest")
     return root

@@ -29,6 +29,9 @@ rank larger than K), each failure one line naming the field.
 Saving writes a temporary file in the target folder, fsyncs it, then
 ``os.replace``s it over the target (and fsyncs the folder): a crash at any
 moment leaves either the old or the new file, never a broken one.  The
+target must be absent or a regular file, in a folder that exists: a folder,
+``/dev/null``, ``/dev/full`` or a FIFO is refused, and no missing folder is
+created (:func:`jaxrecog._files.check_output_file`).  The
 temporary file is ``.NAME.HOST-PID.RANDOM.tmp``: one left by a writer that
 was killed (SIGKILL, power loss) is removed by the next save of that name
 once its process is gone.  A new model file gets the mode of any newly
@@ -58,6 +61,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
+from ._files import check_output_file
 from .problems import one_line, problem_message
 from .kernels import likelihood_class
 from .recipes import THESIS
@@ -173,8 +177,8 @@ def save_model(path: str | os.PathLike, model: SensorModel, *, training: dict | 
         "meta": np.frombuffer(json.dumps(meta, sort_keys=True).encode(), dtype=np.uint8),
         **arrays,
     }
+    check_output_file(path, "model file")  # a regular file in a folder that exists, never /dev/null or a FIFO
     folder = path.parent if str(path.parent) else Path(".")
-    folder.mkdir(parents=True, exist_ok=True)
     _remove_stale_temps(folder, path.name)
     fd, tmp = _create_temp(folder, path.name)
     try:
@@ -267,23 +271,17 @@ def _remove_stale_temps(folder: Path, name: str) -> None:
 
 def check_writable(path: str | os.PathLike) -> None:
     """Raise a one-line :class:`OSError` unless :func:`save_model` could write
-    ``path`` (its folder, or the nearest folder above that exists, takes a new
-    file: tried with a temporary file removed at once; ``path`` is not a
-    folder).  Nothing is left behind.  For a command to call before it spends
-    minutes training."""
-    path = Path(path)
-    if path.is_dir():
-        raise IsADirectoryError(f"cannot write model file {path}: it is a folder")
+    ``path``: its folder exists and takes a new file (tried with a temporary
+    file removed at once), and ``path`` is absent or a regular file (not a
+    folder, ``/dev/null``, a FIFO: :func:`jaxrecog._files.check_output_file`).
+    Nothing is left behind.  For a command to call before it spends minutes
+    training."""
+    path = check_output_file(path, "model file")
     folder = path.parent if str(path.parent) else Path(".")
-    probe = folder
-    while not probe.exists() and probe != probe.parent:
-        probe = probe.parent
-    if not probe.is_dir():
-        raise NotADirectoryError(f"cannot write model file {path}: {probe} is not a folder")
     try:
-        fd, tmp = _create_temp(probe, path.name)
+        fd, tmp = _create_temp(folder, path.name)
     except OSError as e:
-        raise type(e)(f"cannot write model file {path}: folder {probe} is not writable "
+        raise type(e)(f"cannot write model file {path}: folder {folder} is not writable "
                       f"({e.strerror or e})") from None
     os.close(fd)
     os.unlink(tmp)
@@ -297,12 +295,18 @@ def _open(path: Path) -> dict[str, np.ndarray]:
     if head != b"PK\x03\x04":
         raise ModelFileCorruptError(f"model file {path}: not a model file (no .npz/zip header)")
     try:
-        with zipfile.ZipFile(path):
-            pass
+        zf = zipfile.ZipFile(path)
     except zipfile.BadZipFile:
         raise ModelFileTruncatedError(
             f"model file {path}: truncated (zip end record missing; interrupted copy or write?)"
         ) from None
+    try:
+        with zf:
+            _check_members(path, zf)
+    except (zipfile.BadZipFile, ValueError, OSError, EOFError, NotImplementedError, RuntimeError, zlib.error) as e:
+        if isinstance(e, ModelFileError):
+            raise
+        raise ModelFileCorruptError(f"model file {path}: damaged content ({type(e).__name__}: {one_line(e)})") from None
     try:
         with np.load(path, allow_pickle=False) as npz:
             return {k: npz[k] for k in npz.files}
@@ -312,6 +316,56 @@ def _open(path: Path) -> dict[str, np.ndarray]:
             RuntimeError, zlib.error) as e:
         kind = type(e).__name__
         raise ModelFileCorruptError(f"model file {path}: damaged content ({kind}: {one_line(e)})") from None
+
+
+#: The most a model file's members may inflate to, in all, per byte of the
+#: file (a model is stored uncompressed: about 1) and at most (bytes).
+MAX_INFLATION = 64
+MAX_MODEL_BYTES = 1 << 34
+
+
+def _size(n: int) -> str:
+    for unit in ("bytes", "KiB", "MiB", "GiB", "TiB", "PiB"):
+        if n < 1024 or unit == "PiB":
+            return f"{n} bytes" if unit == "bytes" else f"{n:.2f} {unit}"
+        n /= 1024
+    return f"{n}"
+
+
+def _check_members(path: Path, zf: zipfile.ZipFile) -> None:
+    """Refuse a decompression bomb before anything is inflated: the members'
+    declared sizes (zip headers) in all at most :data:`MAX_INFLATION` times
+    the file's size and :data:`MAX_MODEL_BYTES`; each ``.npy`` member's own
+    header (shape, dtype: read from its first bytes only) a plain numeric
+    array whose size is exactly what the zip header declares.  Raises
+    :class:`ModelFileCorruptError` naming the file (and the member)."""
+    infos = zf.infolist()
+    declared = sum(i.file_size for i in infos)
+    on_disk = path.stat().st_size
+    limit = min(MAX_MODEL_BYTES, MAX_INFLATION * on_disk + (1 << 20))
+    if declared > limit:
+        raise ModelFileCorruptError(f"model file {path}: its members declare {_size(declared)} in all, "
+                                    f"more than a {_size(on_disk)} model file may hold ({_size(limit)}): "
+                                    f"not a model file (a decompression bomb?)")
+    for info in infos:
+        name = one_line(info.filename.removesuffix(".npy"), 80)
+        with zf.open(info) as f:
+            version = np.lib.format.read_magic(f)
+            if version == (1, 0):
+                shape, _, dtype = np.lib.format.read_array_header_1_0(f)
+            elif version == (2, 0):
+                shape, _, dtype = np.lib.format.read_array_header_2_0(f)
+            else:
+                raise ModelFileCorruptError(f"model file {path}: array {name} has .npy format version "
+                                            f"{version}, not 1.0 or 2.0")
+            header = f.tell()
+        if dtype.hasobject or dtype.itemsize == 0:
+            raise ModelFileCorruptError(f"model file {path}: array {name} has dtype {dtype}, not a number type")
+        nbytes = math.prod(int(n) for n in shape) * dtype.itemsize
+        if header + nbytes != info.file_size:
+            raise ModelFileCorruptError(
+                f"model file {path}: array {name} declares shape {tuple(shape)} {dtype} ({_size(nbytes)}) but "
+                f"the file holds {_size(max(info.file_size - header, 0))} of it")
 
 
 def load_model_meta(path: str | os.PathLike) -> dict:

@@ -40,6 +40,7 @@ import shutil
 from pathlib import Path
 from typing import NamedTuple
 
+from ._files import check_output_folder, write_text
 from .dbformat import manifest_text
 
 __all__ = ["PhotoSet", "scan_photos", "build_photo_database", "PHOTOS"]
@@ -145,10 +146,8 @@ def build_photo_database(out_dir: str | os.PathLike, grid: float = 20.0, *, phot
         m, k, v = min(both)
         raise ValueError(f"grid {grid:g}, test offset {t_off:g}: the test photo {ps.files[m][k]} is a train "
                          f"photo of its own position {v}; choose offsets that keep the test views apart")
-    out = Path(out_dir)
-    (out / "photos").mkdir(parents=True, exist_ok=True)
+    out = check_output_folder(out_dir, "database folder")
+    (out / "photos").mkdir(exist_ok=True)
     for m, k in sorted({x[:2] for x in set().union(*used.values())}):
         shutil.copyfile(ps.folder / ps.files[m][k], out / "photos" / ps.files[m][k])
-    manifest = out / "manifest.csv"
-    manifest.write_text(manifest_text(rows))
-    return manifest
+    return write_text(out / "manifest.csv", manifest_text(rows), "manifest")

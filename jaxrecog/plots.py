@@ -15,12 +15,14 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
+from ._files import check_output_file
 from .kernels.config_grid import ConfigGrid
 from .thesis import TABLE_7_8
 
 __all__ = [
     "DPI",
     "save",
+    "figure_paths",
     "score_heatmap",
     "belief_groups",
     "belief_lines",
@@ -62,17 +64,26 @@ def _plt():
 
 
 def save(fig, path: str | os.PathLike) -> tuple[Path, Path]:
-    """Write ``fig`` as ``<stem>.png`` and ``<stem>.svg`` and close it."""
+    """Write ``fig`` as ``<stem>.png`` and ``<stem>.svg`` and close it (regular
+    files in a folder that exists: :func:`jaxrecog._files.check_output_file`)."""
     plt = _plt()
-    p = Path(path)
-    if p.suffix.lower() in (".png", ".svg"):
-        p = p.with_suffix("")
-    p.parent.mkdir(parents=True, exist_ok=True)
-    png, svg = p.with_suffix(".png"), p.with_suffix(".svg")
+    png, svg = figure_paths(path)
+    for f in (png, svg):
+        check_output_file(f, "plot")
     fig.savefig(png, dpi=DPI)
     fig.savefig(svg)
     plt.close(fig)
     return png, svg
+
+
+def figure_paths(path: str | os.PathLike) -> tuple[Path, Path]:
+    """The PNG and SVG files :func:`save` writes for ``path`` (its suffix
+    ``.png`` / ``.svg``, if any, replaced): for a command to check before
+    its work that they can be written."""
+    p = Path(path)
+    if p.suffix.lower() in (".png", ".svg"):
+        p = p.with_suffix("")
+    return p.with_suffix(".png"), p.with_suffix(".svg")
 
 
 def save_png(fig, path: str | os.PathLike, dpi: int = DPI) -> Path:
@@ -80,7 +91,7 @@ def save_png(fig, path: str | os.PathLike, dpi: int = DPI) -> Path:
     sweep scripts' single figures; :func:`save` writes PNG + SVG)."""
     plt = _plt()
     fig.tight_layout()
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    check_output_file(path, "plot")
     fig.savefig(path, dpi=dpi)
     plt.close(fig)
     return Path(path)

@@ -177,8 +177,11 @@ def test_problems_out_writes_the_whole_list_to_a_new_file_only(tmp_path, capsys)
         assert capsys.readouterr().err.splitlines()[-1] == (f"jaxrecog: --problems-out {target} exists; not "
                                                              "overwritten (the list was not written)")
         assert target.read_text() == before
-    assert cli.main(["inspect", str(db_dir), "--problems-out", str(tmp_path / "no" / "such.txt")]) == 1
-    assert "No such file or directory (the list was not written)" in capsys.readouterr().err.splitlines()[-1]
+    # a missing folder: refused before the command runs (no folder is made for it)
+    assert cli.main(["inspect", str(db_dir), "--problems-out", str(tmp_path / "no" / "such.txt")]) == 2
+    assert capsys.readouterr().err.splitlines()[-1] == (
+        f"jaxrecog inspect: error: cannot write --problems-out file {tmp_path / 'no' / 'such.txt'}: folder "
+        f"{tmp_path / 'no'} does not exist (create it first)")
 
 
 def test_a_problem_list_message_is_the_same_with_or_without_a_folder():

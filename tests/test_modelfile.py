@@ -231,7 +231,9 @@ def test_check_writable_says_so_before_training_and_leaves_nothing(tmp_path):
         check_writable(tmp_path / "afile" / "m.npz")
     with pytest.raises(IsADirectoryError, match="it is a folder"):
         check_writable(tmp_path)
-    check_writable(tmp_path / "new" / "deeper" / "m.npz")   # save_model makes the folders
+    with pytest.raises(FileNotFoundError, match=r"^cannot write model file .*new/deeper/m.npz: folder .*new/deeper "
+                                                r"does not exist \(create it first\)$"):
+        check_writable(tmp_path / "new" / "deeper" / "m.npz")   # no folder is made behind the user's back
     assert sorted(p.name for p in tmp_path.iterdir()) == ["afile"]
     if os.geteuid() != 0:  # root writes anywhere
         ro = tmp_path / "ro"

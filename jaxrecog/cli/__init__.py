@@ -7,6 +7,16 @@ Settings may come from a TOML file (--config FILE): one table per subcommand
 with the long option names (or, for experiment, the Settings field names) as
 keys; command-line options override the file.
 Indices (objects, poses, positions) are 0-based everywhere.
+
+Files: an output file (a model, a plot, a report, --problems-out) is written
+only as a regular file into a folder that exists: /dev/null, /dev/full, a
+FIFO or a folder at its path is refused, and no missing folder is made for
+it.  An output folder (render --out, experiment --out, --plot-dir) is made
+with its parents.  One writer at a time: a second train of the same --out,
+or render or experiment into the same folder, is refused at once (no wait),
+naming the first's PID.  Settings and experiment files are regular UTF-8
+files of at most 1 MiB; their values are checked as the options' are.
+Output that stdout cannot take (a full disk) is an error (exit 1).
 """
 
 # Subcommands are found, not listed: every public module of this package is
@@ -24,6 +34,7 @@ from __future__ import annotations
 
 import argparse
 import ast
+import contextlib
 import importlib
 import os
 import pkgutil
@@ -36,6 +47,7 @@ from collections.abc import MutableMapping
 from typing import Any, Callable, NamedTuple, Sequence
 
 from .. import __version__
+from .._files import check_output_file
 from .._config import OPTION_FIELDS, ConfigFileError, load_settings, section
 from ..problems import one_line, problem_message, write_problem_list
 from .._progress import set_quiet
@@ -135,6 +147,17 @@ class _Commands(MutableMapping):
 COMMANDS = _Commands()
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse's parser, except that a failed write of help or usage (stdout
+    on a full disk, ``> /dev/full``) is raised, not silently dropped: the
+    command then exits 1 with one line instead of 0 with nothing written.
+    The subcommands' parsers (:class:`_SubcommandParser`) derive from it."""
+
+    def _print_message(self, message, file=None):
+        if message:
+            (file or sys.stderr).write(message)
+
+
 def __getattr__(name: str) -> Any:
     """``SUBCOMMANDS`` (the modules, in ``--help`` order), ``CLIError``,
     ``UsageError``: imported when first asked for."""
@@ -146,7 +169,7 @@ def __getattr__(name: str) -> Any:
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-class _SubcommandParser(argparse.ArgumentParser):
+class _SubcommandParser(_Parser):
     """A subcommand's parser that adds the subcommand's description and own
     options (importing its module) the first time it parses or prints its help
     or usage."""
@@ -179,7 +202,7 @@ class _SubcommandParser(argparse.ArgumentParser):
 def build_parser(lazy: bool = False) -> argparse.ArgumentParser:
     """The whole parser (``lazy``: each subcommand's options are added when
     that subcommand is parsed or its help shown, as :func:`main` does)."""
-    parser = argparse.ArgumentParser(prog="jaxrecog", description=__doc__, formatter_class=Formatter)
+    parser = _Parser(prog="jaxrecog", description=__doc__, formatter_class=Formatter)
     global_options(parser, suppress=False)
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True, parser_class=_SubcommandParser)
@@ -204,6 +227,10 @@ def _apply_config(parser: argparse.ArgumentParser, path: str) -> dict[str, Any]:
     data = load_settings(path)
     known_global = {"quiet", "debug", "compile_cache"}
     glob = section(data, "global", known_global, path)
+    for k, v in glob.items():  # switches, as --quiet and --debug are (compile_cache may name a folder)
+        if not isinstance(v, bool) and not (k == "compile_cache" and isinstance(v, str)):
+            raise ConfigFileError(f"settings file {path}: [global] {k} = {one_line(repr(v), 60)}: expected true "
+                                  f"or false (as --{k})")
     subs = subparsers(parser)
     unknown = sorted(set(data) - set(subs) - {"global"})
     if unknown:
@@ -227,8 +254,54 @@ def _apply_config(parser: argparse.ArgumentParser, path: str) -> dict[str, Any]:
         if fields:
             values["config_fields"] = fields
         if values:
-            sp.set_defaults(**values)
+            sp.set_defaults(**_checked_values(sp, name, values, path))
     return glob
+
+
+def _checked_values(sp: argparse.ArgumentParser, table: str, values: dict[str, Any], path: str) -> dict[str, Any]:
+    """``values`` of the table ``[table]`` converted and checked as the
+    command line's options are (each option's ``type`` and ``choices``; a
+    switch takes true or false): ``max_steps = 0`` is refused as
+    ``--max-steps 0`` is.  The first bad value raises :class:`ConfigFileError`,
+    one line naming the file, the table and the key."""
+    actions = {a.dest: a for a in sp._actions if a.option_strings}
+    out = dict(values)
+    for dest, value in values.items():
+        a = actions.get(dest)
+        if a is None:
+            continue
+        try:
+            out[dest] = _checked_value(a, value)
+        except (argparse.ArgumentTypeError, ValueError, TypeError) as e:
+            raise ConfigFileError(f"settings file {path}: [{table}] {dest} = {one_line(repr(value), 60)}: "
+                                  f"{one_line(e) or 'invalid value'} (as {a.option_strings[-1]})") from None
+    return out
+
+
+def _checked_value(a: argparse.Action, value: Any) -> Any:
+    """One settings-file value through the option's own checks."""
+    if a.nargs == 0:  # store_true / store_false / a BooleanOptionalAction switch
+        if not isinstance(value, bool):
+            raise ValueError("expected true or false")
+        return value
+    many = a.nargs in ("+", "*") or isinstance(a.nargs, int)
+    if many and not isinstance(value, list):
+        value = [value]
+    if not many and isinstance(value, list):
+        value = ",".join(str(v) for v in value)  # e.g. start = [3, 2], as --start 3,2
+
+    def one(v: Any) -> Any:
+        if isinstance(v, (dict, list)):
+            raise ValueError(f"expected one value, got a {'table' if isinstance(v, dict) else 'list'}")
+        if a.type is not None:
+            if isinstance(v, bool):
+                raise ValueError(f"expected a value for {a.option_strings[-1]}, got {str(v).lower()}")
+            v = a.type(v if isinstance(v, str) else str(v))
+        if a.choices is not None and v not in a.choices:
+            raise ValueError(f"invalid choice {v!r} (choose from {', '.join(map(str, a.choices))})")
+        return v
+
+    return [one(v) for v in value] if many else one(value)
 
 
 #: The exit code when stdout's reader went away: 128 + SIGPIPE, what a shell
@@ -237,7 +310,7 @@ BROKEN_PIPE = 141
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    with warnings.catch_warnings():   # restores the caller's warning display afterwards
+    with warnings.catch_warnings(), _watched_stdout():   # both restored afterwards
         warnings.showwarning = _show_warning
         try:
             code = _main(argv)
@@ -247,6 +320,57 @@ def main(argv: Sequence[str] | None = None) -> int:
             if not _stdout_gone():
                 raise
             return _quiet_after_broken_pipe()
+        except OSError as e:  # stdout cannot take the output (a full disk, > /dev/full, an I/O error)
+            print(f"jaxrecog: error: {_stdout_error(e)}", file=sys.stderr)
+            _quiet_after_broken_pipe()  # the interpreter's last flush would fail again, with a traceback
+            return 1
+
+
+def _stdout_error(e: OSError) -> str:
+    """The one line for output that could not be written to stdout."""
+    return f"cannot write the output to standard output ({e.strerror or e})"
+
+
+class _WatchedStdout:
+    """stdout, remembering the last error a write or flush of it raised (so
+    that a full disk under ``> FILE`` is told apart from one under a file the
+    command writes itself)."""
+
+    def __init__(self, stream):
+        self._stream, self.failed = stream, None
+
+    def write(self, text):
+        try:
+            return self._stream.write(text)
+        except OSError as e:
+            self.failed = e
+            raise
+
+    def flush(self):
+        try:
+            return self._stream.flush()
+        except OSError as e:
+            self.failed = e
+            raise
+
+    def __getattr__(self, name):
+        return getattr(self._stream, name)
+
+
+def _stdout_failed(e: BaseException) -> bool:
+    """Whether ``e`` is a failed write to stdout."""
+    return isinstance(sys.stdout, _WatchedStdout) and sys.stdout.failed is e
+
+
+@contextlib.contextmanager
+def _watched_stdout():
+    """``sys.stdout`` as a :class:`_WatchedStdout` for the ``with`` block."""
+    real = sys.stdout
+    sys.stdout = _WatchedStdout(real)
+    try:
+        yield
+    finally:
+        sys.stdout = real
 
 
 def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
@@ -315,6 +439,7 @@ def _main(argv: Sequence[str] | None) -> int:
     from ._common import CLIError, UsageError   # the command's module imports it in any case
     try:
         _compile_cache(args, glob)
+        _check_problems_out(getattr(args, "problems_out", None))
         return int(COMMANDS[args.command](args) or 0)
     except UsageError as e:
         if args.debug:
@@ -328,6 +453,10 @@ def _main(argv: Sequence[str] | None) -> int:
     except Exception as e:  # noqa: BLE001 - the one place that turns failures into exit code 1
         if isinstance(e, BrokenPipeError) and _stdout_gone():
             raise  # main: quiet, not an error
+        if _stdout_failed(e) and not args.debug:
+            print(f"jaxrecog: error: {_stdout_error(e)}", file=sys.stderr)
+            _quiet_after_broken_pipe()
+            return 1
         if args.debug:
             for problem in getattr(e, "problems", None) or ():  # the full list, then the traceback
                 print(problem, file=sys.stderr)
@@ -362,6 +491,24 @@ def _compile_cache(args: argparse.Namespace, glob: dict[str, Any]) -> None:
         compile_cache.configure(compile_cache.default_folder({compile_cache.ENV: given}) or False)
     else:
         raise UsageError(f"settings file [global] compile_cache: expected true, false or a folder, got {given!r}")
+
+
+def _check_problems_out(path: str | None) -> None:
+    """``--problems-out FILE``, before the command runs: a regular file (or
+    none yet) in a folder that exists, and not in an image database folder
+    (one holding ``manifest.csv``, at any depth above FILE): a command never
+    writes into the database it reads.  A :class:`UsageError` otherwise."""
+    if not path:
+        return
+    try:
+        p = check_output_file(path, "--problems-out file")
+    except OSError as e:
+        raise UsageError(str(e)) from None
+    folder = Path(os.path.realpath(p.parent if str(p.parent) else "."))
+    for f in (folder, *folder.parents):
+        if (f / "manifest.csv").is_file():
+            raise UsageError(f"--problems-out {path} is in the image database folder {f}: a command never "
+                             f"writes into a database folder; choose a file outside it")
 
 
 def _write_problems(e: BaseException, path: str | None) -> None:

@@ -33,7 +33,8 @@ def global_options(parser: argparse.ArgumentParser, suppress: bool) -> None:
                         help="read option defaults from this TOML file ([global] and one table per subcommand)")
     parser.add_argument("--problems-out", metavar="FILE", default=d,
                         help="on an error that lists problems (an invalid database, settings file, model file), "
-                             "write all of them to this new file (never overwritten; the message shows the first 10)")
+                             "write all of them to this new file (never overwritten, never in a database folder; the "
+                             "message shows the first 10)")
     parser.add_argument("--no-compile-cache", dest="compile_cache", action="store_false",
                         default=d if suppress else True,
                         help="compile every program afresh instead of loading it from the persistent compilation "

@@ -7,6 +7,7 @@ import json
 from pathlib import Path
 from typing import Any
 
+from .._files import check_output_folder, write_text
 from .. import campaigns  # as a module: tests stub its prepare / run_case / run_trace
 from .. import plots
 from ..problems import problem_message
@@ -32,11 +33,9 @@ def make_settings(values: dict[str, Any], where: str) -> campaigns.Settings:
 def write_report(report, name: str, out: Path, title: str | None = None) -> list[Path]:
     """``case_NAME.md`` / ``.json`` and the ``campaign_NAME`` bars (PNG + SVG,
     :func:`jaxrecog.plots.case_bars`)."""
-    out.mkdir(parents=True, exist_ok=True)
-    md = out / f"case_{name}.md"
-    md.write_text(report.markdown())
-    js = out / f"case_{name}.json"
-    js.write_text(json.dumps(report.to_json(), indent=2))
+    check_output_folder(out, "--out folder")
+    md = write_text(out / f"case_{name}.md", report.markdown(), "report")
+    js = write_text(out / f"case_{name}.json", json.dumps(report.to_json(), indent=2), "report")
     return [md, js, *plots.case_bars(report, out / f"campaign_{name}", title=title)]
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from .._files import check_output_folder, write_text
 from ..problems import problem_message
 from .._progress import bar
 from ._bench_runner import find_scripts, headline, run_all
@@ -35,12 +36,12 @@ def run(args) -> int:
     if not scripts:
         raise CLIError(f"no benchmark scripts (bench_*.py) found in {folder}"
                        + (f" matching {' '.join(args.only)}" if args.only else ""))
-    out = Path(args.out)
+    out = check_output_folder(args.out, "--out folder")
     with bar(len(scripts), "bench", "script") as b:
         outcomes = run_all(scripts, out, args.timeout, progress=b.update)
     merged = {o.name: o.record for o in outcomes}
     merged_path = out / "bench.json"
-    merged_path.write_text(json.dumps(merged, indent=2) + "\n")
+    write_text(merged_path, json.dumps(merged, indent=2) + "\n", "benchmark summary")
     print_table(["benchmark", "status", "wall s", "numbers"],
                 [(o.name, o.status, f"{o.wall_s:.1f}", headline(o.record)) for o in outcomes])
     print(f"wrote {merged_path}")

@@ -12,6 +12,7 @@ from typing import Any
 
 from .. import campaigns  # as a module: tests stub its prepare / run_case / run_dataset
 from .._config import FIELD_OPTIONS, LIKELIHOOD_OPTION_KEYS, OPTION_FIELDS, ConfigFileError, read_toml, resolve_keys
+from .._files import check_output_folder, write_text
 from .._lock import folder_lock
 from ..campaign import MAX_TRIALS
 from ..driver import trial_mesh
@@ -355,9 +356,11 @@ def _report(args) -> tuple[dict, str]:
         raise UsageError("--rerun/--rerun-save show the trials run here; on --cluster they run elsewhere")
     live = campaign_view(args)  # a missing rerun: one line, before anything runs
     # one run per --out and work folder: a second is refused, naming the first's PID
+    check_output_folder(out, "--out folder")  # a folder (made with its parents) that takes files, before any work
+    check_output_folder(settings.workdir, "work folder")
     with folder_lock(out, settings.workdir), contextlib.closing(live) if live else contextlib.nullcontext():
         config = out / "config.toml"  # the resolved configuration beside the results (as hydra does)
-        config.write_text(config_text(r))
+        write_text(config, config_text(r), "resolved configuration")
         t0 = time.perf_counter()
         if dataset:
             report = campaigns.run_dataset(folder, model, settings, planners=planners, progress=progress_bars(),

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._files import check_output_folder
 from .. import plots
 from ..database import SPLITS, load_database, notes, shared_files
 from ..modelfile import load_model
@@ -54,6 +55,8 @@ def _database_summary(db) -> str:
 def _report(args) -> tuple[dict, str]:
     path = Path(args.path)
     written = []
+    if args.plot_dir:  # before any work: a folder (made with its parents) that takes files
+        check_output_folder(args.plot_dir, "--plot-dir folder")
     if not path.exists() and path.suffix != ".npz":
         raise CLIError(f"{path}: no such model file or database folder")
     summary = {"model": None, "database": None}

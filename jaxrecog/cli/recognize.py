@@ -8,6 +8,7 @@ import jax.random as jr
 import numpy as np
 
 from .. import plots
+from .._files import check_output_file, check_output_folder
 from ..driver import StepRecord, TrialSpec, run_trials
 from ..counts import CountsMismatchError, check_counts
 from ..scene import CAPTURE_NOISE, occluder_factory  # the thesis-case boards (first views occluded)
@@ -158,6 +159,9 @@ def _trial(args, model, rig, rec, state, k_run, live=None):
 def _report(args) -> tuple[dict, str]:
     if args.min_views is not None and args.min_views > args.max_steps:  # before the model, the rig and the planner
         raise UsageError(f"--min-views {args.min_views} is above --max-steps {args.max_steps}")
+    for f in plots.figure_paths(args.plot) if args.plot else ():  # before the trial, not after it
+        check_output_file(f, "--plot file")
+        check_output_folder(f.parent if str(f.parent) else ".", "--plot folder", create=False)
     recipe = model_recipe(args.model)   # the stop rule: the model's recipe unless an option gives it
     for opt, part in (("threshold", "p_threshold"), ("min_views", "min_views"), ("exclude_visited", "exclude_visited"),
                       ("adaptive_scale", "adaptive_scale"), ("planner", "planner")):
@@ -202,15 +206,6 @@ def _report(args) -> tuple[dict, str]:
         rig.close()
         if live is not None:
             live.close()
-    written = []
-    if args.plot:
-        probs = np.stack([np.full(model.n_objects, 1.0 / model.n_objects)]
-                         + [np.asarray(s["object_probabilities"], dtype=float) for s in steps])
-        written = plots.belief_lines(probs, args.plot, true_object=args.object,
-                                     title=f"Belief per step: object {args.object}, "
-                                           f"pose {args.pose}, {args.planner}")
-    if args.rerun_save:
-        written = [*written, args.rerun_save]
     result = {"object": int(dec.object), "pose": int(dec.pose), "probability": float(dec.probability),
               "steps": len(steps), "correct": int(dec.object) == args.object and int(dec.pose) == args.pose,
               "travel_s": float(res.travel_s)}
@@ -220,7 +215,20 @@ def _report(args) -> tuple[dict, str]:
            "exclude_visited": bool(args.exclude_visited), "adaptive_scale": float(args.adaptive_scale),
            "shared_view": args.shared_view,
            "motion_cost": float(args.motion_cost), "recipe": recipe.name, "seed": args.seed, "start": start,
-           "steps": steps, "result": result, "written": [str(p) for p in written]}
+           "steps": steps, "result": result, "written": []}
+    if args.plot:
+        probs = np.stack([np.full(model.n_objects, 1.0 / model.n_objects)]
+                         + [np.asarray(s["object_probabilities"], dtype=float) for s in steps])
+        try:
+            written = plots.belief_lines(probs, args.plot, true_object=args.object,
+                                         title=f"Belief per step: object {args.object}, "
+                                               f"pose {args.pose}, {args.planner}")
+        except OSError as e:  # the trial is done: its result first (stdout; stderr with --json), then the error
+            print(_text(doc))
+            raise CLIError(f"--plot {args.plot} was not written ({e}); the trial's result is printed above") from None
+        doc["written"] = [str(p) for p in written]
+    if args.rerun_save:
+        doc["written"].append(str(args.rerun_save))
     return doc, _text(doc)
 
 

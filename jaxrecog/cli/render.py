@@ -7,6 +7,8 @@ import json
 import time
 from pathlib import Path
 
+from .._files import check_output_folder, write_text
+from .._lock import folder_lock
 from ..scene import CAPTURE_NOISE
 from ..hardware import Noise, render_database
 from .._progress import bar
@@ -57,6 +59,15 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
+    """Render into ``--out`` (made with its parents if missing, never
+    through a file), holding its lock: a second ``render --out`` of the same folder is
+    refused with one line naming the first's PID."""
+    out = check_output_folder(args.out, "database folder")
+    with folder_lock(out, what="jaxrecog render"):
+        return _run(args)
+
+
+def _run(args) -> int:
     t0 = time.perf_counter()
     turntable = bool(args.turntable)
     d_test, d_calib = _DEFAULT_COUNTS[turntable]
@@ -85,7 +96,7 @@ def run(args) -> int:
         if isinstance(args.objects, str):
             layout["object_seed"] = args.object_seed
             layout["names"] = [o.name for o in rig.scene.objects]
-    (Path(args.out) / "rig.json").write_text(json.dumps(layout, indent=2) + "\n")
+    write_text(Path(args.out) / "rig.json", json.dumps(layout, indent=2) + "\n", "rig layout")
     dt = time.perf_counter() - t0
     print(f"rendered {total} images (positions {tuple(layout['positions'])}, {args.objects} objects x "
           f"{args.poses} poses) in {dt:.1f} s ({total / max(dt, 1e-9):.0f} images/s) -> {manifest}")
@@ -133,7 +144,7 @@ def _turntable(args, test_per_view: int, calib_per_view: int, t0: float) -> int:
               "perturb": {"eye_offset": TURNTABLE_PERTURB.eye_offset, "light": TURNTABLE_PERTURB.light,
                           "noise": list(CAPTURE_NOISE)},
               "seed": args.seed, "seconds": round(dt, 1)}
-    (Path(args.out) / "rig.json").write_text(json.dumps(layout, indent=2) + "\n")
+    write_text(Path(args.out) / "rig.json", json.dumps(layout, indent=2) + "\n", "rig layout")
     print(f"rendered {total} turntable images ({n} objects x {args.poses} poses, {cameras} camera(s) x {n_pos} "
           f"positions; per view 1 train + {test_per_view} test + {calib_per_view} calib + {args.jitter_per_view} "
           f"jitter) in {dt:.1f} s ({total / max(dt, 1e-9):.0f} images/s) -> {manifest}")

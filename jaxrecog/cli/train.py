@@ -11,6 +11,7 @@ from ..calibration_data import features_from_database
 from ..database import load_database
 from ..eigenspace import ComponentsError
 from ..kernels import likelihood_class
+from .._lock import file_lock
 from ..modelfile import check_writable, load_model, load_model_meta, save_model
 from .._progress import bar
 from ..recipes import AUTO, DEFAULT_RECIPE, RECIPES, Recipe, get_recipe, recipe_from_meta
@@ -50,7 +51,7 @@ _COVARIANCE = {"diag": "gaussian-diag", "full": "gaussian-full"}
 def add_arguments(p) -> None:
     p.add_argument("database", metavar="DATABASE", nargs="?", default=None,
                    help="image database folder (with manifest.csv); not with --add")
-    p.add_argument("--out", required=True, metavar="MODEL.NPZ", help="model file to write")
+    p.add_argument("--out", required=True, metavar="MODEL.NPZ", help="model file to write (in a folder that exists; one train per file at a time)")
     p.add_argument("--add", default=None, metavar="NEW_DB",
                    help="add the objects of this image database to the model --to (its object m becomes object "
                         "M_old + m); the model's training settings are used")
@@ -176,7 +177,22 @@ def resolve_recipe(args, db=None) -> Recipe:
 
 def run(args) -> int:
     if args.add is not None or args.to is not None or args.database is None:
-        return _run_add(args)
+        return _locked(args, _run_add)
+    return _locked(args, _run)
+
+
+def _locked(args, work) -> int:
+    """``work(args)`` holding the lock on writing ``--out`` (one writer of a
+    model file at a time: a second ``train --out`` of the same file is refused
+    with one line naming the first's PID)."""
+    if args.out is None:
+        return work(args)
+    check_writable(args.out)  # a folder that exists, a regular file or none: before the lock file is made
+    with file_lock(args.out, what="jaxrecog train"):
+        return work(args)
+
+
+def _run(args) -> int:
     default_k = args.components is None  # the default fits the data; a K the user gives must
     comps: int | float = DEFAULT_COMPONENTS if default_k else args.components
     if float(comps).is_integer() and comps >= 1:
