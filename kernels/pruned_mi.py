@@ -79,7 +79,7 @@ from .pairwise_mi import (DIVERGENCES, PairwiseTables, _information, _weight_flo
                           pairwise_mutual_information)
 
 __all__ = ["PrunedTables", "pruned_tables", "pruned_pairwise_mutual_information", "pruning_bound",
-           "live_buckets", "live_count", "take_classes", "PRUNE_BUCKETS", "DEFAULT_PRUNE_MASS",
+           "live_buckets", "live_count", "take_classes", "check_mass", "PRUNE_BUCKETS", "DEFAULT_PRUNE_MASS",
            "UNIFORM_TABLE_MAX"]
 
 #: Live-set sizes, one compiled branch each (capped at C; module docstring).
@@ -178,7 +178,7 @@ def live_count(log_pc, mass: float = DEFAULT_PRUNE_MASS, buckets: Sequence[int] 
     return sizes[-1]
 
 
-def _check_mass(mass: float) -> float:
+def check_mass(mass: float) -> float:
     if isinstance(mass, bool) or not isinstance(mass, (int, float)) or not 0.0 <= mass < 1.0:
         raise ValueError(f"mass (the belief mass pruning may leave out) must be in [0, 1), got {mass!r}")
     return float(mass)
@@ -202,7 +202,7 @@ def pruned_pairwise_mutual_information(
     check_options("pruned_pairwise_mutual_information", target, "belief")
     if kind not in DIVERGENCES:
         raise ValueError(f"pruned_pairwise_mutual_information: kind must be one of {DIVERGENCES}, got {kind!r}")
-    mass = _check_mass(mass)
+    mass = check_mass(mass)
     liks = tables.likelihoods
     check_predicted(belief, [jax.ShapeDtypeStruct((lik.n_positions, lik.n_classes, lik.n_levels), lik.dtype)
                              for lik in liks])
