@@ -47,7 +47,7 @@ from jaxtyping import Array, Float, PRNGKeyArray
 from . import kernels as K
 from .kernels import tempered_mi as _tempered_mi
 from .planner_base import Planner, stability_weight
-from .pruned_planner import PRUNE_MIN_CLASSES, PrunedStableViewMIPlanner, prune_mass
+from .pruned_planner import PRUNE_MIN_CLASSES, PRUNING_MARKDOWN, PrunedStableViewMIPlanner, prune_mass
 from .table_cache import divergence_tables, sample_tables
 
 __all__ = [
@@ -579,5 +579,5 @@ def planners_markdown() -> str:
     ]
     for name, spec in PLANNERS.items():
         lines.append(f"| `{name}` | {spec.thesis or '—'} | {spec.description} |")
-    lines += ["", "Aliases: " + ", ".join(f"`{a}` = `{n}`" for a, n in ALIASES.items()), ""]
+    lines += ["", "Aliases: " + ", ".join(f"`{a}` = `{n}`" for a, n in ALIASES.items()), "", PRUNING_MARKDOWN]
     return "\n".join(lines)

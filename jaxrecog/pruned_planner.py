@@ -37,12 +37,67 @@ from .kernels import pruned_mi as _pruned
 from .kernels import tempered_mi as _tempered_mi
 from .planner_base import Planner, stability_weight
 
-__all__ = ["PrunedStableViewMIPlanner", "PRUNE_MIN_CLASSES", "prune_mass"]
+__all__ = ["PrunedStableViewMIPlanner", "PRUNE_MIN_CLASSES", "prune_mass", "PRUNING_MARKDOWN"]
 
 #: From this many classes on ``mi-class-pairwise-stable`` scores the live
 #: classes alone (``prune="auto"``): its tables would hold 1.2 GB per
 #: divergence array on the thesis layout, a step would take ~20-60 ms.
 PRUNE_MIN_CLASSES = 256
+
+
+#: The section of docs/planners.md on the pruned planner (appended by
+#: :func:`jaxrecog.planners.planners_markdown`).
+PRUNING_MARKDOWN = f"""## Many classes: the live classes alone
+
+`mi-class-pairwise-stable` on its tables holds the divergences of every class
+pair, `[V_i, C, L_i, C, L_i]` per camera: memory and time grow with C^2 (thesis
+layout, C = 512: 5.7 GB and 63 ms a step), and a belief on two classes costs as
+much as a uniform one.  From {PRUNE_MIN_CLASSES} classes on (option `prune`:
+`"auto"`, the default; `true` / a mass in [0, 1) forces it, `false` keeps the
+tables) it scores the same `I_D(c; g | a) - stability * E_P[d]` with the
+pairwise term over the *live* classes (`jaxrecog/pruned_planner.py`,
+`kernels/pruned_mi.py`):
+
+- the live set is the B classes of largest mass, B the smallest bucket of
+  (8, 32) (capped at C) whose classes hold at least `1 - mass` of the belief
+  (default mass 1e-3); each bucket is one branch of one compiled program
+  (static shapes, no recompiles); a belief wider than 32 classes is scored on
+  its top 32;
+- the live classes' means and variances are gathered and their B x B
+  divergences computed in the step; the pairwise estimator then runs on them
+  under the renormalised belief `Q = P / (1 - eps)`, eps the pruned mass;
+- the instability term uses the whole belief (exact, `[V_i, C]`);
+- the first step's belief (uniform over the classes and the level rows) reads
+  a belief-free table built once per model (up to 1024 classes; its build
+  holds `[C, V_i L_i, C]` rows); above that the first step is pruned too.
+
+The planner holds the model's likelihoods, the instabilities and that table:
+memory linear in C (C = 4000 on the thesis layout: `benchmarks/bench_scale.py`).
+Below {PRUNE_MIN_CLASSES} classes (the thesis's and the campaigns' models)
+nothing changes: the table planner, bit for bit.
+
+**Bound.**  On the states `s = (c, k)` the estimator is
+`I_D(s) = -sum_s P(s) log Z_P(s)`, `Z_P(s) = sum_s' P(s') Y(s, s')`,
+`Y = exp(-D)` in [0, 1], `Y(s, s) = 1`.  With `P = (1 - eps) Q + eps R`
+(R: the pruned classes, normalised), L = prod_i L_i level states per class:
+`Z_P >= (1 - eps) Z_Q` on the live states and `>= eps Z_R` on the pruned ones
+gives `I_D,P <= H_b(eps) + (1 - eps) I_D,Q + eps I_D,R`; `Z_P <= (1 - eps) Z_Q + eps`
+and `Z_Q(s) >= Q(c) P(k | c)` give `I_D,P >= (1 - eps) (I_D,Q - G)` with
+`G = sum_(c live) Q(c) log(1 - eps + eps L / Q(c))` (Jensen over k).  The class
+target adds `sum_c P(c) T(c)`, `T(c)` in `[-log L, 0]`, and `I_D(c) <= H(c)`, so
+for every configuration
+
+`-(eps log B + eps log L + (1 - eps) G) <= I_D,P(c; g) - I_D,Q(c; g) <= H_b(eps) + eps log(C - B) + eps log L`
+
+(state target: `eps log(B L)` and `eps log((C - B) L)` instead), computed by
+`jaxrecog.kernels.pruning_bound`.  It is a worst case over the divergences
+(pruned classes that coincide with live states); `tests/test_pruned_mi.py`
+checks it against the unpruned kernel on random beliefs and on such a model.
+
+**Cost.**  The live tables take ~(B L)^2 V K operations a step, no table: B = 8
+is a few ms on the CPU, B = 32 ~100 ms of CPU time (about the tables path at
+C = 512), B = 128 would take seconds (hence the buckets stop at 32).
+"""
 
 
 def prune_mass(prune, n_classes: int) -> float | None:

@@ -273,6 +273,13 @@ class Likelihood(eqx.Module):
         except NotImplementedError:
             return self.moment_matched_divergence(kind)
 
+    def camera_divergence(self, kind: str) -> Float[Array, "V C L C L"]:
+        """:meth:`divergence` at every position of a camera's likelihood,
+        ``[V, C, L, C', L']``, one position at a time.  A family may override
+        it with a faster evaluation of the same closed form (equal to rounding;
+        the pruned planner computes its live classes' tables at every step)."""
+        return jax.lax.map(lambda lik_v: lik_v.divergence(kind), self)
+
     def moment_matched_divergence(self, kind: str) -> Float[Array, "C L C L"]:
         """The divergence ``kind`` between the moment-matched Gaussians
         N(mean(), covariance()) of the components (:meth:`divergence`'s

@@ -210,10 +210,15 @@ def _pairwise_tables(liks, kind: str) -> PairwiseTables:
     return PairwiseTables(**per_camera, u_state=u_state, u_class=u_class)
 
 
-def minus_divergences(lik: Likelihood, kind: str) -> Float[Array, "V C L C L"]:
+def minus_divergences(lik: Likelihood, kind: str, per_position: bool = True) -> Float[Array, "V C L C L"]:
     """-D_i[v, c, k, c', k'] of one camera's likelihood, every position: D >= 0
-    up to rounding and D(s, s) = 0 exactly (keeps W_i[c, k, c] >= log P_i(k|c))."""
-    d = jax.lax.map(lambda lik_v: lik_v.divergence(kind), lik)  # [V, C, L, C', L']
+    up to rounding and D(s, s) = 0 exactly (keeps W_i[c, k, c] >= log P_i(k|c)).
+    ``per_position``: :meth:`~.Likelihood.divergence` one position at a time
+    (the tables); ``False``: the family's :meth:`~.Likelihood.camera_divergence`."""
+    if per_position:
+        d = jax.lax.map(lambda lik_v: lik_v.divergence(kind), lik)  # [V, C, L, C', L']
+    else:
+        d = lik.camera_divergence(kind)
     n_c, n_l = d.shape[1], d.shape[2]
     eye = (jnp.eye(n_c, dtype=bool)[:, None, :, None] & jnp.eye(n_l, dtype=bool)[None, :, None, :])
     return -jnp.where(eye[None], 0.0, jnp.maximum(d, 0.0))

@@ -7,7 +7,7 @@ per model: memory and time grow with C^2 (C = 512 on the thesis layout:
 5.7 GB, 63 ms a step), and a belief on two classes costs as much as a uniform
 one.  Here the tables are never built.  At each step the belief P(c) picks
 its live set S, the B classes of largest mass, B the smallest *bucket* of
-``buckets`` (8, 32, 128, 512; capped at C) whose top-B classes hold at least
+``buckets`` (8, 32; capped at C) whose top-B classes hold at least
 ``1 - mass``; the live classes' likelihood parameters are gathered and their
 B x B divergences computed inside the step, and the same estimator
 (:func:`~jaxrecog.kernels.pairwise_mutual_information`, ``fast=False``)
@@ -83,7 +83,16 @@ __all__ = ["PrunedTables", "pruned_tables", "pruned_pairwise_mutual_information"
            "UNIFORM_TABLE_MAX"]
 
 #: Live-set sizes, one compiled branch each (capped at C; module docstring).
-PRUNE_BUCKETS = (8, 32, 128, 512)
+#: The live tables cost ~(B L)^2 V K work a step: at B = 128 on the thesis
+#: layout ~0.3 G pair-dimension terms, seconds on the CPU, slower than
+#: the tables of every pair; a belief wider than the largest bucket is
+#: scored on its top 32 classes (within :func:`pruning_bound`).
+PRUNE_BUCKETS = (8, 32)
+
+#: a sum of probabilities within this many float32 epsilons (relative) of
+#: ``1 - mass`` counts as holding it (a belief with exactly 99.9 % on 8
+#: classes sums to 0.99899995 in float32)
+_SLACK = 8
 
 #: Belief mass the live set may leave out (eps): 1e-3.
 DEFAULT_PRUNE_MASS = 1e-3
@@ -173,7 +182,7 @@ def live_count(log_pc, mass: float = DEFAULT_PRUNE_MASS, buckets: Sequence[int] 
     p = np.sort(np.exp(lp - np.logaddexp.reduce(lp)))[::-1]
     sizes = live_buckets(len(p), buckets)
     for b in sizes:
-        if np.sum(p[:b]) >= 1.0 - mass:
+        if np.sum(p[:b]) >= (1.0 - mass) * (1.0 - _SLACK * float(np.finfo(np.float32).eps)):
             return b
     return sizes[-1]
 
@@ -213,13 +222,13 @@ def pruned_pairwise_mutual_information(
     log_pc = log_pc - lse(log_pc, axis=-1)
     top, idx = jax.lax.top_k(log_pc, sizes[-1])
     kept = jnp.cumsum(jnp.exp(top))[jnp.asarray(sizes) - 1]
-    ok = kept >= 1.0 - mass
+    ok = kept >= (1.0 - mass) * (1.0 - _SLACK * float(jnp.finfo(dtype).eps))  # rounding of the sum
     branch = jnp.where(jnp.any(ok), jnp.argmax(ok), len(sizes) - 1)
 
     def live(b, _):
         sel = idx[:b]
         sub = tuple(take_classes(lik, sel) for lik in liks)
-        ws = [minus_divergences(lik, kind) for lik in sub]
+        ws = [minus_divergences(lik, kind, per_position=False) for lik in sub]
         mes = [shifted_exp(w) for w in ws]
         t = PairwiseTables(tuple(ws), tuple(position_rows(m) for m, _ in mes),
                            tuple(jnp.transpose(e, (0, 3, 1, 2, 4)) for _, e in mes), (), (), (), ())
