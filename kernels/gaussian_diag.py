@@ -15,7 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
-from .likelihood import Likelihood, _check_divergence, register_likelihood
+from .likelihood import Likelihood, check_divergence, register_likelihood
 
 __all__ = ["DiagonalGaussian", "log_likelihood", "gaussian_scaled_log_density"]
 
@@ -100,7 +100,7 @@ class DiagonalGaussian(Likelihood):
         components flattened and the features first (``[V, K, N, N']``, the
         pair axis innermost: ~2x faster than per position on the CPU).  Equal
         to the per-position forms to rounding."""
-        _check_divergence(kind)
+        check_divergence(kind)
         v, c, l, k = self.mu.shape
         mu = jnp.swapaxes(jnp.reshape(self.mu, (v, c * l, k)), 1, 2)[:, :, :, None]   # [V, K, N, 1]
         var = jnp.swapaxes(jnp.reshape(self.var, (v, c * l, k)), 1, 2)[:, :, :, None]

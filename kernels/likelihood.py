@@ -83,7 +83,7 @@ LIKELIHOODS: dict[str, type["Likelihood"]] = {}
 """Kind name -> :class:`Likelihood` subclass (filled by :func:`register_likelihood`)."""
 
 
-def _check_divergence(kind: str) -> None:
+def check_divergence(kind: str) -> None:
     if kind not in ("bhattacharyya", "kl"):
         raise ValueError(f"divergence: kind must be 'bhattacharyya' or 'kl', got {kind!r}")
 
@@ -267,7 +267,7 @@ class Likelihood(eqx.Module):
         family this is not a bound any more (the pairwise estimator's bounds hold
         for the exact divergences); it is exact where the family is Gaussian.
         """
-        _check_divergence(kind)
+        check_divergence(kind)
         try:
             return self.bhattacharyya() if kind == "bhattacharyya" else self.kl()
         except NotImplementedError:
@@ -284,7 +284,7 @@ class Likelihood(eqx.Module):
         """The divergence ``kind`` between the moment-matched Gaussians
         N(mean(), covariance()) of the components (:meth:`divergence`'s
         approximation for a family without a closed form)."""
-        _check_divergence(kind)
+        check_divergence(kind)
         matched = likelihood_class("full").from_moments(self.mean(), self.covariance())
         return matched.bhattacharyya() if kind == "bhattacharyya" else matched.kl()
 

@@ -224,6 +224,17 @@ def minus_divergences(lik: Likelihood, kind: str, per_position: bool = True) -> 
     return -jnp.where(eye[None], 0.0, jnp.maximum(d, 0.0))
 
 
+def uniform_values(u_exp, u_max, u_self, positions, n_levels):
+    """``(u_state, u_class)``: I_D(s; g | a) and I_D(c; g | a) under the uniform
+    class prior and uniform level rows, from the grid-layout E_i, M_i and S_i
+    of those rows (:class:`PairwiseTables`' ``u_exp``, ``u_max``, ``u_self``)."""
+    dtype, n_c = u_exp[0].dtype, u_exp[0].shape[0]
+    log_pc = floor_log_probs(jnp.full((n_c,), -math.log(n_c), dtype))
+    wks = [jnp.full((n_c, v, l), -math.log(l), dtype) for v, l in zip(positions, n_levels)]
+    floor = _weight_floor(dtype, n_c, len(wks))
+    return tuple(_information(u_exp, u_max, s, log_pc, wks, floor) for s in (None, u_self))
+
+
 def _weight_floor(dtype, n_c: int, n: int) -> float:
     """Log weight factor below which a stratum is dropped (module docstring)."""
     finfo = jnp.finfo(dtype)

@@ -75,8 +75,7 @@ from ._grid import check_options, floor_log_probs, lse, own_class, shifted_exp
 from .belief import PredictedBelief, check_predicted
 from .config_grid import position_rows
 from .likelihood import Likelihood, as_likelihoods
-from .pairwise_mi import (DIVERGENCES, PairwiseTables, _information, _weight_floor, minus_divergences,
-                          pairwise_mutual_information)
+from .pairwise_mi import DIVERGENCES, PairwiseTables, minus_divergences, pairwise_mutual_information, uniform_values
 
 __all__ = ["PrunedTables", "pruned_tables", "pruned_pairwise_mutual_information", "pruning_bound",
            "live_buckets", "live_count", "take_classes", "check_mass", "PRUNE_BUCKETS", "DEFAULT_PRUNE_MASS",
@@ -147,18 +146,14 @@ def _uniform_values(liks, kind: str):
     """I_D(s; g | a) and I_D(c; g | a) under the uniform class prior and level
     rows (:mod:`.pairwise_mi`'s ``u_state`` / ``u_class``), one position's
     ``[C, L, C', L']`` divergences at a time."""
-    es, ms, selfs, wks = [], [], [], []
+    es, ms, selfs = [], [], []
     for lik in liks:
         n_l = lik.n_levels
         u = jax.lax.map(lambda lik_v: lse(minus_divergences(_one(lik_v), kind)[0], axis=-1) - math.log(n_l), lik)
         u = position_rows(u)  # [C, X, C']
         m, e = shifted_exp(u)
         es.append(e), ms.append(m), selfs.append(own_class(u, 0, 2))
-    dtype, n_c = es[0].dtype, es[0].shape[0]
-    log_pc = floor_log_probs(jnp.full((n_c,), -math.log(n_c), dtype))
-    wks = [jnp.full((n_c, lik.n_positions, lik.n_levels), -math.log(lik.n_levels), dtype) for lik in liks]
-    floor = _weight_floor(dtype, n_c, len(wks))
-    return tuple(_information(es, ms, s, log_pc, wks, floor) for s in (None, selfs))
+    return uniform_values(es, ms, selfs, [lik.n_positions for lik in liks], [lik.n_levels for lik in liks])
 
 
 def _one(lik_v: Likelihood) -> Likelihood:
