@@ -94,9 +94,14 @@ for every configuration
 (pruned classes that coincide with live states); `tests/test_pruned_mi.py`
 checks it against the unpruned kernel on random beliefs and on such a model.
 
-**Cost.**  The live tables take ~(B L)^2 V K operations a step, no table: B = 8
-is a few ms on the CPU, B = 32 ~100 ms of CPU time (about the tables path at
-C = 512), B = 128 would take seconds (hence the buckets stop at 32).
+**Cost.**  The live tables take ~(B L)^2 V K operations a step: B = 32 costs
+16x the work of B = 8, B = 128 would cost seconds on the CPU (hence the buckets stop at
+32).  `benchmarks/bench_scale.py` (thesis layout, one run on a shared, loaded
+2-core machine, medians): at C = 512 the first step takes 0.33 ms against
+1.7 s on the tables, a belief on two classes 36 ms against 3.0 s, a
+Dirichlet(0.05) belief (top 32 classes) 1.3 s against 2.8 s; peak RSS 0.84
+against 5.1 GB; C = 4000: 0.57 GB, 36 ms on two classes.  Argmax regret
+against the tables at C = 32, 128, 512: at most 1.6e-4 nats.
 """
 
 
