@@ -114,8 +114,10 @@ def child(n_classes: int, variant: str, repeat: int, scores_dir: Path) -> dict:
             times.append(time.perf_counter() - t0)
         live = n_classes
         if variant == "pruned":  # the first step reads the belief-free table where the planner has one
-            live = "table" if name == "uniform" and planner.tables.u_class is not None else pruned_mi.live_count(b.log_pc)
-        out[name] = {"median_ms": round(1e3 * float(np.median(times)), 3), "min_ms": round(1e3 * float(np.min(times)), 3),
+            table = name == "uniform" and planner.tables.u_class is not None
+            live = "table" if table else pruned_mi.live_count(b.log_pc)
+        out[name] = {"median_ms": round(1e3 * float(np.median(times)), 3),
+                     "min_ms": round(1e3 * float(np.min(times)), 3),
                      "live_classes": live}
         np.save(scores_dir / f"{n_classes}-{variant}-{BELIEFS.index(name)}.npy", s)
     out["peak_rss_gb"] = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20, 3)
@@ -132,7 +134,8 @@ def compare(n_classes: int, runs: dict, scores_dir: Path) -> dict:
         live = runs["pruned"][name]["live_classes"]
         live = n_classes if live == "table" else live  # exact: the same estimator on every class
         out[name] = {
-            "time_ratio_tables_over_pruned": round(runs["tables"][name]["median_ms"] / runs["pruned"][name]["median_ms"], 2),
+            "time_ratio_tables_over_pruned": round(runs["tables"][name]["median_ms"]
+                                                   / runs["pruned"][name]["median_ms"], 2),
             "max_abs_diff_nats": float(np.max(np.abs(sp - su))),
             "bound_nats": pruned_mi.pruning_bound(np.asarray(b.log_pc), live, N_LEVELS ** len(POSITIONS)),
             "argmax_regret_nats": float(np.max(su) - su[int(np.argmax(sp))]),

@@ -190,7 +190,8 @@ def test_memory_is_linear_in_the_classes():
     """Without the first step's table the pruned planner holds no array with a
     C x C part: every leaf is the model's or [V, C] (instabilities)."""
     model = random_sensor_model((3, 2), n_objects=16, n_poses=4, k=2)
-    planner = make_planner("mi-class-pairwise-stable", model, key=jax.random.PRNGKey(0), prune=True, uniform_table=False)
+    planner = make_planner("mi-class-pairwise-stable", model, key=jax.random.PRNGKey(0), prune=True,
+                           uniform_table=False)
     n_c = 64
     for leaf in jax.tree.leaves(planner):
         assert np.size(leaf) < n_c * n_c, np.shape(leaf)
