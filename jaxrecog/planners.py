@@ -46,12 +46,15 @@ from jaxtyping import Array, Float, PRNGKeyArray
 
 from . import kernels as K
 from .kernels import tempered_mi as _tempered_mi
+from .planner_base import Planner, stability_weight
+from .pruned_planner import PRUNE_MIN_CLASSES, PRUNING_MARKDOWN, PrunedStableViewMIPlanner, prune_mass
 from .table_cache import divergence_tables, sample_tables
 
 __all__ = [
     "Planner",
     "MIPlanner",
     "PairwiseMIPlanner",
+    "PrunedStableViewMIPlanner",
     "TemperedPairwiseMIPlanner",
     "StableViewMIPlanner",
     "LookaheadMIPlanner",
@@ -120,31 +123,6 @@ def _tables(model, key: PRNGKeyArray, samples: int, store: str, min_per_stratum:
     """The offline sample tables shared by MI and CRLB (J from :func:`samples_per_stratum`)."""
     j = samples_per_stratum(model, samples, min_per_stratum)
     return sample_tables(model.likelihoods, key=key, samples_per_stratum=j, store=store)
-
-
-class Planner(eqx.Module):
-    """Scores all configurations; higher is better.
-
-    ``revisits`` (a class attribute, not a field): whether the recognizer
-    takes the planner's argmax as it is, even a configuration already visited
-    (true for :class:`FixedPlanner`, which never moves); otherwise visited
-    configurations are excluded while unvisited ones remain.
-    """
-
-    revisits: ClassVar[bool] = False
-    n_configs: int = eqx.field(static=True)
-
-    def scores(self, prior: K.PredictedBelief, key: PRNGKeyArray) -> Float[Array, " A"]:
-        raise NotImplementedError
-
-    def with_transition(self, kind: str, rho: float) -> "Planner":
-        """This planner for a recognizer whose level transition is ``kind`` /
-        ``rho`` (the recognizer calls it before scoring).  A one-step planner
-        never predicts past the prior it is given: itself.  A planner that
-        looks further ahead (:class:`LookaheadMIPlanner`) needs the transition
-        between its steps to be the recognizer's."""
-        del kind, rho
-        return self
 
 
 class MIPlanner(Planner):
@@ -259,15 +237,12 @@ class StableViewMIPlanner(TemperedPairwiseMIPlanner):
     @classmethod
     def from_model(cls, model, *, target: str = "class", divergence: str = "bhattacharyya",
                    levels: str = "belief", temper: float = 1.0, stability: float | None = None) -> "StableViewMIPlanner":
-        if stability is None:
-            stability = 1.0 if getattr(model, "stability", None) is None else model.stability
-        if isinstance(stability, bool) or not isinstance(stability, (int, float)) or not 0.0 <= stability < math.inf:
-            raise ValueError(f"stability must be a finite number >= 0, got {stability!r}")
+        stability = stability_weight(model, stability)
         base = TemperedPairwiseMIPlanner.from_model(model, target=target, divergence=divergence, levels=levels,
                                                     temper=temper)
         inst = tuple(K.view_stability.view_instability(lik) for lik in model.likelihoods)
         return cls(base.n_configs, base.tables, target=base.target, levels=base.levels, temper=base.temper,
-                   instability=inst, stability=float(stability))
+                   instability=inst, stability=stability)
 
     def scores(self, prior, key):
         mi = super().scores(prior, key)
@@ -474,7 +449,15 @@ def _tempered(target: str):
 
 
 def _stable(target: str):
-    return _deterministic(StableViewMIPlanner, target=target)
+    """The stable planner's builder: on the live classes alone
+    (:mod:`~jaxrecog.pruned_planner`, option ``prune``) or on the tables."""
+    def build(model, *, key, samples, min_per_stratum, prune="auto", **options):
+        del key, samples, min_per_stratum  # deterministic: no samples
+        mass = prune_mass(prune, model.likelihoods[0].n_classes)
+        if mass is None:
+            return StableViewMIPlanner.from_model(model, target=target, **options)
+        return PrunedStableViewMIPlanner.from_model(model, target=target, mass=mass, **options)
+    return build
 
 
 def _lookahead(target: str):
@@ -539,7 +522,8 @@ PLANNERS: dict[str, PlannerSpec] = {
                                             "pairwise I(c; g | a) under P(c)^tau (option temper, default 1) minus option "
                                             "stability (default: the model's, fitted on held-out captures, else 1) times the expected "
                                             "view instability under the belief: prefers views the likely classes look alike "
-                                            "at from either side (a view-mixture model's interpolated components)"),
+                                            "at from either side (a view-mixture model's interpolated components); "
+                                            f"from {PRUNE_MIN_CLASSES} classes (option prune) on the classes holding the belief's mass"),
     "mi-lookahead": PlannerSpec(_lookahead("state"), "mi",
                                 "two-step lookahead: pairwise I(s; g_1 | a_1) + E max_a2 I(s; g_2 | a_2, g_1), top-k first moves (options top_k, outcomes)"),
     "mi-class-lookahead": PlannerSpec(_lookahead("class"), "mi",
@@ -595,5 +579,5 @@ def planners_markdown() -> str:
     ]
     for name, spec in PLANNERS.items():
         lines.append(f"| `{name}` | {spec.thesis or '—'} | {spec.description} |")
-    lines += ["", "Aliases: " + ", ".join(f"`{a}` = `{n}`" for a, n in ALIASES.items()), ""]
+    lines += ["", "Aliases: " + ", ".join(f"`{a}` = `{n}`" for a, n in ALIASES.items()), "", PRUNING_MARKDOWN]
     return "\n".join(lines)

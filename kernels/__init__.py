@@ -56,7 +56,8 @@ from .likelihood import (
 from .lookahead import LookaheadDraws, lookahead_draws, lookahead_information, outcome_strata
 from .mutual_information import MITables, mi_tables, mutual_information, samples_per_configuration
 from .pairwise_mi import DIVERGENCES, PairwiseTables, pairwise_mutual_information, pairwise_tables
-from . import adaptive_scale, shared_latent, view_stability
+from .pruned_mi import PrunedTables, pruned_pairwise_mutual_information, pruned_tables, pruning_bound
+from . import adaptive_scale, pruned_mi, shared_latent, view_stability
 from .student_t import StudentT
 from .view_mixture import LowRankViewMixture, ViewMixture
 
@@ -112,6 +113,10 @@ __all__ = [
     "pairwise_mutual_information",
     "pairwise_tables",
     "pose_marginal",
+    "PrunedTables",
+    "pruned_pairwise_mutual_information",
+    "pruned_tables",
+    "pruning_bound",
     "qmc_fisher_draws",
     "qmc_fisher_information",
     "qmc_fisher_tables",

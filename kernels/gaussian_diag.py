@@ -15,7 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
-from .likelihood import Likelihood, register_likelihood
+from .likelihood import Likelihood, check_divergence, register_likelihood
 
 __all__ = ["DiagonalGaussian", "log_likelihood", "gaussian_scaled_log_density"]
 
@@ -94,6 +94,25 @@ class DiagonalGaussian(Likelihood):
         v1, v2 = self.var[:, :, None, None, :], self.var[None, None]
         d = m1 - m2
         return 0.5 * jnp.sum(v1 / v2 + d * d / v2 - 1.0 + jnp.log(v2) - jnp.log(v1), axis=-1)
+
+    def camera_divergence(self, kind: str) -> Float[Array, "V C L C L"]:
+        """:meth:`bhattacharyya` / :meth:`kl` at every position at once, the
+        components flattened and the features first (``[V, K, N, N']``, the
+        pair axis innermost: ~2x faster than per position on the CPU).  Equal
+        to the per-position forms to rounding."""
+        check_divergence(kind)
+        v, c, l, k = self.mu.shape
+        mu = jnp.swapaxes(jnp.reshape(self.mu, (v, c * l, k)), 1, 2)[:, :, :, None]   # [V, K, N, 1]
+        var = jnp.swapaxes(jnp.reshape(self.var, (v, c * l, k)), 1, 2)[:, :, :, None]
+        mu2, var2 = jnp.swapaxes(mu, 2, 3), jnp.swapaxes(var, 2, 3)                    # [V, K, 1, N']
+        d2 = (mu - mu2) ** 2
+        log_v = jnp.sum(jnp.log(var), axis=1)  # [V, N, 1]
+        if kind == "bhattacharyya":
+            vm = 0.5 * (var + var2)
+            out = jnp.sum(0.125 * d2 / vm + 0.5 * jnp.log(vm), axis=1) - 0.25 * (log_v + jnp.swapaxes(log_v, 1, 2))
+        else:
+            out = 0.5 * (jnp.sum((var + d2) / var2, axis=1) - k + jnp.swapaxes(log_v, 1, 2) - log_v)
+        return jnp.reshape(out, (v, c, l, c, l))
 
     def scaling_terms(self, g: Float[ArrayLike, "N K"]):
         """``(q [N, C, L], log|2 pi Sigma| [C, L])``, Sigma = diag(var)."""

@@ -83,7 +83,7 @@ LIKELIHOODS: dict[str, type["Likelihood"]] = {}
 """Kind name -> :class:`Likelihood` subclass (filled by :func:`register_likelihood`)."""
 
 
-def _check_divergence(kind: str) -> None:
+def check_divergence(kind: str) -> None:
     if kind not in ("bhattacharyya", "kl"):
         raise ValueError(f"divergence: kind must be 'bhattacharyya' or 'kl', got {kind!r}")
 
@@ -267,17 +267,24 @@ class Likelihood(eqx.Module):
         family this is not a bound any more (the pairwise estimator's bounds hold
         for the exact divergences); it is exact where the family is Gaussian.
         """
-        _check_divergence(kind)
+        check_divergence(kind)
         try:
             return self.bhattacharyya() if kind == "bhattacharyya" else self.kl()
         except NotImplementedError:
             return self.moment_matched_divergence(kind)
 
+    def camera_divergence(self, kind: str) -> Float[Array, "V C L C L"]:
+        """:meth:`divergence` at every position of a camera's likelihood,
+        ``[V, C, L, C', L']``, one position at a time.  A family may override
+        it with a faster evaluation of the same closed form (equal to rounding;
+        the pruned planner computes its live classes' tables at every step)."""
+        return jax.lax.map(lambda lik_v: lik_v.divergence(kind), self)
+
     def moment_matched_divergence(self, kind: str) -> Float[Array, "C L C L"]:
         """The divergence ``kind`` between the moment-matched Gaussians
         N(mean(), covariance()) of the components (:meth:`divergence`'s
         approximation for a family without a closed form)."""
-        _check_divergence(kind)
+        check_divergence(kind)
         matched = likelihood_class("full").from_moments(self.mean(), self.covariance())
         return matched.bhattacharyya() if kind == "bhattacharyya" else matched.kl()
 

@@ -186,11 +186,8 @@ def _pairwise_tables(liks, kind: str) -> PairwiseTables:
     CPU, most of ``jaxrecog plan``'s time)."""
     out = {name: [] for name in PairwiseTables._fields if name not in ("u_state", "u_class")}
     for lik in liks:
-        d = jax.lax.map(lambda lik_v: lik_v.divergence(kind), lik)  # [V, C, L, C', L']
-        # D >= 0 up to rounding and D(s, s) = 0 exactly: keeps W_i[c, k, c] >= log P_i(k|c)
-        n_c, n_l = d.shape[1], d.shape[2]
-        eye = (jnp.eye(n_c, dtype=bool)[:, None, :, None] & jnp.eye(n_l, dtype=bool)[None, :, None, :])
-        w = -jnp.where(eye[None], 0.0, jnp.maximum(d, 0.0))  # [V, C, L, C', L']
+        w = minus_divergences(lik, kind)  # [V, C, L, C', L']
+        n_l = w.shape[2]
         m, e = shifted_exp(w)
         u = position_rows(lse(w, axis=-1) - math.log(n_l))  # [C, X, C']
         um, ue = shifted_exp(u)
@@ -211,6 +208,31 @@ def _pairwise_tables(liks, kind: str) -> PairwiseTables:
     u_state, u_class = (_information(per_camera["u_exp"], per_camera["u_max"], selfs, log_pc, wks, floor)
                         for selfs in (None, per_camera["u_self"]))
     return PairwiseTables(**per_camera, u_state=u_state, u_class=u_class)
+
+
+def minus_divergences(lik: Likelihood, kind: str, per_position: bool = True) -> Float[Array, "V C L C L"]:
+    """-D_i[v, c, k, c', k'] of one camera's likelihood, every position: D >= 0
+    up to rounding and D(s, s) = 0 exactly (keeps W_i[c, k, c] >= log P_i(k|c)).
+    ``per_position``: :meth:`~.Likelihood.divergence` one position at a time
+    (the tables); ``False``: the family's :meth:`~.Likelihood.camera_divergence`."""
+    if per_position:
+        d = jax.lax.map(lambda lik_v: lik_v.divergence(kind), lik)  # [V, C, L, C', L']
+    else:
+        d = lik.camera_divergence(kind)
+    n_c, n_l = d.shape[1], d.shape[2]
+    eye = (jnp.eye(n_c, dtype=bool)[:, None, :, None] & jnp.eye(n_l, dtype=bool)[None, :, None, :])
+    return -jnp.where(eye[None], 0.0, jnp.maximum(d, 0.0))
+
+
+def uniform_values(u_exp, u_max, u_self, positions, n_levels):
+    """``(u_state, u_class)``: I_D(s; g | a) and I_D(c; g | a) under the uniform
+    class prior and uniform level rows, from the grid-layout E_i, M_i and S_i
+    of those rows (:class:`PairwiseTables`' ``u_exp``, ``u_max``, ``u_self``)."""
+    dtype, n_c = u_exp[0].dtype, u_exp[0].shape[0]
+    log_pc = floor_log_probs(jnp.full((n_c,), -math.log(n_c), dtype))
+    wks = [jnp.full((n_c, v, l), -math.log(l), dtype) for v, l in zip(positions, n_levels)]
+    floor = _weight_floor(dtype, n_c, len(wks))
+    return tuple(_information(u_exp, u_max, s, log_pc, wks, floor) for s in (None, u_self))
 
 
 def _weight_floor(dtype, n_c: int, n: int) -> float:

@@ -318,7 +318,36 @@ def pairwise_mi_ref(mus, covs, log_joint, kind="bhattacharyya", target="state", 
     return out
 
 
-# --- two-step lookahead ----------------------------------------------------------------------
+def pruned_pairwise_mi_ref(mus, covs, log_pc, log_pk_rows, buckets, mass, kind="bhattacharyya", target="class"):
+    """The pruned pairwise MI by brute force: the smallest bucket B (of
+    ``buckets``, the last where none holds it) whose B classes of largest mass
+    hold ``1 - mass``, those classes' components alone, the class belief
+    renormalised over them, and :func:`pairwise_mi_ref` for every configuration.
+
+    Args:
+        mus, covs: per camera ``[V_i, C, L_i, K_i]`` / ``[V_i, C, L_i, K_i, K_i]``.
+        log_pc: ``[C]``; log_pk_rows: per camera ``[V_i, C, L_i]`` level rows.
+    """
+    p = np.exp(np.asarray(log_pc, float))
+    order = np.argsort(-p, kind="stable")
+    b = next((b for b in buckets if np.sum(p[order[:b]]) >= 1.0 - mass), buckets[-1])
+    live = order[:b]
+    lq = np.log(p[live] / np.sum(p[live]))
+    positions = [m.shape[0] for m in mus]
+    out = []
+    for cfg in itertools.product(*[range(v) for v in positions]):
+        lj = lq.reshape((-1,) + (1,) * len(mus))
+        for i, (rows, v) in enumerate(zip(log_pk_rows, cfg)):
+            shape = [b] + [1] * len(mus)
+            shape[i + 1] = rows.shape[-1]
+            lj = lj + np.asarray(rows, float)[v][live].reshape(shape)
+        sub_mu = tuple(np.asarray(m, float)[v:v + 1][:, live] for m, v in zip(mus, cfg))
+        sub_cov = tuple(np.asarray(c, float)[v:v + 1][:, live] for c, v in zip(covs, cfg))
+        out.append(pairwise_mi_ref(sub_mu, sub_cov, lj, kind, target)[0])
+    return np.asarray(out), b
+
+
+# --- two-step lookahead ---------------------------------------------------------------------
 
 
 def lookahead_ref(mus, vars, zs, log_posterior, current, u, js, *, target="state", kind="uniform", rho=0.9,
