@@ -66,7 +66,7 @@ def test_kernels_import_nothing_from_jaxrecog_or_hardware():
 #   cli      (jaxrecog/cli/)    anything; nothing imports it.
 
 PACKAGE_DIRS = {"jaxrecog": ROOT / "jaxrecog", "jaxrecog.kernels": ROOT / "kernels", "jaxrecog.hardware": ROOT / "hardware"}
-LEAVES = {"jaxrecog.problems", "jaxrecog.dbformat", "jaxrecog.kernels.config_grid"}
+LEAVES = {"jaxrecog.problems", "jaxrecog.dbformat", "jaxrecog._files", "jaxrecog.kernels.config_grid"}
 HEAVY = ("cv2", "serial", "pybullet", "matplotlib", "ray", "rerun")
 
 

@@ -358,3 +358,21 @@ def test_the_rig_file_of_docs_hardware_md_loads(tmp_path):
     cfg = load_config(write(tmp_path, block))
     assert cfg.kind == "hardware" and cfg.controller.protocol_version == 4 and cfg.controller.key is None
     assert [p.port for p in cfg.ptus] == ["/dev/ttyUSB0", "/dev/ttyUSB1"] and cfg.cameras[0].reconnect_s == 5.0
+
+
+def test_a_rig_file_is_read_bounded_and_as_utf8(tmp_path):
+    """A rig file is read as every settings file is: /dev/zero (which would
+    grow without end), a FIFO (which would block) or a file over 1 MiB is
+    refused before it is parsed, and a non-UTF-8 file is one line naming the
+    byte, not a traceback."""
+    fifo = tmp_path / "rig.fifo"
+    os.mkfifo(fifo)
+    big = tmp_path / "big.toml"
+    big.write_bytes(b"#" * ((1 << 20) + 1))
+    latin = tmp_path / "latin.toml"
+    latin.write_bytes(b'name = "caf\xe9"\n')
+    for path, needle in [("/dev/zero", "character device"), (fifo, "FIFO"), (big, "more than the 1048576 a rig file may have"),
+                         (latin, "not UTF-8 text (byte 0xe9")]:
+        with pytest.raises(ConfigError, match=re.escape(needle)) as e:
+            load_config(path)
+        assert "\n" not in str(e.value) and "rig file" in str(e.value)

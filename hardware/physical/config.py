@@ -24,6 +24,7 @@ import tomllib
 import urllib.parse
 from typing import Any
 
+from ..._files import TextFileError, read_text
 from ...problems import one_line
 from ..devices.datagram import MAX_CAMERAS, VERSION, SharedKey
 from ..devices.pan_tilt import DEFAULT_PAN_TILT, pan_tilt_driver
@@ -295,9 +296,10 @@ def load_config(path: str | os.PathLike) -> RigConfig:
             value), one line naming the file and the key.
     """
     name = os.fspath(path)
-    try:
-        with open(path, "rb") as f:
-            d = tomllib.load(f)
+    try:  # a regular UTF-8 file of at most 1 MiB: /dev/zero or a FIFO is refused before a byte is read
+        d = tomllib.loads(read_text(path, "rig file"))
+    except TextFileError as e:  # every rig-file error starts with the file's name
+        raise ConfigError(f"{name}: {e}") from None
     except OSError as e:
         raise ConfigError(f"{name}: cannot read the rig file: {e.strerror or e}") from e
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:

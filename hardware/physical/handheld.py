@@ -39,6 +39,7 @@ from typing import Callable, Sequence
 import cv2
 import numpy as np
 
+from ..._files import read_text
 from ..devices.camera import CameraError, ImageSequenceCamera, VideoCamera
 from ..rigs.rig import Capture, RigError
 
@@ -124,9 +125,8 @@ def _position(d, where: str, path: str) -> LayoutPosition:
 def load_layout(path: str | os.PathLike) -> Layout:
     """Read and check a layout file (module doc: the format); :class:`LayoutError` otherwise."""
     path = os.fspath(path)
-    try:
-        with open(path, "rb") as f:
-            data = tomllib.load(f)
+    try:  # a regular UTF-8 file of at most 1 MiB (as every settings file)
+        data = tomllib.loads(read_text(path, "layout"))
     except FileNotFoundError:
         raise LayoutError(f"layout {path} not found") from None
     except (OSError, tomllib.TOMLDecodeError) as e:
