@@ -500,6 +500,8 @@ def _check_problems_out(path: str | None) -> None:
     writes into the database it reads.  A :class:`UsageError` otherwise."""
     if not path:
         return
+    from ._common import UsageError
+
     try:
         p = check_output_file(path, "--problems-out file")
     except OSError as e:
