@@ -4,7 +4,7 @@ and images checked before they are inflated or decoded, ``--problems-out``
 never in a database folder, a full stdout is an error, settings-file values
 checked as flags are, ``recognize --plot`` checked before the trial.
 
-Each test is a case a user (or a red-team run as root) hit: ``train --out
+Each test is a case a user (or a fault-injection run as root) hit: ``train --out
 /dev/null`` replaced the device with a regular file, two ``train --out m.npz``
 at once both exited 0 with one model lost, ``--config /dev/zero`` grew to
 23.5 GB, a 12 MB model file inflated to 4.5 GB before its checksum failed.

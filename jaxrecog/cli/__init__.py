@@ -227,8 +227,8 @@ def _apply_config(parser: argparse.ArgumentParser, path: str) -> dict[str, Any]:
     data = load_settings(path)
     known_global = {"quiet", "debug", "compile_cache"}
     glob = section(data, "global", known_global, path)
-    for k, v in glob.items():  # switches, as --quiet and --debug are (compile_cache may name a folder)
-        if not isinstance(v, bool) and not (k == "compile_cache" and isinstance(v, str)):
+    for k, v in glob.items():  # switches, as --quiet and --debug are (compile_cache, which may also name
+        if k != "compile_cache" and not isinstance(v, bool):  # a folder, is checked where it is applied)
             raise ConfigFileError(f"settings file {path}: [global] {k} = {one_line(repr(v), 60)}: expected true "
                                   f"or false (as --{k})")
     subs = subparsers(parser)

@@ -62,9 +62,15 @@ def run(args) -> int:
     """Render into ``--out`` (made with its parents if missing, never
     through a file), holding its lock: a second ``render --out`` of the same folder is
     refused with one line naming the first's PID."""
+    existed = Path(args.out).exists()
     out = check_output_folder(args.out, "database folder")
-    with folder_lock(out, what="jaxrecog render"):
-        return _run(args)
+    try:
+        with folder_lock(out, what="jaxrecog render"):
+            return _run(args)
+    except BaseException:  # refused options (or a render that wrote nothing) leave no empty folder behind
+        if not existed and out.is_dir() and not any(out.iterdir()):
+            out.rmdir()
+        raise
 
 
 def _run(args) -> int:
