@@ -36,7 +36,7 @@ from .problems import one_line
 
 __all__ = ["MAX_TEXT_BYTES", "OutputPathError", "OutputIsFolderError", "OutputFolderError", "OutputFolderMissingError",
            "TextFileError", "check_output_file", "check_output_folder",
-           "read_bytes", "read_text", "write_text"]
+           "read_bytes", "read_text", "replace_from_temp", "write_text"]
 
 #: The largest settings / experiment / rig text file read (1 MiB: such files
 #: are a few hundred bytes; anything larger is not one).
@@ -152,21 +152,35 @@ def write_text(path: str | os.PathLike, text: str, what: str = "output file") ->
         fd = os.open(tmp, flags, 0o666)
     except OSError as e:
         raise OutputPathError(f"cannot write {what} {p}: {e.strerror}") from None
+    replace_from_temp(fd, tmp, p, lambda f: f.write(text.encode("utf-8")))
+    return p
+
+
+def replace_from_temp(fd: int, tmp: str | os.PathLike, path: str | os.PathLike, write, *,
+                      durable: bool = False) -> None:
+    """Finish an atomic write: ``write(f)`` into the new temporary file open
+    as ``fd`` (binary), give it the mode of the regular file it replaces, and
+    rename it over ``path`` (``durable``: flushed to disk first).  On any
+    failure the temporary file is removed and ``path`` is untouched."""
     try:
-        try:
-            os.fchmod(fd, stat.S_IMODE(os.stat(p).st_mode))
+        try:  # written over an existing file: keep its mode (as open(path, "w") would)
+            st = os.stat(path)
+            if stat.S_ISREG(st.st_mode):
+                os.fchmod(fd, stat.S_IMODE(st.st_mode))
         except FileNotFoundError:
             pass
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-        os.replace(tmp, p)
+        with os.fdopen(fd, "wb") as f:
+            write(f)
+            if durable:
+                f.flush()
+                os.fsync(f.fileno())
+        os.replace(tmp, path)
     except BaseException:
         try:
             os.unlink(tmp)
         except FileNotFoundError:
             pass
         raise
-    return p
 
 
 def read_bytes(path: str | os.PathLike, what: str, limit: int) -> bytes:

@@ -51,7 +51,6 @@ import os
 import re
 import secrets
 import socket
-import stat
 import time
 import warnings
 import zipfile
@@ -61,7 +60,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from ._files import check_output_file
+from ._files import check_output_file, replace_from_temp
 from .problems import one_line, problem_message
 from .kernels import likelihood_class
 from .recipes import THESIS
@@ -181,24 +180,7 @@ def save_model(path: str | os.PathLike, model: SensorModel, *, training: dict | 
     folder = path.parent if str(path.parent) else Path(".")
     _remove_stale_temps(folder, path.name)
     fd, tmp = _create_temp(folder, path.name)
-    try:
-        try:  # written over an existing file: keep its mode (as open(path, "w") would)
-            st = os.stat(path)
-            if stat.S_ISREG(st.st_mode):
-                os.fchmod(fd, stat.S_IMODE(st.st_mode))
-        except FileNotFoundError:
-            pass
-        with os.fdopen(fd, "wb") as f:
-            np.savez(f, **payload)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
+    replace_from_temp(fd, tmp, path, lambda f: np.savez(f, **payload), durable=True)
     try:  # make the rename itself durable
         dfd = os.open(folder, os.O_RDONLY)
         try:
